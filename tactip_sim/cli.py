@@ -1,0 +1,151 @@
+"""The ``tactip`` command line.
+
+Subcommands of this package are defined here; the other packages add theirs through the
+``tactip.commands`` entry-point group (``register(subparsers)``), so ``tactip_sim`` never
+imports ``perception`` or ``calibration``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable, Sequence
+from importlib.metadata import entry_points
+from pathlib import Path
+
+from .scene import SceneError
+
+DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "scenes" / "shadow_fingertip.toml"
+
+
+def parse_overrides(pairs: Sequence[str]) -> dict[str, object]:
+    """``["camera.tilt_deg=6", "pins.model=\\"embedded\\""]`` -> ``{"camera.tilt_deg": 6.0, ...}``.
+    Values are parsed as TOML (bare words are taken as strings)."""
+    import tomllib
+
+    out: dict[str, object] = {}
+    for pair in pairs:
+        key, sep, raw = pair.partition("=")
+        if not sep or "." not in key:
+            raise SceneError(f"--set {pair!r} must look like section.key=value")
+        try:
+            out[key.strip()] = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key.strip()] = raw
+    return out
+
+
+def add_scene_argument(p: argparse.ArgumentParser, *, optional: bool = False) -> None:
+    """The SCENE positional and ``--set`` overrides, shared by every scene-reading command."""
+    if optional:
+        p.add_argument("scene", nargs="?", default=str(DEFAULT_SCENE),
+                       help=f"scene file (default: {DEFAULT_SCENE.relative_to(Path.cwd())})"
+                       if DEFAULT_SCENE.is_relative_to(Path.cwd()) else "scene file")
+    else:
+        p.add_argument("scene", help="scene file (.toml), e.g. scenes/shadow_fingertip.toml")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene key, e.g. --set camera.tilt_deg=6 (repeatable)")
+
+
+def load_scene_args(args: argparse.Namespace):
+    from .scene import load_scene
+
+    return load_scene(args.scene, parse_overrides(args.overrides))
+
+
+def _cmd_scene(args: argparse.Namespace) -> int:
+    from .scene import scene_hash, scene_to_toml
+
+    scene = load_scene_args(args)
+    print(f"# scene {scene.name!r} from {scene.source} (hash {scene_hash(scene)})")
+    print(scene_to_toml(scene), end="")
+    return 0
+
+
+def _cmd_mesh(args: argparse.Namespace) -> int:
+    from .geometry import build_pad
+    from .mesh import tetrahedralise
+
+    scene = load_scene_args(args)
+    pad = build_pad(scene)
+    mesh = tetrahedralise(scene, use_cache=not args.no_cache)
+    s = mesh.summary()
+    s["pins"] = len(pad.markers_mm)
+    s["surface_watertight"] = int(pad.surface.is_watertight)
+    if pad.outer is not None:
+        s["skin_volume_exact_mm3"] = pad.skin_volume_mm3
+    if args.json:
+        print(json.dumps(s, indent=2))
+        return 0
+    src = "loaded from cache" if mesh.from_cache else "built"
+    print(f"mesh {s['key']} ({src} in {s['seconds']:.3f} s)")
+    print(f"  nodes {s['nodes']}, tets {s['tets']} (skin {s['skin_tets']}, gel {s['gel_tets']})")
+    print(f"  volume {s['volume_mm3']:.1f} mm3, skin {s['skin_volume_mm3']:.1f} mm3"
+          + (f" (exact shell {s['skin_volume_exact_mm3']:.1f})" if pad.outer is not None else ""))
+    print(f"  dihedral angles {s['min_dihedral_deg']:.1f}..{s['max_dihedral_deg']:.1f} deg, "
+          f"volume ratio min {s['min_volume_ratio']:.3f} mean {s['mean_volume_ratio']:.3f}")
+    print(f"  pins {s['pins']}, surface watertight: {bool(s['surface_watertight'])}")
+    return 0
+
+
+def _cmd_cache(args: argparse.Namespace) -> int:
+    from . import cache
+
+    if args.action == "clear":
+        d, n = cache.clear()
+        print(f"removed {n} files from {d}")
+    else:
+        d = cache.cache_dir()
+        files = [p for p in d.rglob("*") if p.is_file()] if d.exists() else []
+        size = sum(p.stat().st_size for p in files)
+        print(f"{d}: {len(files)} files, {size / 1e6:.1f} MB")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tactip",
+        description="Simulate, render and calibrate an optical TacTip fingertip.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    p = sub.add_parser("scene", help="print the resolved, validated scene",
+                       description="Validate a scene file and print it with every default filled.")
+    add_scene_argument(p)
+    p.set_defaults(func=_cmd_scene)
+
+    p = sub.add_parser("mesh", help="build or load the tetrahedral mesh and print its statistics",
+                       description="Tetrahedralise the pad (cached on disk) and report counts "
+                       "and element quality.")
+    add_scene_argument(p)
+    p.add_argument("--no-cache", action="store_true", help="rebuild and do not store the mesh")
+    p.add_argument("--json", action="store_true", help="print the statistics as JSON")
+    p.set_defaults(func=_cmd_mesh)
+
+    p = sub.add_parser("cache", help="show or clear the on-disk cache",
+                       description="Meshes, factorisations and compliances are cached on disk.")
+    p.add_argument("action", choices=["info", "clear"], help="info: size; clear: delete all")
+    p.set_defaults(func=_cmd_cache)
+
+    for ep in sorted(entry_points(group="tactip.commands"), key=lambda e: e.name):
+        register: Callable[[argparse._SubParsersAction], None] = ep.load()
+        register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except SceneError as exc:
+        print(f"tactip: scene error: {exc}", file=sys.stderr)
+        return 2
+    except (ValueError, RuntimeError, OSError) as exc:
+        print(f"tactip {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

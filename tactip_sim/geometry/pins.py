@@ -1,0 +1,155 @@
+"""Pins on the inside of the skin: a triangular lattice mapped onto the dome.
+
+The lattice lives in a flat (u, v) plane tangent at the apex, rows along x, a node at the
+origin (so it is symmetric under x -> -x and y -> -y). Each node is mapped onto the skin's inner
+surface by the azimuthal-equidistant map: the node at polar (r, phi) goes to the surface point
+at arc length r from the apex along the meridian at azimuth phi. Radial spacing is kept exactly
+and tangential spacing approximately, so the pitch holds along the curved skin.
+
+The lattice is clipped to a scaled copy of the dome's arc-length footprint,
+``r <= q * arc_max(phi)``, with the scale ``q`` chosen so that exactly ``count`` nodes fall
+inside. Pins point along the inward surface normal; markers sit at the pin tips.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..scene import SceneError
+from ..scene.schema import Pins
+from .surfaces import DomeShape
+
+
+@dataclass(frozen=True)
+class PinLayout:
+    """Where the pins are (all (n, 3) float arrays in mm, sensor frame).
+
+    roots : points on the skin's inner surface
+    directions : unit vectors from root to tip (inward surface normals)
+    tips : pin tips = marker centres (``roots + length * directions``)
+    lattice_uv : (n, 2) lattice coordinates (mm, along the skin)
+    clip_scale : the q of the clip ``r <= q * arc_max(phi)``
+    """
+
+    roots: np.ndarray
+    directions: np.ndarray
+    tips: np.ndarray
+    lattice_uv: np.ndarray
+    clip_scale: float
+
+    def __post_init__(self) -> None:
+        for name in ("roots", "directions", "tips", "lattice_uv"):
+            arr = np.ascontiguousarray(getattr(self, name), dtype=np.float64)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+
+def triangular_lattice(pitch: float, extent: float) -> np.ndarray:
+    """(n, 2) nodes of a triangular lattice (rows along x, node at the origin) within a square
+    of half-size ``extent``."""
+    row = pitch * np.sqrt(3.0) / 2.0
+    nj = int(np.ceil(extent / row)) + 1
+    ni = int(np.ceil(extent / pitch)) + 2
+    j = np.arange(-nj, nj + 1)
+    i = np.arange(-ni, ni + 1)
+    jj, ii = np.meshgrid(j, i, indexing="ij")
+    x = (ii + 0.5 * (jj % 2)) * pitch
+    y = jj * row
+    pts = np.stack([x.ravel(), y.ravel()], axis=1)
+    keep = np.all(np.abs(pts) <= extent, axis=1)
+    return pts[keep]
+
+
+def map_to_dome(inner: DomeShape, uv: np.ndarray) -> np.ndarray:
+    """Azimuthal-equidistant map of lattice points (n, 2) onto the dome; returns (n, 3).
+
+    Raises ValueError if a point lies beyond the dome's meridian arc.
+    """
+    r = np.hypot(uv[:, 0], uv[:, 1])
+    phi = np.arctan2(uv[:, 1], uv[:, 0])
+    alpha_grid, arc = inner.meridian_arc(phi)
+    if np.any(r > arc[:, -1] + 1e-12):
+        raise ValueError("lattice point beyond the dome's meridian arc")
+    alpha = np.array([np.interp(ri, arc_i, alpha_grid) for ri, arc_i in zip(r, arc, strict=True)])
+    s = inner.radius_at(phi) * np.sin(alpha)
+    z = inner.wall + inner.dome * np.cos(alpha)
+    return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=1)
+
+
+def place_pins(
+    inner: DomeShape,
+    pins: Pins,
+    *,
+    perturbation_mm: np.ndarray | None = None,
+) -> PinLayout:
+    """Lay out ``pins.count`` pins on the inner (skin/gel) surface ``inner``.
+
+    Parameters
+    ----------
+    inner : the skin/gel interface shape
+    pins : the scene's pin section
+    perturbation_mm : optional (count, 2) offsets of the lattice nodes (mm, along the skin),
+        e.g. a printed tip's pin-position errors; applied after clipping
+
+    Raises
+    ------
+    SceneError
+        ``pins.count`` cannot be reached by a symmetric clip, or the pins do not fit.
+    """
+    n = pins.count
+    if n == 0:
+        empty = np.zeros((0, 3))
+        return PinLayout(empty, empty, empty, np.zeros((0, 2)), 0.0)
+    _, arc = inner.meridian_arc(np.array([0.0, np.pi / 2]))
+    extent = float(arc[:, -1].max()) + pins.pitch_mm
+    uv = triangular_lattice(pins.pitch_mm, extent)
+    phi = np.arctan2(uv[:, 1], uv[:, 0])
+    arc_max = inner.meridian_arc(phi, n_alpha=1024)[1][:, -1]
+    q = np.hypot(uv[:, 0], uv[:, 1]) / arc_max
+    order = np.argsort(q, kind="stable")
+    q_sorted = q[order]
+    if n >= len(q_sorted) or q_sorted[n - 1] >= 1.0:
+        raise SceneError(
+            f"pins.count={n} does not fit on the dome at pins.pitch_mm={pins.pitch_mm:g}: "
+            f"at most {int(np.sum(q < 1.0))} lattice nodes lie on it"
+        )
+    if q_sorted[n] - q_sorted[n - 1] < 1e-9:
+        # a tie: every achievable count near n
+        counts = np.searchsorted(q_sorted, np.unique(np.round(q_sorted, 9)) + 1e-9)
+        below = counts[counts < n].max(initial=0)
+        above = counts[counts > n].min(initial=len(q_sorted))
+        raise SceneError(
+            f"pins.count={n} cannot be reached by a symmetric clip of the lattice at "
+            f"pins.pitch_mm={pins.pitch_mm:g}: nearest achievable counts are {below} and {above}"
+        )
+    chosen = np.sort(order[:n])
+    clip = 0.5 * (q_sorted[n - 1] + q_sorted[n])
+    # order pins row by row (y then x) for stable, human-readable indices
+    chosen = chosen[np.lexsort((uv[chosen, 0], uv[chosen, 1]))]
+    uv = uv[chosen]
+    if perturbation_mm is not None:
+        uv = uv + np.asarray(perturbation_mm, dtype=float).reshape(n, 2)
+    # the outermost pin must keep its radius from the wall
+    phi = np.arctan2(uv[:, 1], uv[:, 0])
+    arc_max = inner.meridian_arc(phi, n_alpha=1024)[1][:, -1]
+    margin = arc_max - np.hypot(uv[:, 0], uv[:, 1])
+    if margin.min() < pins.diameter_mm / 2:
+        raise SceneError(
+            f"pins.count={n} at pins.pitch_mm={pins.pitch_mm:g} puts a pin within "
+            f"{max(margin.min(), 0):.2f} mm of the skin's wall, less than its radius "
+            f"pins.diameter_mm/2={pins.diameter_mm / 2:g}: reduce the count or pitch, or enlarge "
+            "the pad"
+        )
+    roots = map_to_dome(inner, uv)
+    directions = -inner.outward_normal(roots)
+    tips = roots + pins.length_mm * directions
+    low = int(np.argmin(tips[:, 2]))
+    if tips[low, 2] < pins.clearance_mm:
+        raise SceneError(
+            f"pins.length_mm={pins.length_mm:g} is too long for the pin at "
+            f"({roots[low, 0]:.1f}, {roots[low, 1]:.1f}) mm: its tip is {tips[low, 2]:.2f} mm "
+            f"above the window, less than pins.clearance_mm={pins.clearance_mm:g}"
+        )
+    return PinLayout(roots, directions, tips, uv, float(clip))

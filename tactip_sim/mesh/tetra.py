@@ -1,0 +1,233 @@
+"""Tetrahedral meshing of the pad with pytetwild, region tagging, quality, and a disk cache."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from importlib.metadata import version
+from pathlib import Path
+
+import numpy as np
+
+from .. import cache
+from ..geometry import build_pad
+from ..scene import Scene
+
+REGION_SKIN = 1
+REGION_GEL = 2
+MESHER_VERSION = 3  # bump when the meshing recipe changes: invalidates cached meshes
+
+
+@dataclass(frozen=True)
+class MeshQuality:
+    """Element quality over the whole mesh.
+
+    min_dihedral_deg, max_dihedral_deg : extreme dihedral angles (a regular tet has 70.53°)
+    min_volume_ratio, mean_volume_ratio : 6·sqrt(2)·V / l_rms³ per tet (1 for a regular tet)
+    volume_spread : largest / smallest tet volume
+    """
+
+    min_dihedral_deg: float
+    max_dihedral_deg: float
+    min_volume_ratio: float
+    mean_volume_ratio: float
+    volume_spread: float
+
+
+@dataclass(frozen=True)
+class TetMesh:
+    """A linear tetrahedral mesh of the pad.
+
+    nodes : (n, 3) float64, mm, sensor frame
+    tets : (m, 4) int32, positively oriented
+    regions : (m,) int8, REGION_SKIN or REGION_GEL
+    """
+
+    nodes: np.ndarray
+    tets: np.ndarray
+    regions: np.ndarray
+    key: str
+    build_seconds: float
+    from_cache: bool = False
+    quality: MeshQuality = field(init=False)
+
+    def __post_init__(self) -> None:
+        for name, dtype in (("nodes", np.float64), ("tets", np.int32), ("regions", np.int8)):
+            arr = np.ascontiguousarray(getattr(self, name), dtype=dtype)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "quality", mesh_quality(self.nodes, self.tets))
+
+    @property
+    def volumes(self) -> np.ndarray:
+        return tet_volumes(self.nodes, self.tets)
+
+    def region_volume(self, region: int) -> float:
+        return float(self.volumes[self.regions == region].sum())
+
+    def summary(self) -> dict[str, float | int | str]:
+        q = self.quality
+        return {
+            "nodes": len(self.nodes),
+            "tets": len(self.tets),
+            "skin_tets": int(np.sum(self.regions == REGION_SKIN)),
+            "gel_tets": int(np.sum(self.regions == REGION_GEL)),
+            "volume_mm3": float(self.volumes.sum()),
+            "skin_volume_mm3": self.region_volume(REGION_SKIN),
+            "min_dihedral_deg": q.min_dihedral_deg,
+            "max_dihedral_deg": q.max_dihedral_deg,
+            "min_volume_ratio": q.min_volume_ratio,
+            "mean_volume_ratio": q.mean_volume_ratio,
+            "volume_spread": q.volume_spread,
+            "key": self.key,
+            "from_cache": int(self.from_cache),
+            "seconds": self.build_seconds,
+        }
+
+
+def tet_volumes(nodes: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """(m,) signed volumes (mm³)."""
+    p = nodes[tets]
+    return np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]),
+                     p[:, 3] - p[:, 0]) / 6.0
+
+
+_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
+# the two faces (by opposite vertex) that share each edge
+_EDGE_FACES = np.array([[2, 3], [1, 3], [1, 2], [0, 3], [0, 2], [0, 1]])
+_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])  # face k is opposite vertex k
+
+
+def mesh_quality(nodes: np.ndarray, tets: np.ndarray) -> MeshQuality:
+    """Dihedral angles and volume ratios, vectorised over tets."""
+    p = nodes[tets]  # (m, 4, 3)
+    f = p[:, _FACES]  # (m, 4, 3, 3)
+    n = np.cross(f[:, :, 1] - f[:, :, 0], f[:, :, 2] - f[:, :, 0])
+    n /= np.linalg.norm(n, axis=2, keepdims=True)
+    cos = np.einsum("mej,mej->me", n[:, _EDGE_FACES[:, 0]], n[:, _EDGE_FACES[:, 1]])
+    dihedral = np.degrees(np.pi - np.arccos(np.clip(cos, -1.0, 1.0)))
+    e = p[:, _EDGES[:, 1]] - p[:, _EDGES[:, 0]]
+    l_rms = np.sqrt(np.mean(np.sum(e**2, axis=2), axis=1))
+    vol = tet_volumes(nodes, tets)
+    ratio = 6.0 * np.sqrt(2.0) * vol / l_rms**3
+    return MeshQuality(
+        min_dihedral_deg=float(dihedral.min()),
+        max_dihedral_deg=float(dihedral.max()),
+        min_volume_ratio=float(ratio.min()),
+        mean_volume_ratio=float(ratio.mean()),
+        volume_spread=float(np.abs(vol).max() / np.abs(vol).min()),
+    )
+
+
+def mesh_key(scene: Scene) -> str:
+    """Hash of everything that shapes the mesh (geometry and meshing keys, mesher versions)."""
+    f, p = scene.fidelity, scene.pad
+    shape = (
+        p.shape, p.footprint_length_mm, p.footprint_width_mm, p.height_mm, p.wall_height_mm,
+        0.0 if scene.is_block else scene.skin.thickness_mm,
+        f.mesh_edge_mm, f.tetwild_epsilon, f.surface_resolution,
+        f.refine_edge_mm, f.refine_radius_mm if f.refine_edge_mm else 0.0,
+        MESHER_VERSION, version("pytetwild"),
+    )
+    return hashlib.sha256(repr(shape).encode()).hexdigest()[:16]
+
+
+def sizing_field(scene: Scene, lo: np.ndarray, hi: np.ndarray,
+                 grading: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A background tet grid over the box [lo, hi] carrying the target edge length: the
+    fidelity's ``refine_edge_mm`` within ``refine_radius_mm`` of the top centre
+    (0, 0, height), growing by ``grading`` mm per mm beyond it, capped at ``mesh_edge_mm``."""
+    f = scene.fidelity
+    pad_mm = f.mesh_edge_mm
+    lo, hi = lo - pad_mm, hi + pad_mm
+    step = max(f.refine_edge_mm, (hi - lo).max() / 40.0)
+    axes = [np.linspace(a, b, int(np.ceil((b - a) / step)) + 1) for a, b in zip(lo, hi, strict=True)]
+    shape = tuple(len(a) for a in axes)
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    idx = np.arange(grid.shape[0]).reshape(shape)
+    corners = np.stack(
+        [idx[i : shape[0] - 1 + i, j : shape[1] - 1 + j, k : shape[2] - 1 + k].ravel()
+         for i in (0, 1) for j in (0, 1) for k in (0, 1)], axis=1
+    )  # (cubes, 8) ordered by (i, j, k) bits
+    # Kuhn split of each cube into 6 tets along the 0-7 diagonal
+    kuhn = np.array([[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4, 5, 7],
+                     [0, 5, 1, 7]])
+    tets = corners[:, kuhn].reshape(-1, 4)
+    neg = tet_volumes(grid, tets) < 0
+    tets[neg] = tets[neg][:, [0, 2, 1, 3]]
+    dist = np.linalg.norm(grid - np.array([0.0, 0.0, scene.pad.height_mm]), axis=1)
+    values = np.minimum(f.refine_edge_mm + grading * np.maximum(dist - f.refine_radius_mm, 0.0),
+                        f.mesh_edge_mm)
+    return grid, tets.astype(np.int32), values
+
+
+@contextlib.contextmanager
+def _in_tempdir():
+    """pytetwild writes ``__tracked_surface.stl`` into the cwd: run it somewhere disposable."""
+    old = os.getcwd()
+    with tempfile.TemporaryDirectory(prefix="tactip-tetwild-") as tmp:
+        os.chdir(tmp)
+        try:
+            yield
+        finally:
+            os.chdir(old)
+
+
+def tetrahedralise(scene: Scene, *, use_cache: bool = True) -> TetMesh:
+    """Tetrahedralise the pad (skin and gel tagged), cached on disk by :func:`mesh_key`.
+
+    The outer surface and the skin/gel interface go to pytetwild together, so the interface is
+    kept conforming; each tet is tagged by whether its centroid lies inside the interface.
+    """
+    key = mesh_key(scene)
+    path = cache.path_for("mesh", key, ".npz")
+    if use_cache and path.is_file():
+        t0 = time.perf_counter()
+        with np.load(path) as data:
+            nodes, tets, regions = data["nodes"], data["tets"], data["regions"]
+        return TetMesh(nodes, tets, regions, key, time.perf_counter() - t0, from_cache=True)
+
+    import pytetwild
+
+    t0 = time.perf_counter()
+    pad = build_pad(scene)
+    surfaces = [pad.surface] + ([pad.interface] if pad.interface is not None else [])
+    offsets = np.cumsum([0] + [len(s.vertices) for s in surfaces])
+    verts = np.concatenate([s.vertices for s in surfaces])
+    faces = np.concatenate([s.faces + o for s, o in zip(surfaces, offsets, strict=False)])
+    sizing = {}
+    if scene.fidelity.refine_edge_mm > 0:
+        bg_nodes, bg_tets, bg_values = sizing_field(scene, verts.min(0), verts.max(0))
+        sizing = {"bg_vertices": bg_nodes, "bg_tets": bg_tets, "bg_values": bg_values}
+    with _in_tempdir():
+        nodes, tets = pytetwild.tetrahedralize(
+            verts.astype(np.float64),
+            faces.astype(np.int32),
+            edge_length_abs=scene.fidelity.mesh_edge_mm,
+            epsilon=scene.fidelity.tetwild_epsilon,
+            num_threads=1,
+            quiet=True,
+            **sizing,
+        )
+    nodes = np.asarray(nodes, dtype=np.float64)
+    tets = np.asarray(tets, dtype=np.int64)
+    # drop unreferenced nodes, orient positively
+    used, inverse = np.unique(tets, return_inverse=True)
+    nodes, tets = nodes[used], inverse.reshape(tets.shape)
+    neg = tet_volumes(nodes, tets) < 0
+    tets[neg] = tets[neg][:, [0, 2, 1, 3]]
+    if pad.inner is None:
+        regions = np.full(len(tets), REGION_GEL, dtype=np.int8)
+    else:
+        centroids = nodes[tets].mean(axis=1)
+        regions = np.where(pad.inner.contains(centroids), REGION_GEL, REGION_SKIN).astype(np.int8)
+    seconds = time.perf_counter() - t0
+    mesh = TetMesh(nodes, tets, regions, key, seconds)
+    if use_cache:
+        cache.save_npz(path, nodes=mesh.nodes, tets=mesh.tets, regions=mesh.regions,
+                       build_seconds=np.float64(seconds))
+    return mesh

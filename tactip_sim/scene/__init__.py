@@ -1,0 +1,27 @@
+"""Scene files: parsed once into frozen, validated dataclasses."""
+
+from ._spec import SceneError, Spec
+from .load import (
+    apply_overrides,
+    load_scene,
+    replace_in,
+    scene_from_dict,
+    scene_hash,
+    scene_to_dict,
+    scene_to_toml,
+)
+from .schema import SECTIONS, Scene
+
+__all__ = [
+    "SECTIONS",
+    "Scene",
+    "SceneError",
+    "Spec",
+    "apply_overrides",
+    "load_scene",
+    "replace_in",
+    "scene_from_dict",
+    "scene_hash",
+    "scene_to_dict",
+    "scene_to_toml",
+]

@@ -1,0 +1,217 @@
+"""Parse TOML scene files once, at the edge, into a validated :class:`Scene`."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from ._spec import SceneError
+from .schema import SECTIONS, Scene
+
+
+def _parse_section(name: str, cls: type, table: Any) -> Any:
+    if not isinstance(table, Mapping):
+        raise SceneError(f"[{name}] must be a table of keys, got {table!r}")
+    specs = {f.name: f.metadata["spec"] for f in dataclasses.fields(cls)}
+    unknown = sorted(set(table) - set(specs))
+    if unknown:
+        raise SceneError(
+            f"unknown key {name}.{unknown[0]} in [{name}]; allowed keys: {', '.join(sorted(specs))}"
+        )
+    values = {k: specs[k].check(f"{name}.{k}", v) for k, v in table.items()}
+    return cls(**values)
+
+
+def scene_from_dict(data: Mapping[str, Any], *, source: str = "") -> Scene:
+    """Validate a nested mapping (as read from TOML) and build a :class:`Scene`.
+
+    Raises
+    ------
+    SceneError
+        Naming the offending key, its value and the allowed range.
+    """
+    if not isinstance(data, Mapping):
+        raise SceneError(f"a scene must be a table, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(SECTIONS) - {"name"})
+    if unknown:
+        raise SceneError(
+            f"unknown section or key {unknown[0]!r}; allowed sections: {', '.join(SECTIONS)}"
+        )
+    name = data.get("name", Path(source).stem if source else "scene")
+    if not isinstance(name, str) or not name:
+        raise SceneError(f"name={name!r} must be a non-empty string")
+    sections = {s: _parse_section(s, cls, data.get(s, {})) for s, cls in SECTIONS.items()}
+    scene = Scene(name=name, source=source, **sections)
+    _cross_checks(scene, base_dir=Path(source).parent if source else Path.cwd())
+    return scene
+
+
+def load_scene(path: str | Path, overrides: Mapping[str, Any] | None = None) -> Scene:
+    """Read and validate a scene file.
+
+    Parameters
+    ----------
+    path : path of a ``.toml`` scene file
+    overrides : optional ``{"section.key": value}`` applied on top of the file
+
+    Raises
+    ------
+    SceneError
+        The file is missing, is not valid TOML, or a value is out of its allowed range.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"scene file {str(path)!r} does not exist")
+    try:
+        with path.open("rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"scene file {str(path)!r} is not valid TOML: {exc}") from exc
+    if overrides:
+        data = apply_overrides(data, overrides)
+    return scene_from_dict(data, source=str(path.resolve()))
+
+
+def apply_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """Return a copy of ``data`` with ``{"section.key": value}`` overrides applied."""
+    out = {k: dict(v) if isinstance(v, Mapping) else v for k, v in data.items()}
+    for dotted, value in overrides.items():
+        section, _, key = dotted.partition(".")
+        if not key:
+            raise SceneError(f"override {dotted!r} must look like 'section.key'")
+        out.setdefault(section, {})
+        if not isinstance(out[section], dict):
+            raise SceneError(f"override {dotted!r}: {section!r} is not a section")
+        out[section][key] = value
+    return out
+
+
+def replace_in(scene: Scene, **changes: Mapping[str, Any]) -> Scene:
+    """A validated copy of ``scene`` with section fields replaced, e.g.
+    ``replace_in(scene, camera={"tilt_deg": 4.0})``. Values are checked as in a file."""
+    data = scene_to_dict(scene)
+    for section, kv in changes.items():
+        if section not in SECTIONS:
+            raise SceneError(f"unknown section {section!r}; allowed: {', '.join(SECTIONS)}")
+        data[section] = {**data[section], **kv}
+    return scene_from_dict(data, source=scene.source)
+
+
+def scene_to_dict(scene: Scene) -> dict[str, Any]:
+    """The resolved scene as plain TOML-able data (lists, not tuples), without ``source``."""
+
+    def plain(v: Any) -> Any:
+        if isinstance(v, tuple):
+            return [plain(x) for x in v]
+        if isinstance(v, dict):
+            return {k: plain(x) for k, x in v.items()}
+        return v
+
+    d = plain(dataclasses.asdict(scene))
+    d.pop("source", None)
+    return d
+
+
+def scene_to_toml(scene: Scene) -> str:
+    import tomli_w
+
+    return tomli_w.dumps(scene_to_dict(scene))
+
+
+def scene_hash(scene: Scene, sections: tuple[str, ...] | None = None) -> str:
+    """A short, stable hash of the whole scene or of some of its sections (not its name)."""
+    d = scene_to_dict(scene)
+    d.pop("name", None)
+    if sections is not None:
+        d = {s: d[s] for s in sections}
+    blob = json.dumps(d, sort_keys=True, separators=(",", ":")).encode()
+    return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def _cross_checks(scene: Scene, *, base_dir: Path) -> None:
+    """Rules that relate several keys. Each raises a SceneError naming the keys."""
+    pad, skin, pins = scene.pad, scene.skin, scene.pins
+    if scene.is_block:
+        if pins.count:
+            raise SceneError(f"pins.count={pins.count} must be 0 for pad.shape='block'")
+    else:
+        if pad.wall_height_mm >= pad.height_mm:
+            raise SceneError(
+                f"pad.wall_height_mm={pad.wall_height_mm:g} must be below "
+                f"pad.height_mm={pad.height_mm:g} (the dome sits on the wall)"
+            )
+        dome = pad.height_mm - pad.wall_height_mm
+        half_w = pad.footprint_width_mm / 2
+        limit = min(dome, half_w)
+        if skin.thickness_mm >= limit:
+            raise SceneError(
+                f"skin.thickness_mm={skin.thickness_mm:g} is out of range: allowed (0, {limit:g}) "
+                f"(below the dome height {dome:g} mm and the half width {half_w:g} mm)"
+            )
+        if pad.footprint_width_mm > pad.footprint_length_mm:
+            raise SceneError(
+                f"pad.footprint_width_mm={pad.footprint_width_mm:g} must not exceed "
+                f"pad.footprint_length_mm={pad.footprint_length_mm:g} (x is the long axis)"
+            )
+        gel = pad.height_mm - skin.thickness_mm
+        if pins.count and pins.length_mm + pins.clearance_mm >= gel:
+            raise SceneError(
+                f"pins.length_mm={pins.length_mm:g} is longer than the gel is thick: allowed "
+                f"(0, {gel - pins.clearance_mm:g}) = gel thickness {gel:g} mm at the apex minus "
+                f"pins.clearance_mm={pins.clearance_mm:g}"
+            )
+        if pins.count and pins.diameter_mm >= pins.pitch_mm:
+            raise SceneError(
+                f"pins.diameter_mm={pins.diameter_mm:g} must be below "
+                f"pins.pitch_mm={pins.pitch_mm:g} (neighbouring pins would overlap)"
+            )
+        if pins.count and pins.marker_diameter_mm > pins.pitch_mm:
+            raise SceneError(
+                f"pins.marker_diameter_mm={pins.marker_diameter_mm:g} must not exceed "
+                f"pins.pitch_mm={pins.pitch_mm:g}"
+            )
+    fid = scene.fidelity
+    if fid.refine_edge_mm > fid.mesh_edge_mm:
+        raise SceneError(
+            f"fidelity.refine_edge_mm={fid.refine_edge_mm:g} is out of range: allowed "
+            f"[0, fidelity.mesh_edge_mm={fid.mesh_edge_mm:g}] (0 = no refinement)"
+        )
+    cam, body, lens = scene.camera, scene.body, scene.lens
+    if cam.distance_mm > body.depth_mm:
+        raise SceneError(
+            f"camera.distance_mm={cam.distance_mm:g} puts the camera outside the body: allowed "
+            f"(0, body.depth_mm={body.depth_mm:g}]"
+        )
+    if body.protrusion_height_mm > body.depth_mm:
+        raise SceneError(
+            f"body.protrusion_height_mm={body.protrusion_height_mm:g} is out of range: allowed "
+            f"[0, body.depth_mm={body.depth_mm:g}]"
+        )
+    if lens.model == "equisolid" and lens.fov_deg > 180:
+        raise SceneError(f"lens.fov_deg={lens.fov_deg:g} is out of range for an equisolid lens: "
+                         "allowed [10, 180]")
+    proto = scene.protocol
+    for axis in ("roll", "pitch"):
+        lo, hi = getattr(proto, f"{axis}_range_deg")
+        step = getattr(proto, f"{axis}_step_deg")
+        if lo > hi:
+            raise SceneError(f"protocol.{axis}_range_deg=[{lo:g}, {hi:g}] must have min <= max")
+        if step > max(hi - lo, 0) and hi > lo:
+            raise SceneError(
+                f"protocol.{axis}_step_deg={step:g} is out of range: allowed (0, {hi - lo:g}]"
+            )
+    if len(set(proto.tips)) != len(proto.tips) or not all(proto.tips):
+        raise SceneError(f"protocol.tips={list(proto.tips)!r} must be distinct, non-empty names")
+    ind = scene.indenter
+    if ind.kind == "mesh":
+        if not ind.mesh:
+            raise SceneError("indenter.mesh must name a mesh file when indenter.kind = 'mesh'")
+        p = Path(ind.mesh)
+        p = p if p.is_absolute() else base_dir / p
+        if not p.is_file():
+            raise SceneError(f"indenter.mesh={ind.mesh!r}: no such file ({p})")
