@@ -1,15 +1,47 @@
 """tactip_sim: simulate an optical TacTip fingertip before the hardware exists.
 
 Data flow: scene file -> :func:`load_scene` -> :func:`build_pad` (geometry) ->
-:func:`tetrahedralise` (mesh) -> FEM contact -> Mitsuba render -> frames.
-Heavy modules (pytetwild, Mitsuba) load only when used.
+:func:`tetrahedralise` (mesh) -> :class:`Simulator` (FEM contact, ``press``) ->
+``Simulator.render`` (Mitsuba) -> frames. Heavy modules (pytetwild, scikit-fem, Mitsuba) load
+only when first used: the names below marked lazy are imported on attribute access.
 """
+
+from importlib import import_module
 
 from .geometry import Pad, build_pad
 from .mesh import REGION_GEL, REGION_SKIN, TetMesh, tetrahedralise
 from .scene import Scene, SceneError, load_scene, replace_in, scene_to_toml
 
 __version__ = "0.1.0"
+
+# lazy public names: name -> module (relative to this package)
+_LAZY = {
+    "Simulator": ".simulator",
+    "Pose": ".fem",
+    "ContactState": ".fem",
+    "Plate": ".fem",
+    "Sphere": ".fem",
+    "Cylinder": ".fem",
+    "Edge": ".fem",
+    "MeshIndenter": ".fem",
+    "ContactError": ".fem",
+    "project": ".optics",
+    "Frame": ".render",
+    "LLVMError": ".llvm",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'tactip_sim' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "REGION_GEL",
@@ -23,4 +55,5 @@ __all__ = [
     "replace_in",
     "scene_to_toml",
     "tetrahedralise",
+    *_LAZY,
 ]

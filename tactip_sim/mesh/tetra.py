@@ -17,6 +17,7 @@ from .. import cache
 from ..geometry import build_pad
 from ..scene import Scene
 
+BUNDLED_DIR = Path(__file__).resolve().parents[2] / "scenes" / "meshes"
 REGION_SKIN = 1
 REGION_GEL = 2
 MESHER_VERSION = 3  # bump when the meshing recipe changes: invalidates cached meshes
@@ -145,7 +146,8 @@ def sizing_field(scene: Scene, lo: np.ndarray, hi: np.ndarray,
     pad_mm = f.mesh_edge_mm
     lo, hi = lo - pad_mm, hi + pad_mm
     step = max(f.refine_edge_mm, (hi - lo).max() / 40.0)
-    axes = [np.linspace(a, b, int(np.ceil((b - a) / step)) + 1) for a, b in zip(lo, hi, strict=True)]
+    axes = [np.linspace(a, b, int(np.ceil((b - a) / step)) + 1)
+            for a, b in zip(lo, hi, strict=True)]
     shape = tuple(len(a) for a in axes)
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     idx = np.arange(grid.shape[0]).reshape(shape)
@@ -177,14 +179,25 @@ def _in_tempdir():
             os.chdir(old)
 
 
+def bundled_path(key: str) -> Path:
+    """Where a mesh shipped with the project would be (``scenes/meshes/mesh-KEY.npz``)."""
+    return BUNDLED_DIR / f"mesh-{key}.npz"
+
+
 def tetrahedralise(scene: Scene, *, use_cache: bool = True) -> TetMesh:
     """Tetrahedralise the pad (skin and gel tagged), cached on disk by :func:`mesh_key`.
 
     The outer surface and the skin/gel interface go to pytetwild together, so the interface is
     kept conforming; each tet is tagged by whether its centroid lies inside the interface.
+
+    pytetwild is not deterministic (the same input gives slightly different meshes from run to
+    run), so meshes are cached, and the bundled scenes' meshes ship in ``scenes/meshes/``: a
+    fresh machine then computes with the very same mesh. Lookup: cache, bundled, build.
     """
     key = mesh_key(scene)
     path = cache.path_for("mesh", key, ".npz")
+    if use_cache and not path.is_file() and bundled_path(key).is_file():
+        path = bundled_path(key)
     if use_cache and path.is_file():
         t0 = time.perf_counter()
         with np.load(path) as data:

@@ -181,6 +181,12 @@ def _cross_checks(scene: Scene, *, base_dir: Path) -> None:
             f"fidelity.refine_edge_mm={fid.refine_edge_mm:g} is out of range: allowed "
             f"[0, fidelity.mesh_edge_mm={fid.mesh_edge_mm:g}] (0 = no refinement)"
         )
+    if not scene.is_block and pins.count:
+        # lay the pins out once: raises a SceneError naming pins.* if they do not fit
+        from ..geometry.pad import dome_shapes
+        from ..geometry.pins import place_pins
+
+        place_pins(dome_shapes(scene)[1], pins)
     cam, body, lens = scene.camera, scene.body, scene.lens
     if cam.distance_mm > body.depth_mm:
         raise SceneError(

@@ -1,0 +1,38 @@
+"""Shared fixtures. Heavy objects (meshes) are session-scoped and come from the on-disk cache
+when it is warm, so the default run stays within minutes on 2 cores."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = ROOT / "scenes"
+SHARED = ROOT.parent / "shared"
+
+
+@pytest.fixture(scope="session")
+def scene_path() -> Path:
+    return SCENES / "shadow_fingertip.toml"
+
+
+@pytest.fixture(scope="session")
+def scene(scene_path):
+    import tactip_sim as ts
+
+    return ts.load_scene(scene_path)
+
+
+@pytest.fixture(scope="session")
+def pad(scene):
+    import tactip_sim as ts
+
+    return ts.build_pad(scene)
+
+
+@pytest.fixture(scope="session")
+def mesh(scene):
+    import tactip_sim as ts
+
+    return ts.tetrahedralise(scene)
