@@ -1,0 +1,177 @@
+"""``tactip calibrate | sweep | fit | evaluate``: registered through the ``tactip.commands``
+entry point so that ``tactip_sim`` never imports this package."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from tactip_sim.cli import add_scene_argument, load_scene_args
+
+QUICK = {  # a reduced protocol for a first look (and for tests): same ranges, coarser grids
+    "protocol.roll_step_deg": 8.0,
+    "protocol.pitch_step_deg": 3.5,
+    "protocol.test_poses": 30,
+}
+
+
+def _scale_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--workers", type=int, default=1,
+                   help="local worker processes (a Dask LocalCluster when > 1; default 1)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
+    p.add_argument("--frames", type=int,
+                   help="noisy frames averaged per sample (default: protocol.frames_per_sample)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _check_scale(args: argparse.Namespace) -> None:
+    if args.workers < 1:
+        raise ValueError(f"--workers={args.workers} must be at least 1")
+    if args.frames is not None and args.frames < 1:
+        raise ValueError(f"--frames={args.frames} must be at least 1")
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from .calibrate import calibrate
+
+    _check_scale(args)
+    if args.quick:
+        args.overrides = [f"{k}={v}" for k, v in QUICK.items()] + list(args.overrides)
+    scene = load_scene_args(args)
+    tips = [t.strip() for t in args.tips.split(",")] if args.tips else None
+    res = calibrate(scene, args.out, tips=tips, frames=args.frames, workers=args.workers,
+                    scheduler=args.scheduler, progress=not args.no_progress,
+                    charts=not args.no_charts)
+    print((Path(args.out) / "r2_table.md").read_text())
+    print(f"{res.samples} samples computed in {res.seconds:.1f} s; results in {args.out}/")
+    return 0
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from .protocol import PoseSet, evaluation_sets, training_set
+    from .sweep import SweepSpec, run_sweep
+
+    _check_scale(args)
+    scene = load_scene_args(args)
+    if args.random is not None:
+        p = scene.protocol
+        rng = np.random.default_rng([p.seed if args.seed is None else args.seed, 99])
+        depth = p.training_depth_mm if args.depth is None else args.depth
+        poses = np.stack([rng.uniform(*p.roll_range_deg, args.random),
+                          rng.uniform(*p.pitch_range_deg, args.random),
+                          np.full(args.random, depth)], axis=1)
+        pose_set = PoseSet(f"random{args.random}", poses)
+    elif args.poses == "train":
+        pose_set = training_set(scene)
+    else:
+        sets = {s.name: s for s in evaluation_sets(scene)}
+        if args.poses not in sets:
+            raise ValueError(f"--poses={args.poses!r} must be 'train' or one of {sorted(sets)}")
+        pose_set = sets[args.poses]
+    indenter = {}
+    if args.indenter:
+        indenter["kind"] = args.indenter
+    if args.radius is not None:
+        indenter["radius_mm"] = args.radius
+    spec = SweepSpec(scene, args.tip or scene.protocol.tips[0], pose_set,
+                     frames=args.frames or scene.protocol.frames_per_sample,
+                     nominal=args.nominal, indenter=indenter)
+    res = run_sweep(spec, args.out, workers=args.workers, scheduler=args.scheduler,
+                    progress=not args.no_progress)
+    print(f"{res.computed} samples computed, {res.skipped} already there, "
+          f"{res.seconds:.1f} s; dataset in {args.out}/")
+    return 0
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    from .fit import features, fit_model
+
+    train = features(args.dataset, variant=args.variant)
+    model = fit_model(train, args.order)
+    out = Path(args.out) if args.out else Path(args.dataset) / f"model_order{args.order}.json"
+    model.to_json(out)
+    s = model.score(train.cop_px, train.angles_deg)
+    print(f"order {args.order} fitted on {s.n} samples ({len(train.dropped)} dropped): training "
+          f"R² {s.r2_overall:.4f} (roll {s.r2[0]:.4f}, pitch {s.r2[1]:.4f}); saved {out}")
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    import perception as pc
+
+    from .fit import features
+
+    model = pc.PoseRegressor.from_json(args.model)
+    rows = []
+    for d in args.datasets:
+        t = features(d, variant=args.variant)
+        s = model.score(t.cop_px, t.angles_deg)
+        rows.append({"dataset": str(d), "n": s.n, "dropped": len(t.dropped),
+                     "r2": s.r2_overall, "r2_roll": float(s.r2[0]), "r2_pitch": float(s.r2[1]),
+                     "rmse_roll_deg": float(s.rmse_deg[0]),
+                     "rmse_pitch_deg": float(s.rmse_deg[1])})
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    else:
+        for r in rows:
+            print(f"{r['dataset']}: R² {r['r2']:.4f} (roll {r['r2_roll']:.4f}, pitch "
+                  f"{r['r2_pitch']:.4f}); RMSE roll {r['rmse_roll_deg']:.2f}°, pitch "
+                  f"{r['rmse_pitch_deg']:.2f}°; n={r['n']}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "calibrate", help="run the paper's roll/pitch calibration protocol in simulation",
+        description="Training sweep (255 poses) and three 200-pose test sets at -0.5/0/+0.5 mm "
+        "for each tip; 1st-3rd order regressors from perceived CoP to roll/pitch; R² table, "
+        "models, charts and manifest in --out. Rerunning the same command resumes.")
+    add_scene_argument(p, optional=True)
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--tips", help="comma-separated tips (default: protocol.tips, e.g. A,B,C)")
+    p.add_argument("--quick", action="store_true",
+                   help="coarser grids (roll step 8°, pitch step 3.5°, 30 test poses)")
+    p.add_argument("--no-charts", action="store_true", help="skip the PNG charts")
+    _scale_args(p)
+    p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser("sweep", help="render a pose set into a dataset folder",
+                       description="Press, render and perceive a pose set (the protocol's "
+                       "training grid or a test set, or N random poses) with any indenter; "
+                       "resumable.")
+    add_scene_argument(p)
+    p.add_argument("--out", required=True, help="dataset folder")
+    p.add_argument("--poses", default="train",
+                   help="'train' or a test set name such as test+0p0mm (default train)")
+    p.add_argument("--random", type=int, metavar="N", help="N random poses instead of --poses")
+    p.add_argument("--depth", type=float, help="depth for --random (default training depth)")
+    p.add_argument("--seed", type=int, help="seed for --random (default protocol.seed)")
+    p.add_argument("--tip", help="tip name (default: the first of protocol.tips)")
+    p.add_argument("--nominal", action="store_true", help="the unperturbed design")
+    p.add_argument("--indenter", choices=["plate", "sphere", "cylinder", "edge", "mesh"],
+                   help="indenter kind (default: the scene's)")
+    p.add_argument("--radius", type=float, help="indenter radius (mm)")
+    _scale_args(p)
+    p.set_defaults(func=_cmd_sweep)
+
+    p = sub.add_parser("fit", help="fit a roll/pitch regressor on a dataset",
+                       description="Fit a polynomial CoP -> (roll, pitch) model on a dataset and "
+                       "save it as JSON.")
+    p.add_argument("dataset", help="dataset folder (from tactip sweep)")
+    p.add_argument("--order", type=int, default=2, choices=[1, 2, 3], help="polynomial order")
+    p.add_argument("--variant", default="area", choices=["area", "area_change"],
+                   help="CoP weighting (default: the paper's cell areas)")
+    p.add_argument("--out", help="model file (default DATASET/model_orderN.json)")
+    p.set_defaults(func=_cmd_fit)
+
+    p = sub.add_parser("evaluate", help="score a fitted model on datasets",
+                       description="R² and RMSE of a saved regressor on one or more datasets.")
+    p.add_argument("model", help="model JSON (from tactip fit or tactip calibrate)")
+    p.add_argument("datasets", nargs="+", help="dataset folders")
+    p.add_argument("--variant", default="area", choices=["area", "area_change"])
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=_cmd_evaluate)

@@ -1,0 +1,244 @@
+"""Datasets on disk that outside tools can read, written so that nothing is lost.
+
+Layout of a dataset folder::
+
+    manifest.json        what made it: scene (resolved) and its hash, tip, pose set, seeds
+    images/00000.png     one frame per sample (a noisy frame as the camera would give it)
+    records/00000.npz    one record per sample: pose, features, ground truth (the unit of resume)
+    targets.csv          one row per sample, Bristol TacTip pose columns + our own (finalised)
+    truth.npz            ground-truth arrays over all samples (finalised)
+
+Every file is written atomically (temporary file + ``os.replace``). A sample is done when its
+record exists; rerunning a sweep on the same folder computes only the missing samples, so a
+killed sweep resumes without losing or duplicating frames. ``targets.csv`` and ``truth.npz`` are
+rebuilt from the records, in index order, whenever the sweep completes. A folder made from a
+different scene, tip or pose set is refused.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+MANIFEST = "manifest.json"
+DATASET_KIND = "tactip-sim dataset"
+FORMAT_VERSION = 1
+
+# Bristol TacTip convention: pose_1..pose_6 = x, y, z (mm), Rx, Ry, Rz (deg); z = depth (press)
+TARGET_COLUMNS = [
+    "index", "image", "pose_1", "pose_2", "pose_3", "pose_4", "pose_5", "pose_6",
+    "roll_deg", "pitch_deg", "depth_mm", "tip", "force_N", "contact_area_mm2",
+    "true_cop_x_mm", "true_cop_y_mm", "cop_x_px", "cop_y_px", "cop_ac_x_px", "cop_ac_y_px",
+    "cop_std_px", "n_markers", "reliable_frames", "frames", "contact",
+]
+
+# record fields: scalars and arrays saved per sample
+SCALARS = ("index", "roll_deg", "pitch_deg", "depth_mm", "force_N", "contact_area_mm2",
+           "n_markers", "reliable_frames", "frames", "contact", "cop_std_px")
+VECTORS = ("true_cop_mm", "cop_px", "cop_ac_px")
+ARRAYS = ("markers_mm", "markers_px", "visible")
+
+
+class DatasetError(ValueError):
+    """A dataset folder cannot be used as asked (e.g. it holds a different scene)."""
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    atomic_write_bytes(path, text.encode())
+
+
+@dataclass(frozen=True)
+class SampleRecord:
+    """One sample's results (all in the sensor frame / OpenCV pixels)."""
+
+    index: int
+    roll_deg: float
+    pitch_deg: float
+    depth_mm: float
+    force_N: float
+    contact_area_mm2: float
+    true_cop_mm: np.ndarray  # (2,) ground-truth pressure centroid
+    cop_px: np.ndarray  # (2,) CoP from perception (area-weighted), averaged over frames
+    cop_ac_px: np.ndarray  # (2,) area-change-weighted variant
+    cop_std_px: float  # frame-to-frame spread of cop_px
+    n_markers: float  # markers detected, mean over frames
+    reliable_frames: int
+    frames: int
+    contact: int
+    markers_mm: np.ndarray  # (97, 3) ground truth
+    markers_px: np.ndarray  # (97, 2) ground truth (analytic projection)
+    visible: np.ndarray  # (97,) bool
+
+    def to_npz_bytes(self) -> bytes:
+        buf = io.BytesIO()
+        np.savez(buf, **{k: np.asarray(getattr(self, k)) for k in SCALARS + VECTORS + ARRAYS})
+        return buf.getvalue()
+
+    @classmethod
+    def from_npz(cls, path: Path) -> SampleRecord:
+        with np.load(path) as d:
+            kw: dict[str, Any] = {k: d[k].item() for k in SCALARS}
+            kw.update({k: d[k].copy() for k in VECTORS + ARRAYS})
+        kw["index"] = int(kw["index"])
+        return cls(**kw)
+
+
+class Dataset:
+    """A dataset folder (see the module docstring).
+
+    Parameters
+    ----------
+    root : the folder
+    """
+
+    def __init__(self, root: str | os.PathLike[str]) -> None:
+        self.root = Path(root)
+
+    # -- manifest -----------------------------------------------------------------------------
+    @property
+    def manifest_path(self) -> Path:
+        return self.root / MANIFEST
+
+    def manifest(self) -> dict[str, Any]:
+        if not self.manifest_path.is_file():
+            raise DatasetError(f"{self.root} is not a dataset: no {MANIFEST}")
+        try:
+            data = json.loads(self.manifest_path.read_text())
+        except ValueError as exc:
+            raise DatasetError(f"{self.manifest_path} is not valid JSON: {exc}") from exc
+        if data.get("kind") != DATASET_KIND:
+            raise DatasetError(f"{self.manifest_path} is not a {DATASET_KIND} manifest")
+        return data
+
+    def open_for_sweep(self, identity: dict[str, Any], extra: dict[str, Any]) -> None:
+        """Create the folder, or check that an existing one holds the same sweep.
+
+        identity : what must match for a resume (scene hash, tip, poses hash, frames, seed)
+        extra : stored but not compared (versions, the resolved scene, timings)
+        """
+        if self.manifest_path.is_file():
+            old = self.manifest()
+            mismatch = {k: (old.get("identity", {}).get(k), v) for k, v in identity.items()
+                        if old.get("identity", {}).get(k) != v}
+            if mismatch:
+                k, (was, now) = next(iter(mismatch.items()))
+                raise DatasetError(
+                    f"{self.root} already holds a different sweep ({k}: {was!r} there, "
+                    f"{now!r} now); refusing to mix them: choose a new --out folder"
+                )
+            return
+        if self.root.exists() and any(self.root.iterdir()):
+            raise DatasetError(f"{self.root} exists and is not a dataset folder; choose a new "
+                               "--out folder")
+        (self.root / "images").mkdir(parents=True, exist_ok=True)
+        (self.root / "records").mkdir(parents=True, exist_ok=True)
+        manifest = {"kind": DATASET_KIND, "format_version": FORMAT_VERSION,
+                    "identity": identity, **extra}
+        atomic_write_text(self.manifest_path, json.dumps(manifest, indent=2, default=_json))
+
+    def update_manifest(self, **fields: Any) -> None:
+        data = self.manifest()
+        data.update(fields)
+        atomic_write_text(self.manifest_path, json.dumps(data, indent=2, default=_json))
+
+    # -- records ------------------------------------------------------------------------------
+    def record_path(self, index: int) -> Path:
+        return self.root / "records" / f"{index:05d}.npz"
+
+    def image_path(self, index: int) -> Path:
+        return self.root / "images" / f"{index:05d}.png"
+
+    def done(self) -> set[int]:
+        d = self.root / "records"
+        return {int(p.stem) for p in d.glob("[0-9]*.npz")} if d.is_dir() else set()
+
+    def write_sample(self, record: SampleRecord, image_png: bytes) -> None:
+        """Image first, record last: a record's presence means the sample is complete."""
+        atomic_write_bytes(self.image_path(record.index), image_png)
+        atomic_write_bytes(self.record_path(record.index), record.to_npz_bytes())
+
+    def records(self) -> list[SampleRecord]:
+        return [SampleRecord.from_npz(self.record_path(i)) for i in sorted(self.done())]
+
+    # -- finalised tables ---------------------------------------------------------------------
+    def finalise(self, tip: str) -> None:
+        """Rebuild ``targets.csv`` and ``truth.npz`` from the records (index order)."""
+        recs = self.records()
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(TARGET_COLUMNS)
+        for r in recs:
+            w.writerow([
+                r.index, f"images/{r.index:05d}.png", 0.0, 0.0, _f(r.depth_mm), _f(r.roll_deg),
+                _f(r.pitch_deg), 0.0, _f(r.roll_deg), _f(r.pitch_deg), _f(r.depth_mm), tip,
+                _f(r.force_N), _f(r.contact_area_mm2), _f(r.true_cop_mm[0]),
+                _f(r.true_cop_mm[1]), _f(r.cop_px[0]), _f(r.cop_px[1]), _f(r.cop_ac_px[0]),
+                _f(r.cop_ac_px[1]), _f(r.cop_std_px), _f(r.n_markers), r.reliable_frames,
+                r.frames, r.contact,
+            ])
+        atomic_write_text(self.root / "targets.csv", buf.getvalue())
+        arrays = {k: np.stack([getattr(r, k) for r in recs]) if recs else np.zeros(0)
+                  for k in ARRAYS + VECTORS}
+        arrays["index"] = np.array([r.index for r in recs], dtype=np.int64)
+        out = io.BytesIO()
+        np.savez_compressed(out, **arrays)
+        atomic_write_bytes(self.root / "truth.npz", out.getvalue())
+
+    def table(self) -> dict[str, np.ndarray]:
+        """targets.csv as columns (numeric columns as float arrays)."""
+        path = self.root / "targets.csv"
+        if not path.is_file():
+            raise DatasetError(f"{self.root} has no targets.csv (the sweep did not finish: rerun "
+                               "it to resume)")
+        with path.open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        cols: dict[str, np.ndarray] = {}
+        for name in TARGET_COLUMNS:
+            vals = [row[name] for row in rows]
+            try:
+                cols[name] = np.array(vals, dtype=float)
+            except ValueError:
+                cols[name] = np.array(vals, dtype=object)
+        return cols
+
+
+def _f(x: float) -> str:
+    return repr(float(x))
+
+
+def _json(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
+
+
+def poses_digest(poses: Iterable[Iterable[float]]) -> str:
+    import hashlib
+
+    arr = np.ascontiguousarray(np.asarray(list(poses), dtype=np.float64))
+    return hashlib.sha256(arr.tobytes()).hexdigest()[:16]

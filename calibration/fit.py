@@ -1,0 +1,118 @@
+"""Fit roll/pitch regressors on a dataset's perceived CoP and score them on others."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .dataset import Dataset, DatasetError
+
+# Table I of the reference paper: R² at depths -0.5 / 0 / +0.5 mm, per tip and order
+PAPER_R2 = {
+    ("A", 1): (0.91, 0.90, 0.91), ("A", 2): (0.92, 0.91, 0.92), ("A", 3): (0.84, 0.95, 0.67),
+    ("B", 1): (0.87, 0.89, 0.72), ("B", 2): (0.89, 0.92, 0.71), ("B", 3): (0.85, 0.94, 0.28),
+    ("C", 1): (0.88, 0.88, 0.81), ("C", 2): (0.90, 0.90, 0.82), ("C", 3): (0.76, 0.93, 0.40),
+}
+PAPER_DEPTHS = (-0.5, 0.0, 0.5)
+
+
+@dataclass(frozen=True)
+class FeatureTable:
+    """CoP features and known angles of the usable samples of a dataset.
+
+    cop_px : (n, 2) perceived centre of pressure; angles_deg : (n, 2) roll, pitch
+    depth_mm : (n,); dropped : samples without a reliable CoP (listed, never silently used)
+    """
+
+    cop_px: np.ndarray
+    angles_deg: np.ndarray
+    depth_mm: np.ndarray
+    dropped: np.ndarray
+    image_size: tuple[int, int]
+
+
+def features(dataset: Dataset | str | Path, *, variant: str = "area") -> FeatureTable:
+    """Read a finished dataset's CoP features (``variant``: "area" (the paper's) or
+    "area_change")."""
+    ds = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
+    t = ds.table()
+    cols = ("cop_x_px", "cop_y_px") if variant == "area" else ("cop_ac_x_px", "cop_ac_y_px")
+    cop = np.stack([t[cols[0]], t[cols[1]]], axis=1)
+    angles = np.stack([t["roll_deg"], t["pitch_deg"]], axis=1)
+    ok = np.all(np.isfinite(cop), axis=1)
+    res = ds.manifest().get("scene", {}).get("camera", {}).get("resolution", [0, 0])
+    return FeatureTable(cop[ok], angles[ok], t["depth_mm"][ok], t["index"][~ok].astype(int),
+                        (int(res[0]), int(res[1])))
+
+
+def fit_model(train: FeatureTable, order: int):
+    """A :class:`perception.PoseRegressor` of ``order`` fitted on ``train``."""
+    import perception as pc
+
+    if len(train.cop_px) < 3 * (order + 1):
+        raise DatasetError(f"only {len(train.cop_px)} usable training samples for an order-"
+                           f"{order} model")
+    model = pc.PoseRegressor(order=order, image_size=train.image_size)
+    return model.fit(train.cop_px, train.angles_deg)
+
+
+@dataclass(frozen=True)
+class ScoreRow:
+    tip: str
+    order: int
+    depth_mm: float  # offset from the training depth
+    r2: float
+    r2_roll: float
+    r2_pitch: float
+    rmse_roll_deg: float
+    rmse_pitch_deg: float
+    n: int
+    dropped: int
+
+    def csv_row(self) -> list[str]:
+        return [self.tip, str(self.order), f"{self.depth_mm:+.1f}", f"{self.r2:.4f}",
+                f"{self.r2_roll:.4f}", f"{self.r2_pitch:.4f}", f"{self.rmse_roll_deg:.4f}",
+                f"{self.rmse_pitch_deg:.4f}"]
+
+
+CSV_HEADER = ["tip", "order", "depth_mm", "r2", "r2_roll", "r2_pitch", "rmse_roll_deg",
+              "rmse_pitch_deg"]
+
+
+def score(model, test: FeatureTable, *, tip: str, depth_offset_mm: float) -> ScoreRow:
+    s = model.score(test.cop_px, test.angles_deg)
+    return ScoreRow(tip, model.order, depth_offset_mm, float(s.r2_overall), float(s.r2[0]),
+                    float(s.r2[1]), float(s.rmse_deg[0]), float(s.rmse_deg[1]), int(s.n),
+                    len(test.dropped))
+
+
+def r2_table_csv(rows: list[ScoreRow]) -> str:
+    lines = [",".join(CSV_HEADER)] + [",".join(r.csv_row()) for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def r2_table_markdown(rows: list[ScoreRow]) -> str:
+    """Laid out like the paper's Table I, ours beside the published numbers."""
+    depths = sorted({r.depth_mm for r in rows})
+    by = {(r.tip, r.order, r.depth_mm): r for r in rows}
+    tips = sorted({r.tip for r in rows})
+    orders = sorted({r.order for r in rows})
+    head = "| tip | order | " + " | ".join(f"R² at {d:+.1f} mm: ours (paper)" for d in depths)
+    lines = [head + " |", "|---|---|" + "---|" * len(depths)]
+    for tip in tips:
+        for order in orders:
+            cells = []
+            for d in depths:
+                r = by.get((tip, order, d))
+                ours = "—" if r is None else f"{r.r2:.3f}"
+                paper = PAPER_R2.get((tip, order))
+                pub = (f" ({paper[PAPER_DEPTHS.index(d)]:.2f})"
+                       if paper is not None and d in PAPER_DEPTHS else "")
+                cells.append(ours + pub)
+            lines.append(f"| {tip} | {order} | " + " | ".join(cells) + " |")
+    lines.append("")
+    lines.append("R² is the mean of the roll and pitch R² on each 200-pose test set; depths are "
+                 "relative to the training depth. Paper: Pestell et al., Table I.")
+    return "\n".join(lines) + "\n"

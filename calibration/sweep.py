@@ -1,0 +1,271 @@
+"""Sweeps: press, render and perceive every pose of a pose set, into a dataset on disk.
+
+Each sample is a pure function of (sweep spec, index): its noise seeds come from
+``SeedSequence([seed, tip, set, index])``, so serial, ``--workers N`` and a Dask cluster give
+byte-identical datasets. Work is sent in chunks to Dask (a ``LocalCluster`` of processes for
+``--workers N``, or any running scheduler for ``--scheduler ADDRESS``); results come back to the
+client, which writes them atomically, so workers need no shared filesystem.
+
+Frames per sample: the rig averages ~60 frames over 3 s of a static contact; only sensor
+noise changes between them. So each sample is rendered once (the expensive part, noise-free)
+and ``frames`` noisy frames are synthesised from it with the scene's seeded camera noise model;
+perception runs on every noisy frame and the features are averaged, as in the paper.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import tactip_sim as ts
+from tactip_sim.scene import scene_hash, scene_to_dict
+
+from .dataset import Dataset, SampleRecord, poses_digest
+from .protocol import PoseSet, make_tip
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """Everything that defines a sweep's results.
+
+    scene : the nominal scene (the tip's perturbations are drawn from it)
+    tip : tip name from ``scene.protocol.tips``
+    poses : the pose set
+    frames : noisy frames averaged per sample
+    nominal : use the unperturbed design instead of a manufactured tip
+    indenter : optional indenter override (``[indenter]`` keys), e.g. ``{"kind": "sphere"}``
+    """
+
+    scene: ts.Scene
+    tip: str
+    poses: PoseSet
+    frames: int = 8
+    nominal: bool = False
+    indenter: dict[str, Any] = field(default_factory=dict)
+
+    def identity(self) -> dict[str, Any]:
+        return {
+            "scene_hash": scene_hash(self.scene),
+            "tip": self.tip,
+            "nominal": self.nominal,
+            "pose_set": self.poses.name,
+            "poses_digest": poses_digest(self.poses.poses),
+            "frames": self.frames,
+            "seed": self.scene.protocol.seed,
+            "indenter": dict(sorted(self.indenter.items())),
+        }
+
+    def key(self) -> str:
+        return hashlib.sha256(repr(sorted(self.identity().items())).encode()).hexdigest()[:16]
+
+
+class TipWorker:
+    """Simulator, renderer and perception for one tip, built once per process."""
+
+    def __init__(self, spec: SweepSpec) -> None:
+        import perception as pc
+
+        tip = make_tip(spec.scene, spec.tip, nominal=spec.nominal)
+        scene = tip.scene
+        if spec.indenter:
+            scene = ts.replace_in(scene, indenter=spec.indenter)
+        self.tip = tip
+        self.scene = scene
+        self.pad = ts.build_pad(scene, pin_perturbation_mm=tip.pin_offsets_mm)
+        self.sim = ts.Simulator(scene, pad=self.pad)
+        self.frames = spec.frames
+        self.seed_base = [scene.protocol.seed, scene.protocol.tips.index(spec.tip),
+                          zlib.crc32(spec.poses.name.encode())]
+        rest_rng = np.random.default_rng([*self.seed_base, 2**31 - 1])
+        rest = self.sim.render(None, rng=rest_rng)
+        self.rest_image = rest.image
+        self.pipeline = pc.FeaturePipeline(rest.image, expected_count=scene.pins.count)
+
+    def sample(self, index: int, pose: Sequence[float]) -> tuple[SampleRecord, bytes]:
+        import cv2
+
+        roll, pitch, depth = (float(v) for v in pose)
+        state = self.sim.press(ts.Pose(roll_deg=roll, pitch_deg=pitch, depth_mm=depth))
+        rng = np.random.default_rng([*self.seed_base, index])
+        clean, images = render_frames(self.sim, state, self.frames, rng)
+        self.pipeline.reset()
+        cops, cops_ac, counts, reliable = [], [], [], 0
+        for image in images:
+            f = self.pipeline.process(image)
+            counts.append(f.n_detected)
+            if f.reliable:
+                reliable += 1
+                cops.append(f.cop)
+                cops_ac.append(f.cop_area_change)
+        nan2 = np.full(2, np.nan)
+        cop = np.mean(cops, axis=0) if cops else nan2
+        cop_ac = np.nanmean(cops_ac, axis=0) if cops_ac and np.isfinite(cops_ac).any() else nan2
+        spread = float(np.sqrt(np.mean(np.var(cops, axis=0).sum()))) if len(cops) > 1 else 0.0
+        frame0 = images[0]
+        ok, png = cv2.imencode(".png", frame0)
+        if not ok:  # pragma: no cover - OpenCV cannot fail on a uint8 image
+            raise RuntimeError(f"could not encode sample {index} as PNG")
+        rec = SampleRecord(
+            index=index, roll_deg=roll, pitch_deg=pitch, depth_mm=depth,
+            force_N=float(state.force_N), contact_area_mm2=float(state.contact_area_mm2),
+            true_cop_mm=np.asarray(state.pressure_centre_mm, dtype=float)[:2],
+            cop_px=cop, cop_ac_px=cop_ac, cop_std_px=spread,
+            n_markers=float(np.mean(counts)), reliable_frames=reliable, frames=len(images),
+            contact=int(bool(state.in_contact)), markers_mm=np.asarray(state.markers_mm),
+            markers_px=np.asarray(clean.markers_px, dtype=float),
+            visible=np.asarray(clean.visible, dtype=bool),
+        )
+        return rec, png.tobytes()
+
+
+def render_frames(sim: Any, state: Any, frames: int,
+                  rng: np.random.Generator) -> tuple[Any, list[np.ndarray]]:
+    """Render ``state`` once without noise, then synthesise ``frames`` noisy frames from it.
+
+    Returns the clean ``Frame`` (with the analytic marker pixels and visibility) and the
+    noisy uint8 images."""
+    from tactip_sim.render import apply_camera_noise
+
+    clean = sim.render(state, rng=0, noise=False)
+    return clean, [apply_camera_noise(clean.radiance, sim.scene.imaging, rng=rng)
+                   for _ in range(frames)]
+
+
+_WORKERS: dict[str, TipWorker] = {}
+
+
+def _worker_for(spec: SweepSpec) -> TipWorker:
+    key = spec.key()
+    if key not in _WORKERS:
+        _WORKERS.clear()  # one tip per process at a time keeps memory flat
+        _WORKERS[key] = TipWorker(spec)
+    return _WORKERS[key]
+
+
+def run_chunk(spec: SweepSpec, indices: Sequence[int]) -> list[tuple[SampleRecord, bytes, float]]:
+    """Compute samples ``indices`` of ``spec`` (runs in a worker process)."""
+    worker = _worker_for(spec)
+    out = []
+    for i in indices:
+        t0 = time.perf_counter()
+        rec, png = worker.sample(int(i), spec.poses.poses[int(i)])
+        out.append((rec, png, time.perf_counter() - t0))
+    return out
+
+
+@dataclass(frozen=True)
+class SweepResult:
+    dataset: Dataset
+    computed: int
+    skipped: int
+    seconds: float
+    sample_seconds: float  # summed per-sample compute time (across workers)
+
+
+def run_sweep(
+    spec: SweepSpec,
+    out: str | Path,
+    *,
+    workers: int = 1,
+    scheduler: str | None = None,
+    chunk: int = 8,
+    progress: bool = True,
+    limit: int | None = None,
+    on_sample: Callable[[int], None] | None = None,
+) -> SweepResult:
+    """Run (or resume) a sweep into dataset folder ``out``.
+
+    Parameters
+    ----------
+    workers : local worker processes (1 = in this process, >1 = a Dask LocalCluster)
+    scheduler : address of a running Dask scheduler (overrides ``workers``)
+    chunk : samples per task
+    limit : stop after computing this many new samples (used to test resume)
+    on_sample : called with each written index (used to test interruption)
+    """
+    import platform
+
+    ds = Dataset(out)
+    ds.open_for_sweep(spec.identity(), {
+        "scene": scene_to_dict(spec.scene),
+        "versions": _versions(),
+        "machine": {"python": platform.python_version(), "node": platform.node()},
+        "n_samples": len(spec.poses),
+    })
+    done = ds.done()
+    todo = [i for i in range(len(spec.poses)) if i not in done]
+    if limit is not None:
+        todo = todo[:limit]
+    chunks = [todo[k:k + chunk] for k in range(0, len(todo), chunk)]
+    t0 = time.perf_counter()
+    sample_seconds = 0.0
+    bar = _progress(total=len(spec.poses), initial=len(done), enabled=progress,
+                    desc=f"{spec.tip}/{spec.poses.name}")
+    try:
+        for results in _execute(spec, chunks, workers, scheduler):
+            for rec, png, secs in results:
+                ds.write_sample(rec, png)
+                sample_seconds += secs
+                bar.update(1)
+                if on_sample is not None:
+                    on_sample(rec.index)
+    finally:
+        bar.close()
+    complete = len(ds.done()) == len(spec.poses)
+    if complete:
+        ds.finalise(spec.tip)
+    return SweepResult(ds, len(todo), len(done), time.perf_counter() - t0, sample_seconds)
+
+
+def _execute(spec: SweepSpec, chunks: list[list[int]], workers: int, scheduler: str | None):
+    """Yield chunk results as they complete: in order in-process, or from Dask."""
+    if not chunks:
+        return
+    if scheduler is None and workers <= 1:
+        for c in chunks:
+            yield run_chunk(spec, c)
+        return
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    if scheduler is not None:
+        client, cluster = Client(scheduler), None
+    else:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+    try:
+        spec_f = client.scatter(spec, broadcast=True)
+        futures = [client.submit(run_chunk, spec_f, c, pure=False) for c in chunks]
+        for fut in as_completed(futures):
+            yield fut.result()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _progress(total: int, initial: int, enabled: bool, desc: str):
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=initial, disable=not enabled, desc=desc, unit="sample",
+                dynamic_ncols=True, smoothing=0.1)
+
+
+def _versions() -> dict[str, str]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for pkg in ("tactip-sim", "numpy", "scipy", "mitsuba", "drjit", "scikit-fem", "pytetwild",
+                "opencv-contrib-python-headless", "scikit-learn", "shapely", "dask"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = "absent"
+    return out
