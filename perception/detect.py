@@ -1,0 +1,345 @@
+"""Marker detection: sub-pixel centroids of bright markers on a dark skin.
+
+The method, with no per-image tuning (every threshold is a ratio to something measured):
+
+1. **Background**: a morphological opening with an odd square kernel about twice the marker
+   diameter removes the markers and keeps everything larger (uneven illumination, the lit
+   exterior); the top-hat ``image - opening`` leaves the markers on a flat, near-zero floor.
+2. **Noise floor**: the pixel noise sigma is the robust (MAD) spread of ``image - 3x3 mean``;
+   foreground needs ``noise_sigmas`` sigma above the top-hat's median, and at least half the
+   Otsu threshold of the top-hat.
+3. **Scale**: the marker diameter is ``expected_diameter_px`` if given, otherwise the median
+   blob area of a first Otsu segmentation (the blob-size distribution).
+4. **Segmentation at half maximum**: a pixel is foreground when it is above the floor and at
+   least ``half_max_fraction`` of the maximum within one marker diameter, so every marker is cut
+   at its own half maximum (dim and bright markers alike; touching markers separate).
+5. **Centroids**: intensity-weighted (top-hat minus its median, clipped at zero) over each blob
+   grown by a few pixels, which is what reaches <= 0.1 px.
+6. **Filters**: area ratio to the reference marker area, elongation and fill (glint arcs,
+   merged pairs), specular glints (much brighter than the median marker), anything within one
+   marker diameter of background brighter than the skin by half the marker contrast (the lit
+   rim and exterior), and the caller's sensor region.
+7. **Reliability**: the count against ``expected_count``, or without it the minimum count and
+   the regularity of sizes and spacings (a marker array is regular, noise is not).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from os import PathLike
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .blobs import (
+    blob_measures,
+    blob_scale,
+    half_max_mask,
+    median,
+    near_bright,
+    odd,
+    otsu_level,
+    pixel_noise_sigma,
+    robust_spread,
+    top_hat,
+)
+from .errors import PerceptionError
+from .image import as_grey
+from .params import DetectionParams
+from .region import RegionLike, as_polygon, points_inside
+
+__all__ = ["MarkerDetection", "detect_markers", "detect_markers_detailed"]
+
+_DEFAULT_BG_FRACTION = 1.0 / 16.0  # background kernel / shorter image side when size unknown
+
+
+def _frozen(a: np.ndarray, shape_tail: tuple[int, ...] = ()) -> np.ndarray:
+    arr = np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape((-1, *shape_tail)))
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class MarkerDetection:
+    """Markers found in one frame.
+
+    Attributes
+    ----------
+    points : (n, 2) float64, px, OpenCV (x, y), pixel centres at integer coordinates
+        Marker centroids, in raster order of the blobs.
+    areas_px : (n,) float64, px²
+        Half-maximum footprint of each marker.
+    peaks : (n,) float64, fraction of full scale
+        Peak contrast of each marker above the local background.
+    marker_diameter_px : float
+        Median equivalent diameter 2 sqrt(area / pi) of the accepted markers (NaN if none).
+    image_shape : (h, w)
+        Shape of the analysed image.
+    reliable : bool
+        False when the result should not be trusted (see ``reason``).
+    reason : str
+        Why the result is (un)reliable, human readable.
+    rejected_points : (k, 2) float64, px
+        Centroids of candidate blobs that were rejected.
+    rejected_reasons : tuple of str, length k
+        One of ``"small"``, ``"shape"``, ``"size"``, ``"glint"``, ``"rim"``, ``"outside"``.
+    """
+
+    points: np.ndarray
+    areas_px: np.ndarray
+    peaks: np.ndarray
+    marker_diameter_px: float
+    image_shape: tuple[int, int]
+    reliable: bool
+    reason: str
+    rejected_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    rejected_reasons: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "points", _frozen(self.points, (2,)))
+        object.__setattr__(self, "areas_px", _frozen(self.areas_px))
+        object.__setattr__(self, "peaks", _frozen(self.peaks))
+        object.__setattr__(self, "rejected_points", _frozen(self.rejected_points, (2,)))
+        object.__setattr__(self, "rejected_reasons", tuple(self.rejected_reasons))
+        object.__setattr__(self, "image_shape", tuple(int(v) for v in self.image_shape[:2]))
+        object.__setattr__(self, "marker_diameter_px", float(self.marker_diameter_px))
+        n = len(self.points)
+        if len(self.areas_px) != n or len(self.peaks) != n:
+            raise PerceptionError("points, areas_px and peaks must have the same length")
+        if len(self.rejected_reasons) != len(self.rejected_points):
+            raise PerceptionError("rejected_points and rejected_reasons must have the same length")
+
+    @property
+    def count(self) -> int:
+        """Number of accepted markers."""
+        return len(self.points)
+
+    @property
+    def diameters_px(self) -> np.ndarray:
+        """(n,) float64, px: equivalent diameters 2 sqrt(area / pi)."""
+        return 2.0 * np.sqrt(self.areas_px / np.pi)
+
+
+def _check_options(shape: tuple[int, int], expected_count: int | None,
+                   expected_diameter_px: float | None) -> None:
+    h, w = shape
+    if expected_count is not None:
+        if isinstance(expected_count, bool) or not isinstance(expected_count, int | np.integer):
+            raise PerceptionError(f"expected_count={expected_count!r} must be an integer")
+        if not 1 <= expected_count <= h * w // 4:
+            raise PerceptionError(
+                f"expected_count={expected_count} is outside the allowed range [1, {h * w // 4}]"
+            )
+    if expected_diameter_px is not None:
+        d = float(expected_diameter_px)
+        if not (np.isfinite(d) and 1.0 <= d <= min(h, w) / 2.0):
+            raise PerceptionError(
+                f"expected_diameter_px={expected_diameter_px} is outside the allowed range "
+                f"[1, {min(h, w) / 2.0:g}] px for a {w}x{h} image"
+            )
+
+
+def _empty(shape: tuple[int, int], reason: str, rejected: np.ndarray | None = None,
+           reasons: tuple[str, ...] = ()) -> MarkerDetection:
+    return MarkerDetection(
+        points=np.zeros((0, 2)), areas_px=np.zeros(0), peaks=np.zeros(0),
+        marker_diameter_px=np.nan, image_shape=shape, reliable=False, reason=reason,
+        rejected_points=np.zeros((0, 2)) if rejected is None else rejected,
+        rejected_reasons=reasons,
+    )
+
+
+def detect_markers_detailed(
+    image: np.ndarray | str | PathLike[str],
+    *,
+    mask: RegionLike | None = None,
+    expected_count: int | None = None,
+    expected_diameter_px: float | None = None,
+    params: DetectionParams | None = None,
+) -> MarkerDetection:
+    """Detect bright markers on a dark skin and report how far to trust the result.
+
+    Parameters
+    ----------
+    image : (h, w), (h, w, 3) or (h, w, 4) array, or a path
+        Grey, BGR or BGRA frame; see :func:`perception.image.as_grey` for accepted dtypes
+        (uint8, uint16, bool for binarised frames, float in [0, 1]).
+    mask : Polygon, (k, 2) float vertices (px) or (h, w) binary mask, optional
+        Sensor region; markers whose centroid is outside are rejected (reason ``"outside"``).
+    expected_count : int, optional
+        Number of markers on the sensor; the result is reliable only if the count is within
+        ``count_tolerance`` of it.
+    expected_diameter_px : float, optional
+        Marker diameter, px. Sets the background and segmentation scales and the reference
+        area; estimated from the blob-size distribution when omitted.
+    params : DetectionParams, optional
+        Tolerances; the defaults are not tuned to any image.
+
+    Returns
+    -------
+    MarkerDetection
+
+    Raises
+    ------
+    ImageError
+        Unusable image (shape, dtype, range, NaN, unreadable file).
+    RegionError
+        Unusable mask.
+    PerceptionError
+        ``expected_count`` or ``expected_diameter_px`` out of range.
+    """
+    p = params if params is not None else DetectionParams()
+    grey = as_grey(image)
+    shape = (grey.shape[0], grey.shape[1])
+    _check_options(shape, expected_count, expected_diameter_px)
+    region = as_polygon(mask, image_shape=shape) if mask is not None else None
+    full_scale = 255.0 if grey.dtype == np.uint8 else 1.0
+
+    # 1-2. background, noise floor ---------------------------------------------------------
+    d_known = float(expected_diameter_px) if expected_diameter_px is not None else None
+    k_bg = odd(2.0 * d_known + 1.0) if d_known else odd(min(shape) * _DEFAULT_BG_FRACTION)
+    th, bg = top_hat(grey, k_bg)
+    th_level, _ = robust_spread(th[::8, ::8].ravel().astype(np.float32))
+    otsu = otsu_level(th, full_scale)
+    lsb = 1.0 if grey.dtype == np.uint8 else 1e-4
+    floor = th_level + max(p.noise_sigmas * pixel_noise_sigma(grey), 0.5 * otsu, lsb)
+    if float(th.max()) <= floor:
+        return _empty(shape, "no blobs above the noise floor (blank, saturated or pure noise)")
+
+    # 3. marker scale ----------------------------------------------------------------------
+    if d_known is None:
+        d_scale = blob_scale(th, max(otsu, floor), p.min_area_px)
+        if d_scale is None:
+            return _empty(shape, "no blob of at least min_area_px above the noise floor")
+        if 2.0 * d_scale + 1.0 > k_bg:  # markers too large for the default background kernel
+            k_bg = odd(2.0 * d_scale + 1.0)
+            th, bg = top_hat(grey, k_bg)
+    else:
+        d_scale = d_known
+
+    # 4. segmentation at half maximum ------------------------------------------------------
+    k_loc = odd(d_scale)
+    local_max = cv2.dilate(th, cv2.getStructuringElement(cv2.MORPH_RECT, (k_loc, k_loc)))
+    fg = half_max_mask(th, local_max, p.half_max_fraction, floor)
+    # 16-bit labels when they surely fit (fewer foreground pixels than 65536): no conversion
+    ltype = cv2.CV_16U if cv2.countNonZero(fg) < 65535 else cv2.CV_32S
+    n_labels, labels = cv2.connectedComponents(fg, connectivity=8, ltype=ltype)
+    if n_labels <= 1:
+        return _empty(shape, "no blobs above the noise floor")
+
+    # 5. centroids and shape -----------------------------------------------------------------
+    grow = int(np.clip(round(d_scale / 6.0), 1, 3))
+    mom, pts = blob_measures(labels, n_labels, th, th_level, grow)
+    ix = np.clip(np.round(np.nan_to_num(pts[:, 0])).astype(np.intp), 0, shape[1] - 1)
+    iy = np.clip(np.round(np.nan_to_num(pts[:, 1])).astype(np.intp), 0, shape[0] - 1)
+    peaks = local_max[iy, ix].astype(np.float64) / full_scale
+
+    # 6. filters ---------------------------------------------------------------------------
+    reason = np.full(len(pts), "", dtype=object)
+    reason[(mom.area < p.min_area_px) | ~np.isfinite(pts).all(axis=1)] = "small"
+    shape_bad = (mom.elongation > p.max_elongation) | (mom.fill < p.min_fill)
+    reason[(reason == "") & shape_bad] = "shape"
+    ok = reason == ""
+    if not ok.any():
+        return _reject_all(shape, pts, reason, "no marker-shaped blobs")
+    area_ref = np.pi * d_known**2 / 4.0 if d_known else float(median(mom.area[ok]))
+    ratio = mom.area / area_ref
+    reason[ok & ((ratio < p.area_ratio_min) | (ratio > p.area_ratio_max))] = "size"
+    ok = reason == ""
+    if not ok.any():
+        return _reject_all(shape, pts, reason, "no blobs of marker size")
+    peak_med, peak_sd = robust_spread(peaks[ok])
+    glint = (peaks > p.glint_peak_ratio * peak_med) & (peaks > peak_med + p.glint_peak_mads
+                                                       * peak_sd)
+    reason[ok & glint] = "glint"
+    ok = reason == ""
+    d_ref = 2.0 * np.sqrt(float(median(mom.area[ok])) / np.pi)
+    skin = float(median(bg[iy[ok], ix[ok]]))
+    near = near_bright(bg, skin + p.skin_contrast_fraction * peak_med * full_scale,
+                        max(int(round(d_ref)), 1), ix, iy)
+    reason[ok & near] = "rim"
+    if region is not None:
+        ok = reason == ""
+        reason[ok & ~points_inside(region, pts)] = "outside"
+    ok = reason == ""
+    if not ok.any():
+        return _reject_all(shape, pts, reason, "every blob was rejected")
+
+    # 7. reliability -------------------------------------------------------------------------
+    acc_area = mom.area[ok]
+    d_final = 2.0 * np.sqrt(float(median(acc_area)) / np.pi)
+    reliable, why = _reliability(pts[ok], acc_area, d_final, expected_count, p)
+    rej = (reason != "") & np.isfinite(pts).all(axis=1)
+    return MarkerDetection(
+        points=pts[ok], areas_px=acc_area, peaks=peaks[ok], marker_diameter_px=d_final,
+        image_shape=shape, reliable=reliable, reason=why,
+        rejected_points=pts[rej], rejected_reasons=tuple(reason[rej]),
+    )
+
+
+def _reject_all(shape: tuple[int, int], pts: np.ndarray, reason: np.ndarray,
+                why: str) -> MarkerDetection:
+    finite = np.isfinite(pts).all(axis=1)
+    return _empty(shape, why, pts[finite], tuple(reason[finite]))
+
+
+def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
+                 expected_count: int | None, p: DetectionParams) -> tuple[bool, str]:
+    n = len(points)
+    if diameter < p.min_diameter_px:
+        return False, (f"markers of {diameter:.2f} px are below min_diameter_px="
+                       f"{p.min_diameter_px} px")
+    if n < p.min_markers:
+        return False, f"only {n} markers found (min_markers={p.min_markers})"
+    if expected_count is not None:
+        tol = max(1, int(np.floor(p.count_tolerance * expected_count)))
+        if abs(n - expected_count) > tol:
+            return False, f"found {n} markers, expected {expected_count} ± {tol}"
+        return True, f"found {n} markers, expected {expected_count} ± {tol}"
+    med, sd = robust_spread(areas)
+    if sd / med > p.max_size_dispersion:
+        return False, (f"blob sizes are irregular (robust CV {sd / med:.2f} > "
+                       f"max_size_dispersion={p.max_size_dispersion}): not a marker array")
+    if n >= 3:
+        dist, _ = cKDTree(points).query(points, k=2)
+        nn_med, nn_sd = robust_spread(dist[:, 1])
+        cv = nn_sd / nn_med if nn_med > 0 else np.inf
+        if cv > p.max_spacing_dispersion:
+            return False, (f"marker spacing is irregular (robust CV {cv:.2f} > "
+                           f"max_spacing_dispersion={p.max_spacing_dispersion})")
+    return True, f"found {n} markers of {diameter:.1f} px"
+
+
+def detect_markers(
+    image: np.ndarray | str | PathLike[str],
+    *,
+    mask: RegionLike | None = None,
+    expected_count: int | None = None,
+    expected_diameter_px: float | None = None,
+    params: DetectionParams | None = None,
+) -> np.ndarray:
+    """Marker centroids of one frame (see :func:`detect_markers_detailed` for the method).
+
+    Parameters
+    ----------
+    image : (h, w), (h, w, 3) or (h, w, 4) array, or a path
+        Grey, BGR or BGRA frame (uint8, uint16, bool or float in [0, 1]).
+    mask : Polygon, (k, 2) vertices or (h, w) binary mask, optional
+        Sensor region.
+    expected_count : int, optional
+        Expected number of markers (used for the reliability verdict).
+    expected_diameter_px : float, optional
+        Marker diameter, px.
+    params : DetectionParams, optional
+        Tolerances.
+
+    Returns
+    -------
+    points : (n, 2) float64, px, OpenCV (x, y), pixel centres at integer coordinates
+        Possibly empty. Use :func:`detect_markers_detailed` to learn whether to trust it.
+    """
+    return np.array(detect_markers_detailed(
+        image, mask=mask, expected_count=expected_count,
+        expected_diameter_px=expected_diameter_px, params=params,
+    ).points)

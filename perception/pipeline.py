@@ -1,0 +1,227 @@
+"""Frame-to-features pipeline: detect -> track -> clipped Voronoi -> CoP -> contact.
+
+:class:`FeaturePipeline` is built once from a rest frame and then turns every frame into a
+:class:`FrameFeatures`. It is what the calibration package uses, and it runs unchanged on
+real camera frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from os import PathLike
+
+import numpy as np
+
+from .contact import ContactDetector, surface_deformation
+from .cop import centre_of_pressure
+from .detect import MarkerDetection, detect_markers_detailed
+from .errors import ImageError, PerceptionError
+from .image import as_grey
+from .params import ContactParams, DetectionParams, TrackingParams
+from .region import RegionLike, as_polygon, fit_region
+from .track import MarkerTracker
+from .voronoi import area_change, voronoi_areas
+
+__all__ = ["FeaturePipeline", "FrameFeatures"]
+
+
+def _ro(a: np.ndarray) -> np.ndarray:
+    arr = np.array(a, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class FrameFeatures:
+    """Everything the pipeline extracts from one frame.
+
+    Attributes
+    ----------
+    points : (m, 2) float64, px, OpenCV (x, y)
+        Tracked marker positions in rest-frame order; NaN rows for lost or merged markers.
+    areas : (m,) float64, px²
+        Voronoi cell areas clipped to the sensor region; NaN for lost markers. A lost marker
+        still seeds a cell at its last sighting, so its neighbours' areas are not inflated.
+    area_change : (m,) float64, px²
+        ``areas - rest_areas``.
+    cop : (2,) float64, px
+        Centre of pressure, the seed definition (cell-area-weighted positions). NaN only when
+        no marker is tracked.
+    cop_area_change : (2,) float64, px
+        Centre of pressure weighted by cell growth, ``max(area_change, 0)``; NaN when no cell
+        has grown (no contact).
+    deformation_px : float, px
+        Mean marker displacement from rest (NaN when nothing is tracked).
+    n_detected : int
+        Markers detected in the frame (before tracking).
+    n_lost : int
+        Tracks without a position in this frame.
+    reliable : bool
+        False if the detection was unreliable, too many tracks were lost, or the CoP is
+        undefined; ``reason`` says which.
+    reason : str
+    contact : bool
+        Contact state after this frame (hysteresis on ``deformation_px``).
+    frame_index : int
+        1 for the first processed frame.
+    """
+
+    points: np.ndarray
+    areas: np.ndarray
+    area_change: np.ndarray
+    cop: np.ndarray
+    cop_area_change: np.ndarray
+    deformation_px: float
+    n_detected: int
+    n_lost: int
+    reliable: bool
+    reason: str
+    contact: bool
+    frame_index: int
+
+    def __post_init__(self) -> None:
+        for name in ("points", "areas", "area_change", "cop", "cop_area_change"):
+            object.__setattr__(self, name, _ro(getattr(self, name)))
+
+
+class FeaturePipeline:
+    """Turn frames into tracked markers, cell areas, centres of pressure and contact.
+
+    Parameters
+    ----------
+    rest_image : array or path
+        Frame of the sensor at rest (no contact). Its detection must be reliable.
+    expected_count : int, optional
+        Number of markers; checked on the rest frame and on every frame's detection.
+    region : Polygon, (k, 2) vertices or (h, w) binary mask, optional
+        Sensor region for detection and Voronoi clipping. Default: fitted to the rest markers
+        (:func:`perception.region.fit_region`, convex hull grown by half the spacing).
+    expected_diameter_px : float, optional
+        Marker diameter, px. When omitted it is measured on the rest frame, and the rest frame
+        and every later frame are then detected with that value, so the whole sequence uses
+        the same kernels and size reference.
+    contact_on_px, contact_off_px : float, px, optional
+        Contact thresholds on the mean marker displacement. Default: the
+        :class:`~perception.params.ContactParams` fractions of the rest marker spacing.
+    detection, tracking, contact : params dataclasses, optional
+        Tolerances.
+
+    Attributes
+    ----------
+    rest : MarkerDetection
+        The rest-frame detection.
+    region : Polygon
+    rest_areas : (m,) float64, px²
+    spacing_px : float
+    tracker : MarkerTracker
+    contact_detector : ContactDetector
+
+    Raises
+    ------
+    PerceptionError
+        If the rest frame's detection is unreliable (the message gives the reason).
+    """
+
+    def __init__(
+        self,
+        rest_image: np.ndarray | str | PathLike[str],
+        *,
+        expected_count: int | None = None,
+        region: RegionLike | None = None,
+        expected_diameter_px: float | None = None,
+        contact_on_px: float | None = None,
+        contact_off_px: float | None = None,
+        detection: DetectionParams | None = None,
+        tracking: TrackingParams | None = None,
+        contact: ContactParams | None = None,
+    ) -> None:
+        grey = as_grey(rest_image)
+        self.image_shape = grey.shape
+        self.expected_count = expected_count
+        self.expected_diameter_px = expected_diameter_px
+        self.detection_params = detection if detection is not None else DetectionParams()
+        self.tracking_params = tracking if tracking is not None else TrackingParams()
+        contact_params = contact if contact is not None else ContactParams()
+        user_region = None if region is None else as_polygon(region, image_shape=grey.shape)
+        rest = self._detect(grey, user_region)
+        if expected_diameter_px is None and rest.reliable:
+            # fix the scale once: every frame of the sequence then uses the same kernels
+            self.expected_diameter_px = rest.marker_diameter_px
+            rest = self._detect(grey, user_region)
+        if not rest.reliable:
+            raise PerceptionError(f"rest frame detection is unreliable: {rest.reason}")
+        self.rest = rest
+        self.region = user_region if user_region is not None else fit_region(rest.points)
+        self.rest_areas = _ro(voronoi_areas(rest.points, self.region))
+        self.tracker = MarkerTracker(rest.points, rest_areas=rest.areas_px,
+                                     params=self.tracking_params)
+        self.spacing_px = self.tracker.spacing_px
+        on = (contact_params.on_fraction * self.spacing_px if contact_on_px is None
+              else contact_on_px)
+        off = (contact_params.off_fraction * self.spacing_px if contact_off_px is None
+               else contact_off_px)
+        self.contact_detector = ContactDetector(on, off)
+
+    @property
+    def rest_points(self) -> np.ndarray:
+        """(m, 2) float64, px: rest marker positions (track order)."""
+        return self.tracker.rest_points
+
+    def _detect(self, image: np.ndarray, region) -> MarkerDetection:
+        return detect_markers_detailed(
+            image, mask=region, expected_count=self.expected_count,
+            expected_diameter_px=self.expected_diameter_px, params=self.detection_params)
+
+    def reset(self) -> None:
+        """Restart the sequence (tracks back at rest, no contact)."""
+        self.tracker.reset()
+        self.contact_detector.reset()
+
+    def process(self, image: np.ndarray | str | PathLike[str]) -> FrameFeatures:
+        """Extract the features of one frame of the sequence.
+
+        Parameters
+        ----------
+        image : array or path
+            Same size as the rest frame.
+
+        Returns
+        -------
+        FrameFeatures
+        """
+        grey = as_grey(image)
+        if grey.shape != self.image_shape:
+            raise ImageError(f"frame shape {grey.shape} differs from the rest frame's "
+                             f"{self.image_shape}")
+        det = self._detect(grey, self.region)
+        points = self.tracker.update(det.points, areas=det.areas_px)
+        n_lost = self.tracker.n_lost
+        # lost markers keep a placeholder seed at their last sighting so that their cell is
+        # not absorbed by (and does not inflate) their neighbours; their own area is NaN
+        lost = ~np.isfinite(points).all(axis=1)
+        seeds = np.where(lost[:, None], self.tracker.last_known, points)
+        areas = voronoi_areas(seeds, self.region)
+        areas[lost] = np.nan
+        change = area_change(areas, self.rest_areas)
+        cop = centre_of_pressure(points, areas, on_empty="nan")
+        cop_change = centre_of_pressure(points, areas, weighting="area_change",
+                                        rest_areas=self.rest_areas, on_empty="nan")
+        deformation = surface_deformation(points, self.rest_points)
+        in_contact = self.contact_detector.update(deformation)
+
+        m = len(points)
+        max_lost = self.tracking_params.max_lost_fraction * m
+        if not det.reliable:
+            reliable, reason = False, f"detection unreliable: {det.reason}"
+        elif n_lost > max_lost:
+            reliable, reason = False, (f"{n_lost} of {m} markers lost (max_lost_fraction="
+                                       f"{self.tracking_params.max_lost_fraction})")
+        elif not np.isfinite(cop).all():
+            reliable, reason = False, "centre of pressure undefined (no marker tracked)"
+        else:
+            reliable, reason = True, f"{m - n_lost} of {m} markers tracked"
+        return FrameFeatures(
+            points=points, areas=areas, area_change=change, cop=cop, cop_area_change=cop_change,
+            deformation_px=deformation, n_detected=det.count, n_lost=n_lost, reliable=reliable,
+            reason=reason, contact=in_contact, frame_index=self.tracker.frame_index,
+        )

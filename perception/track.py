@@ -1,0 +1,204 @@
+"""Marker tracking: keep each marker's identity from the rest frame through a sequence.
+
+Each frame is matched to the tracks by an optimal one-to-one assignment
+(``scipy.optimize.linear_sum_assignment``) with a distance gate:
+
+* a track seen in the previous frame is predicted at its last position plus its last
+  frame-to-frame motion (constant velocity), so shear that builds up over many frames is
+  followed without the gate having to cover the total displacement;
+* a lost track is looked for at its last known position *and* at its rest position (the skin
+  relaxes back), whichever is closer;
+* the gate is a fraction of the rest marker spacing (default one half: no detection can then
+  be within the gate of two rest neighbours);
+* the assignment maximises the number of gated matches first and then minimises the total
+  distance (a cost above the gate that exceeds any feasible total);
+* unmatched tracks are **lost**: their position is NaN, never the stale last position, and
+  they are re-acquired as soon as a detection reappears within the gate;
+* with blob areas given, a blob larger than ``merge_area_ratio`` times the median rest area is
+  a merged pair: the track it is matched to is flagged ``MERGED`` (NaN) instead of taking a
+  position between two markers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial.distance import cdist
+
+from .errors import PointsError
+from .geometry import as_points, marker_spacing
+from .params import TrackingParams
+
+__all__ = ["LOST", "MERGED", "TRACKED", "MarkerTracker"]
+
+#: Track status codes (``MarkerTracker.status``).
+TRACKED, LOST, MERGED = 0, 1, 2
+
+
+class MarkerTracker:
+    """Track markers against a rest frame.
+
+    Parameters
+    ----------
+    rest_points : (m, 2) float, px, OpenCV (x, y)
+        Marker positions in the rest frame; all finite, m >= 2 (the gate needs a spacing).
+    rest_areas : (m,) float, px², optional
+        Blob areas in the rest frame; enables merged-blob flagging when ``update`` is given
+        areas.
+    gate_px : float, optional
+        Distance gate, px (> 0). Default ``params.gate_fraction`` times the rest spacing.
+    params : TrackingParams, optional
+
+    Attributes
+    ----------
+    rest_points : (m, 2) float64, px
+    gate_px : float
+    spacing_px : float
+        Median nearest-neighbour distance of the rest points.
+
+    Examples
+    --------
+    >>> tracker = MarkerTracker(rest_pts)          # doctest: +SKIP
+    >>> positions = tracker.update(detected_pts)   # (m, 2), NaN rows for lost markers
+    """
+
+    def __init__(self, rest_points: np.ndarray, *, rest_areas: np.ndarray | None = None,
+                 gate_px: float | None = None, params: TrackingParams | None = None) -> None:
+        self.params = params if params is not None else TrackingParams()
+        rest = as_points(rest_points, "rest_points", allow_nan=False)
+        if len(rest) < 2:
+            raise PointsError(f"rest_points needs at least 2 markers, got {len(rest)}")
+        self.rest_points = rest
+        self.rest_points.setflags(write=False)
+        self.spacing_px = marker_spacing(rest)
+        if gate_px is None:
+            gate_px = self.params.gate_fraction * self.spacing_px
+        if not (np.isfinite(gate_px) and gate_px > 0):
+            raise PointsError(f"gate_px={gate_px} must be finite and > 0")
+        self.gate_px = float(gate_px)
+        self._rest_area = None
+        if rest_areas is not None:
+            ra = np.asarray(rest_areas, dtype=np.float64)
+            if ra.shape != (len(rest),) or not (np.isfinite(ra).all() and (ra > 0).all()):
+                raise PointsError(f"rest_areas must be {len(rest)} finite positive areas")
+            self._rest_area = float(np.median(ra))
+        self.reset()
+
+    # -- state ----------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the sequence: every track back at rest, seen, with zero velocity."""
+        m = len(self.rest_points)
+        self._last = self.rest_points.copy()  # last known position of each track
+        self._velocity = np.zeros((m, 2))
+        self._seen = np.ones(m, dtype=bool)  # seen in the previous frame
+        self._positions = self.rest_points.copy()
+        self._status = np.zeros(m, dtype=np.int8)
+        self.last_match = np.full(m, -1, dtype=np.intp)  # detection row per track, -1: none
+        self.frame_index = 0
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(m, 2) float64, px: positions from the last update, NaN for lost/merged tracks."""
+        return self._positions.copy()
+
+    @property
+    def last_known(self) -> np.ndarray:
+        """(m, 2) float64, px: where each track was last seen (rest position if never lost).
+
+        Not a position estimate for lost tracks - use it only where a placeholder is needed
+        (e.g. to keep a lost marker's Voronoi cell from being absorbed by its neighbours).
+        """
+        return self._last.copy()
+
+    @property
+    def status(self) -> np.ndarray:
+        """(m,) int8: :data:`TRACKED`, :data:`LOST` or :data:`MERGED` per track."""
+        return self._status.copy()
+
+    @property
+    def lost(self) -> np.ndarray:
+        """(m,) bool: tracks without a position in the last update."""
+        return self._status != TRACKED
+
+    @property
+    def n_lost(self) -> int:
+        """Number of tracks without a position in the last update."""
+        return int(np.count_nonzero(self._status != TRACKED))
+
+    # -- update ---------------------------------------------------------------------------
+    def predicted(self) -> np.ndarray:
+        """(m, 2) float64, px: where each track is expected in the next frame."""
+        pred = self._last.copy()
+        if self.params.use_velocity:
+            pred[self._seen] += self._velocity[self._seen]
+        return pred
+
+    def update(self, points: np.ndarray, *, areas: np.ndarray | None = None) -> np.ndarray:
+        """Assign this frame's detections to the tracks.
+
+        Parameters
+        ----------
+        points : (n, 2) float, px, OpenCV (x, y)
+            Detections in any order; NaN rows are ignored; n may be 0.
+        areas : (n,) float, px², optional
+            Blob areas (e.g. ``MarkerDetection.areas_px``); with ``rest_areas`` given at
+            construction, oversized blobs are treated as merged pairs.
+
+        Returns
+        -------
+        positions : (m, 2) float64, px
+            Position of every track in this frame, NaN where the track is lost or merged.
+        """
+        det = as_points(points, "points")
+        keep = np.isfinite(det).all(axis=1)
+        merged_det = np.zeros(len(det), dtype=bool)
+        if areas is not None:
+            ar = np.asarray(areas, dtype=np.float64)
+            if ar.shape != (len(det),):
+                raise PointsError(f"areas must have shape ({len(det)},), got {ar.shape}")
+            if self._rest_area is not None:
+                merged_det = ar > self.params.merge_area_ratio * self._rest_area
+        det_idx = np.flatnonzero(keep)
+        det = det[keep]
+        merged_det = merged_det[keep]
+
+        m = len(self.rest_points)
+        track, match = self._assign(det)
+        new_pos = np.full((m, 2), np.nan)
+        status = np.full(m, LOST, dtype=np.int8)
+        good = ~merged_det[match]
+        new_pos[track[good]] = det[match[good]]
+        status[track[good]] = TRACKED
+        status[track[~good]] = MERGED
+
+        ok = status == TRACKED
+        # velocity only from consecutive sightings; re-acquired tracks restart at zero
+        vel = np.zeros((m, 2))
+        both = ok & self._seen
+        vel[both] = new_pos[both] - self._last[both]
+        self._velocity = vel
+        self._last[ok] = new_pos[ok]
+        self._seen = ok
+        self._positions = new_pos
+        self._status = status
+        self.frame_index += 1
+        self.last_match = np.full(m, -1, dtype=np.intp)
+        self.last_match[track] = det_idx[match]
+        return new_pos.copy()
+
+    def _assign(self, det: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gated optimal one-to-one assignment: (track indices, detection indices)."""
+        if len(det) == 0:
+            return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
+        cost = cdist(self.predicted(), det)
+        lost = ~self._seen
+        if lost.any():  # a lost track may also come back at its rest position
+            cost[lost] = np.minimum(cost[lost], cdist(self.rest_points[lost], det))
+        gate = self.gate_px
+        feasible = cost <= gate
+        # an infeasible pair costs more than any set of feasible pairs: maximum number of
+        # gated matches first, then minimum total distance among those
+        big = gate * (min(cost.shape) + 1.0) + 1.0
+        rows, cols = linear_sum_assignment(np.where(feasible, cost, big))
+        accept = feasible[rows, cols]
+        return rows[accept], cols[accept]

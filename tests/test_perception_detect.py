@@ -1,0 +1,244 @@
+"""Marker detection on synthetic frames with known sub-pixel centres, and on bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from shapely.geometry import Point
+
+import perception as pc
+from perception.synthetic import render_markers
+
+CENTRE = (319.5, 239.5)
+
+
+def _frame(n=97, spacing=36.0, diameter=10.0, *, seed=0, **kw):
+    rng = np.random.default_rng(seed)
+    centres = pc.hex_lattice(n, spacing, CENTRE) + rng.uniform(-0.5, 0.5, (n, 2))
+    opts = dict(noise_sigma=0.02, blur_sigma_px=1.0, illumination=0.3, n_glints=6)
+    opts.update(kw)
+    return render_markers(centres, diameter_px=diameter, rng=rng, **opts)
+
+
+def _match(truth, found):
+    """Distances from every detection to its nearest true centre, and which centre."""
+    dist, idx = cKDTree(truth).query(found)
+    return dist, idx
+
+
+# -- known answers on synthetic frames ------------------------------------------------------
+
+@pytest.mark.parametrize(
+    "n, spacing, diameter, glint_inset",
+    [(97, 36.0, 10.0, None), (97, 36.0, 10.0, 10.0), (331, 20.0, 11.0, None),
+     (127, 20.0, 6.0, 6.0)],
+)
+def test_synthetic_recall_and_subpixel_accuracy(n, spacing, diameter, glint_inset):
+    # anti-aliased discs + noise + blur + uneven light + elongated glints at the rim
+    frame = _frame(n, spacing, diameter, seed=n, glint_inset_px=glint_inset)
+    det = pc.detect_markers_detailed(frame.image)
+    dist, idx = _match(frame.centres, det.points)
+    assert det.count == n
+    assert len(np.unique(idx)) == n  # recall 100 %, one detection per marker
+    assert dist.max() < 0.25 * diameter  # no glint passed off as a marker
+    assert np.sqrt(np.mean(dist**2)) <= 0.1  # sub-pixel: RMS <= 0.1 px
+    assert det.reliable, det.reason
+    # every glint was seen and rejected, none accepted
+    g_dist, _ = cKDTree(det.points).query(frame.glint_centres)
+    assert (g_dist > diameter).all()
+
+
+def test_noise_free_centroids_are_unbiased():
+    frame = _frame(97, 36.0, 10.0, seed=3, noise_sigma=0.0, blur_sigma_px=0.0,
+                   illumination=0.0, n_glints=0)
+    pts = pc.detect_markers(frame.image)
+    dist, _ = _match(frame.centres, pts)
+    assert len(pts) == 97
+    assert dist.max() < 0.03
+
+
+def test_pixel_convention_integer_centres():
+    # a disc centred exactly on pixel (200, 150) must come out at (200, 150)
+    centres = pc.hex_lattice(19, 30.0, (200.0, 150.0))
+    frame = render_markers(centres, shape=(300, 400), diameter_px=9.0)
+    pts = pc.detect_markers(frame.image)
+    dist, idx = _match(centres, pts)
+    assert len(pts) == 19 and dist.max() < 0.02
+    assert np.allclose(pts[idx == 0], [[200.0, 150.0]], atol=0.02)
+
+
+def test_expected_diameter_gives_same_answer():
+    frame = _frame(seed=5)
+    auto = pc.detect_markers(frame.image)
+    given = pc.detect_markers(frame.image, expected_diameter_px=10.0)
+    assert len(auto) == len(given) == 97
+    assert np.allclose(np.sort(auto, axis=0), np.sort(given, axis=0), atol=0.05)
+
+
+def test_colour_float_uint16_int64_inputs_agree():
+    frame = _frame(seed=7)
+    g8 = frame.image
+    ref = pc.detect_markers(g8)
+    variants = {
+        "bgr": np.repeat(g8[:, :, None], 3, axis=2),
+        "bgra": np.dstack([g8, g8, g8, np.full_like(g8, 255)]),
+        "gray1": g8[:, :, None],
+        "int64": g8.astype(np.int64),
+        "uint16": g8.astype(np.uint16) * np.uint16(257),
+        "float": g8.astype(np.float64) / 255.0,
+    }
+    for name, img in variants.items():
+        pts = pc.detect_markers(img)
+        assert pts.shape == ref.shape, name
+        assert np.abs(np.sort(pts, axis=0) - np.sort(ref, axis=0)).max() < 0.02, name
+
+
+def test_binarised_bool_frame():
+    centres = pc.hex_lattice(127, 13.0, (127.5, 127.5))
+    grey = render_markers(centres, shape=(256, 256), diameter_px=5.0, exterior_level=0.0,
+                          skin_level=0.0, marker_level=1.0, sensor_radius_px=110.0).image
+    binary = grey > 127
+    pts = pc.detect_markers(binary)
+    dist, idx = _match(centres, pts)
+    assert len(pts) == 127 and len(np.unique(idx)) == 127
+    assert dist.max() < 0.5  # thresholding loses the sub-pixel edge information
+
+
+def test_mask_in_every_form_rejects_outside():
+    frame = _frame(seed=11)
+    full = pc.detect_markers_detailed(frame.image)
+    circle = Point(*CENTRE).buffer(90.0, quad_segs=32)
+    inside_truth = np.hypot(*(frame.centres - CENTRE).T) < 90.0
+    mask = np.zeros(frame.image.shape, dtype=bool)
+    yy, xx = np.mgrid[0:480, 0:640]
+    mask[np.hypot(xx - CENTRE[0], yy - CENTRE[1]) < 90.0] = True
+    vertices = np.asarray(circle.exterior.coords)
+    for region in (circle, vertices, mask, mask.astype(np.uint8) * 255):
+        det = pc.detect_markers_detailed(frame.image, mask=region)
+        assert det.count == inside_truth.sum()
+        assert det.rejected_reasons.count("outside") == full.count - det.count
+
+
+# -- bad input: a clear error or an unreliable/empty result ---------------------------------
+
+def test_blank_image_gives_no_detections():
+    det = pc.detect_markers_detailed(np.zeros((480, 640), np.uint8))
+    assert det.count == 0 and not det.reliable
+    assert pc.detect_markers(np.zeros((480, 640))).shape == (0, 2)
+
+
+@pytest.mark.parametrize("value", [255, 1.0])
+def test_saturated_image(value):
+    img = np.full((480, 640), value, dtype=np.uint8 if value == 255 else np.float32)
+    det = pc.detect_markers_detailed(img, expected_count=97)
+    assert det.count == 0 or not det.reliable
+
+
+@pytest.mark.parametrize("kind", ["uniform", "gauss", "gauss_float", "blurred"])
+def test_pure_noise_is_empty_or_unreliable(kind):
+    import cv2
+
+    rng = np.random.default_rng(42)
+    img = {
+        "uniform": lambda: rng.integers(0, 256, (480, 640)).astype(np.uint8),
+        "gauss": lambda: np.clip(rng.normal(100, 20, (480, 640)), 0, 255).astype(np.uint8),
+        "gauss_float": lambda: np.clip(rng.normal(0.5, 0.1, (480, 640)), 0, 1),
+        "blurred": lambda: cv2.GaussianBlur(
+            rng.normal(0.5, 0.2, (480, 640)).clip(0, 1).astype(np.float32), (0, 0), 2.0),
+    }[kind]()
+    for expected in (None, 97):
+        det = pc.detect_markers_detailed(img, expected_count=expected)
+        assert det.count == 0 or not det.reliable, (expected, det.reason)
+
+
+def test_half_covered_frame_is_unreliable():
+    frame = _frame(seed=13)
+    img = frame.image.copy()
+    img[:, :320] = 5  # a dark object covers the left half
+    det = pc.detect_markers_detailed(img, expected_count=97)
+    assert 0 < det.count < 97 * 0.6
+    assert not det.reliable and "expected 97" in det.reason
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.zeros((8, 8), np.uint8), "too small"),
+        (np.zeros(1000, np.uint8), "shape"),
+        (np.zeros((4, 32, 32, 3), np.uint8), "shape"),
+        (np.zeros((32, 32, 2), np.uint8), "shape"),
+        (np.full((32, 32), 2.0), r"\[0, 1\]"),
+        (np.full((32, 32), -0.5, np.float32), r"\[0, 1\]"),
+        (np.full((32, 32), -1, np.int64), "65535"),
+        (np.full((32, 32), 70000, np.int64), "65535"),
+        (np.array([["a"] * 32] * 32), "dtype"),
+        (np.zeros((32, 32), np.complex128), "dtype"),
+    ],
+)
+def test_unusable_images_raise_image_error(bad, match):
+    with pytest.raises(pc.ImageError, match=match):
+        pc.detect_markers(bad)
+
+
+def test_nan_image_raises():
+    img = np.zeros((64, 64))
+    img[3, 4] = np.nan
+    with pytest.raises(pc.ImageError, match="non-finite"):
+        pc.detect_markers(img)
+
+
+def test_unreadable_files_name_the_path(tmp_path):
+    missing = tmp_path / "nope.png"
+    with pytest.raises(pc.ImageError, match="nope.png"):
+        pc.detect_markers(missing)
+    junk = tmp_path / "junk.png"
+    junk.write_text("not an image")
+    with pytest.raises(pc.ImageError, match="junk.png"):
+        pc.detect_markers(str(junk))
+
+
+def test_errors_are_value_errors():
+    assert issubclass(pc.PerceptionError, ValueError)
+    for cls in (pc.ImageError, pc.RegionError, pc.PointsError, pc.ModelError):
+        assert issubclass(cls, pc.PerceptionError)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(expected_count=0), "expected_count"),
+        (dict(expected_count=2.5), "expected_count"),
+        (dict(expected_diameter_px=0.2), "expected_diameter_px"),
+        (dict(expected_diameter_px=1e4), "expected_diameter_px"),
+    ],
+)
+def test_option_validation(kwargs, match):
+    with pytest.raises(pc.PerceptionError, match=match):
+        pc.detect_markers(np.zeros((64, 64), np.uint8), **kwargs)
+
+
+def test_mask_validation():
+    img = np.zeros((64, 64), np.uint8)
+    with pytest.raises(pc.RegionError, match="does not match"):
+        pc.detect_markers(img, mask=np.ones((32, 32), bool))
+    with pytest.raises(pc.RegionError, match="empty"):
+        pc.detect_markers(img, mask=np.zeros((64, 64), bool))
+    with pytest.raises(pc.RegionError, match="values"):
+        pc.detect_markers(img, mask=np.full((64, 64), 7, np.uint8))
+    with pytest.raises(pc.RegionError, match="3 vertices"):
+        pc.detect_markers(img, mask=np.array([[0.0, 0.0], [5.0, 5.0]]))
+
+
+def test_params_validation_names_parameter():
+    with pytest.raises(pc.PerceptionError, match="half_max_fraction"):
+        pc.DetectionParams(half_max_fraction=1.5)
+    with pytest.raises(pc.PerceptionError, match="max_elongation"):
+        pc.DetectionParams(max_elongation=0.5)
+
+
+def test_result_is_frozen():
+    det = pc.detect_markers_detailed(_frame(seed=17).image)
+    with pytest.raises(ValueError, match="read-only"):
+        det.points[0, 0] = 1.0
+    assert np.allclose(det.diameters_px, 2 * np.sqrt(det.areas_px / np.pi))

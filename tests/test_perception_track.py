@@ -1,0 +1,172 @@
+"""Tracking: identities through shear + indentation, loss, re-acquisition, merging."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import perception as pc
+
+SPACING = 20.0
+
+
+def _rest():
+    return pc.hex_lattice(100, SPACING, (320.0, 240.0))
+
+
+def _deformed(rest, s, *, shear_spacings=3.0, bulge=0.5):
+    """Shear along x growing with y, plus a radial bulge about an off-centre point.
+
+    ``s`` in [0, 1] is the load; at s = 1 the top and bottom rows have moved
+    ``shear_spacings`` spacings in opposite directions.
+    """
+    centre = rest.mean(axis=0)
+    radius = np.abs(rest[:, 1] - centre[1]).max()
+    out = rest.copy()
+    out[:, 0] += s * shear_spacings * SPACING * (rest[:, 1] - centre[1]) / radius
+    c_b = centre + (30.0, -20.0)
+    d = rest - c_b
+    r2 = (d**2).sum(axis=1, keepdims=True)
+    out += s * bulge * d * np.exp(-r2 / (2.0 * (2.0 * SPACING) ** 2))
+    return out
+
+
+def _observe(truth, rng, noise=0.1):
+    """Detections: noisy, in shuffled order."""
+    det = truth + rng.normal(0.0, noise, truth.shape)
+    return det[rng.permutation(len(det))]
+
+
+def test_shear_and_indentation_sequence_has_no_identity_swaps():
+    rng = np.random.default_rng(0)
+    rest = _rest()
+    n_frames = 8  # 3 spacings of shear in 8 frames: up to 15 px per frame, beyond the gate
+    loads = (np.arange(n_frames + 1) / n_frames) ** 2
+    steps = np.diff([_deformed(rest, s) for s in loads], axis=0)
+    assert np.hypot(*steps.reshape(-1, 2).T).max() > 0.5 * SPACING  # beyond the gate
+
+    tracker = pc.MarkerTracker(rest)
+    assert tracker.gate_px == pytest.approx(0.5 * SPACING)
+    for s in loads[1:]:
+        truth = _deformed(rest, s)
+        out = tracker.update(_observe(truth, rng))
+        assert np.isfinite(out).all()
+        err = np.hypot(*(out - truth).T)
+        assert err.max() < 1.0  # every track on its own marker: zero identity swaps
+        assert tracker.n_lost == 0
+
+    # the sequence really needs the prediction: matching against the last position alone
+    # loses markers, and matching against the rest frame (sorting/nearest) swaps identities
+    static = pc.MarkerTracker(rest, params=pc.TrackingParams(use_velocity=False))
+    lost = 0
+    for s in loads[1:]:
+        static.update(_observe(_deformed(rest, s), rng))
+        lost += static.n_lost
+    assert lost > 0
+    final = _deformed(rest, 1.0)
+    nearest_rest = np.argmin(np.hypot(*(final[:, None] - rest[None]).transpose(2, 0, 1)),
+                             axis=1)
+    assert (nearest_rest != np.arange(len(rest))).any()
+
+
+def test_removed_marker_is_lost_then_reacquired():
+    rng = np.random.default_rng(1)
+    rest = _rest()
+    tracker = pc.MarkerTracker(rest)
+    j = 42
+    for k in range(10):
+        truth = _deformed(rest, 0.1 * min(k + 1, 3))  # load up over 3 frames, then hold
+        det = truth + rng.normal(0.0, 0.1, truth.shape)
+        if 3 <= k < 7:
+            det = np.delete(det, j, axis=0)
+        out = tracker.update(det[rng.permutation(len(det))])
+        if 3 <= k < 7:
+            assert np.isnan(out[j]).all()  # flagged, never the stale last position
+            assert tracker.status[j] == pc.LOST and tracker.n_lost == 1
+            others = np.delete(np.arange(len(rest)), j)
+            assert np.hypot(*(out[others] - truth[others]).T).max() < 1.0
+        else:
+            assert np.isfinite(out).all()
+            assert np.hypot(*(out[j] - truth[j])) < 1.0  # re-acquired with its identity
+
+
+def test_lost_marker_reacquired_at_rest_after_release():
+    rng = np.random.default_rng(2)
+    rest = _rest()
+    tracker = pc.MarkerTracker(rest)
+    j = 10
+    pressed = rest.copy()
+    pressed[j] += (0.0, 0.6 * SPACING)  # moved more than the gate away from rest
+    for k in range(3):  # press gradually so it is tracked there
+        tracker.update(rest + (pressed - rest) * (k + 1) / 3)
+    assert np.allclose(tracker.positions[j], pressed[j])
+    out = tracker.update(np.delete(rest, j, axis=0))  # released, marker j not seen
+    assert np.isnan(out[j]).all()
+    out = tracker.update(rest + rng.normal(0.0, 0.1, rest.shape))  # it reappears at rest
+    assert np.hypot(*(out[j] - rest[j])) < 1.0
+
+
+def test_merged_pair_is_flagged_not_duplicated():
+    rest = _rest()
+    rest_areas = np.full(len(rest), 80.0)
+    i, j = 0, 1
+    assert np.isclose(np.hypot(*(rest[i] - rest[j])), SPACING)
+    merged = 0.5 * (rest[i] + rest[j])
+    det = np.vstack([np.delete(rest, [i, j], axis=0), merged])
+    areas = np.r_[np.full(len(det) - 1, 80.0), 160.0]
+
+    tracker = pc.MarkerTracker(rest, rest_areas=rest_areas)
+    out = tracker.update(det, areas=areas)
+    assert np.isnan(out[[i, j]]).all()  # neither marker takes the merged centroid
+    assert sorted(tracker.status[[i, j]]) == [pc.LOST, pc.MERGED]
+    others = np.delete(np.arange(len(rest)), [i, j])
+    assert np.allclose(out[others], rest[others])
+
+    # without areas the blob can feed at most one track: never duplicated
+    plain = pc.MarkerTracker(rest)
+    out = plain.update(det)
+    assert np.isfinite(out[[i, j]]).all(axis=1).sum() <= 1
+    used = plain.last_match[plain.last_match >= 0]
+    assert len(np.unique(used)) == len(used)
+
+
+def test_one_to_one_with_a_spurious_detection():
+    rest = _rest()
+    tracker = pc.MarkerTracker(rest)
+    det = np.vstack([rest, rest[5] + (1.0, 0.0)])  # an extra blob right next to marker 5
+    out = tracker.update(det)
+    assert np.allclose(out, rest)  # marker 5 keeps its own detection; nobody takes two
+    used = tracker.last_match[tracker.last_match >= 0]
+    assert len(np.unique(used)) == len(rest)
+
+
+def test_empty_frame_and_reset():
+    rest = _rest()
+    tracker = pc.MarkerTracker(rest)
+    out = tracker.update(np.zeros((0, 2)))
+    assert np.isnan(out).all() and tracker.n_lost == len(rest)
+    tracker.reset()
+    assert tracker.n_lost == 0 and np.allclose(tracker.positions, rest)
+
+
+@pytest.mark.parametrize(
+    "rest, kwargs, match",
+    [
+        (np.array([[0.0, 0.0]]), {}, "at least 2"),
+        (np.array([[0.0, 0.0], [np.nan, 1.0]]), {}, "NaN"),
+        (np.zeros((3, 3)), {}, "shape"),
+        (np.array([[0.0, 0.0], [5.0, 0.0]]), {"gate_px": -1.0}, "gate_px"),
+        (np.array([[0.0, 0.0], [5.0, 0.0]]), {"rest_areas": [1.0]}, "rest_areas"),
+    ],
+)
+def test_tracker_validation(rest, kwargs, match):
+    with pytest.raises(pc.PointsError, match=match):
+        pc.MarkerTracker(rest, **kwargs)
+
+
+def test_update_validation():
+    tracker = pc.MarkerTracker(_rest())
+    with pytest.raises(pc.PointsError, match="areas"):
+        tracker.update(_rest(), areas=np.ones(3))
+    with pytest.raises(pc.PointsError, match="shape"):
+        tracker.update(np.zeros((4, 3)))

@@ -1,0 +1,159 @@
+"""Clipped Voronoi areas and the centre of pressure."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+from shapely.geometry import Point, Polygon
+
+import perception as pc
+
+C = np.array([319.5, 239.5])
+
+
+def _lattice_and_disc(n=97, spacing=36.0):
+    pts = pc.hex_lattice(n, spacing, C)
+    radius = np.hypot(*(pts - C).T).max() + 0.5 * spacing
+    return pts, Point(*C).buffer(radius, quad_segs=64)
+
+
+def _rel(a, b):
+    return abs(a - b) / abs(b)
+
+
+def test_clipped_areas_sum_to_region_area():
+    pts, disc = _lattice_and_disc()
+    areas = pc.voronoi_areas(pts, disc)
+    assert areas.shape == (97,) and np.isfinite(areas).all() and (areas > 0).all()
+    assert _rel(areas.sum(), disc.area) < 1e-9
+    # the outer ring is bounded by the region, not inflated by ghost vertices
+    assert areas.max() / np.median(areas) < 2.0
+
+
+@pytest.mark.parametrize("form", ["polygon", "vertices", "mask"])
+def test_region_forms(form):
+    rng = np.random.default_rng(4)
+    square = Polygon([(50, 40), (250, 40), (250, 200), (50, 200)])
+    pts = rng.uniform((60, 50), (240, 190), (60, 2))
+    if form == "polygon":
+        region, area = square, square.area
+    elif form == "vertices":
+        region, area = np.asarray(square.exterior.coords)[:-1], square.area
+    else:
+        mask = np.zeros((240, 320), bool)
+        mask[40:201, 50:251] = True  # pixels 50..250 x 40..200: edges at -0.5 / +0.5
+        region, area = mask, float(mask.sum())
+    areas = pc.voronoi_areas(pts, region)
+    assert _rel(areas.sum(), area) < 1e-9
+
+
+@pytest.mark.parametrize(
+    "pts",
+    [
+        [[300.0, 240.0]],  # one seed: the whole region
+        [[300.0, 240.0], [340.0, 240.0]],  # two
+        [[280.0, 240.0], [300.0, 240.0], [320.0, 240.0], [340.0, 240.0]],  # collinear
+        [[300.0, 240.0], [320.0, 250.0], [320.0, 250.0], [310.0, 220.0]],  # duplicate
+        [[300.0, 240.0], [np.nan, np.nan], [330.0, 230.0]],  # a lost marker
+    ],
+)
+def test_degenerate_seed_sets(pts):
+    pts = np.array(pts)
+    _, disc = _lattice_and_disc()
+    areas = pc.voronoi_areas(pts, disc)
+    finite = np.isfinite(pts).all(axis=1)
+    assert np.isnan(areas[~finite]).all()
+    assert (areas[finite] > 0).all()
+    assert _rel(areas[finite].sum(), disc.area) < 1e-9
+
+
+def test_duplicates_split_their_cell_equally():
+    pts = np.array([[300.0, 240.0], [320.0, 250.0], [320.0, 250.0], [310.0, 220.0]])
+    _, disc = _lattice_and_disc()
+    areas = pc.voronoi_areas(pts, disc)
+    single = pc.voronoi_areas(pts[[0, 1, 3]], disc)
+    assert areas[1] == areas[2] == pytest.approx(single[1] / 2, rel=1e-12)
+
+
+def test_collinear_cells_are_strips_of_known_width():
+    # seeds on a horizontal line in a square: cells are vertical strips with borders halfway
+    square = Polygon([(0, 0), (100, 0), (100, 50), (0, 50)])
+    pts = np.array([[10.0, 25.0], [30.0, 25.0], [60.0, 25.0], [90.0, 25.0]])
+    areas = pc.voronoi_areas(pts, square)
+    borders = np.r_[0.0, (pts[1:, 0] + pts[:-1, 0]) / 2, 100.0]
+    assert np.allclose(areas, np.diff(borders) * 50.0, rtol=1e-12)
+
+
+def test_no_finite_seed():
+    _, disc = _lattice_and_disc()
+    assert np.isnan(pc.voronoi_areas(np.full((3, 2), np.nan), disc)).all()
+    assert pc.voronoi_areas(np.zeros((0, 2)), disc).shape == (0,)
+
+
+def test_cells_are_ordered_like_the_seeds():
+    pts, disc = _lattice_and_disc()
+    shuffled = pts[np.random.default_rng(0).permutation(len(pts))]
+    cells, share = pc.voronoi_cells(shuffled, disc)
+    assert shapely.contains_xy(cells, shuffled[:, 0], shuffled[:, 1]).all()
+    assert (share == 1).all()
+
+
+def test_area_change():
+    a = np.array([10.0, 12.0, np.nan])
+    r = np.array([10.0, 10.0, 10.0])
+    assert np.allclose(pc.area_change(a, r)[:2], [0.0, 2.0])
+    assert np.allclose(pc.area_change(a, r, relative=True)[:2], [0.0, 0.2])
+    with pytest.raises(pc.PointsError):
+        pc.area_change(a, r[:2])
+
+
+# -- centre of pressure -----------------------------------------------------------------------
+
+def test_cop_of_symmetric_pattern_is_its_centre():
+    pts, disc = _lattice_and_disc()
+    areas = pc.voronoi_areas(pts, disc)
+    assert np.allclose(pc.centre_of_pressure(pts, areas), C, atol=1e-9)
+
+
+def test_cop_definition_by_hand():
+    pts = np.array([[0.0, 0.0], [10.0, 0.0], [np.nan, np.nan]])
+    areas = np.array([1.0, 3.0, 5.0])
+    assert np.allclose(pc.centre_of_pressure(pts, areas), [7.5, 0.0])
+    rest = np.array([1.0, 1.0, 1.0])
+    # growth weights: max(a - a_rest, 0) = (0, 2, .) -> all on the second marker
+    assert np.allclose(pc.centre_of_pressure(pts, areas, weighting="area_change",
+                                             rest_areas=rest), [10.0, 0.0])
+
+
+@pytest.mark.parametrize("offset", [(80.0, 30.0), (-100.0, 50.0), (0.0, -110.0)])
+def test_radial_expansion_moves_cop_towards_its_centre(offset):
+    rest, disc = _lattice_and_disc()
+    a_rest = pc.voronoi_areas(rest, disc)
+    centre = C + offset
+    d = rest - centre
+    r2 = (d**2).sum(axis=1, keepdims=True)
+    moved = rest + 0.3 * d * np.exp(-r2 / (2 * 40.0**2))  # markers pushed out from the centre
+    a = pc.voronoi_areas(moved, disc)
+    cop0 = pc.centre_of_pressure(rest, a_rest)
+    for cop in (pc.centre_of_pressure(moved, a),
+                pc.centre_of_pressure(moved, a, weighting="area_change", rest_areas=a_rest)):
+        assert np.hypot(*(cop - centre)) < np.hypot(*(cop0 - centre))
+        assert np.dot(cop - cop0, centre - cop0) > 0
+    # the growth-weighted CoP lands on the expansion itself (within one marker spacing)
+    cop_change = pc.centre_of_pressure(moved, a, weighting="area_change", rest_areas=a_rest)
+    assert np.hypot(*(cop_change - centre)) < 36.0
+
+
+def test_cop_errors_and_nan_mode():
+    pts = np.array([[0.0, 0.0], [10.0, 0.0]])
+    with pytest.raises(pc.PerceptionError, match="rest_areas"):
+        pc.centre_of_pressure(pts, [1.0, 1.0], weighting="area_change")
+    with pytest.raises(pc.PerceptionError, match="weighting"):
+        pc.centre_of_pressure(pts, [1.0, 1.0], weighting="mass")
+    with pytest.raises(pc.PerceptionError, match="undefined"):
+        pc.centre_of_pressure(pts, [1.0, 1.0], weighting="area_change", rest_areas=[2.0, 2.0])
+    cop = pc.centre_of_pressure(np.full((2, 2), np.nan), [1.0, 1.0], on_empty="nan")
+    assert np.isnan(cop).all()
+    with pytest.raises(pc.PointsError, match="areas"):
+        pc.centre_of_pressure(pts, [1.0])
