@@ -17,6 +17,12 @@ from .protocol import evaluation_sets, make_tip, training_set
 from .sweep import SweepSpec, _versions, run_sweep
 
 ORDERS = (1, 2, 3)
+# The CoP feature the regressors use. "area_change" (cells weighted by their growth against the
+# rest frame) is the default: with Voronoi cells clipped to the sensor region, as they must be
+# so the outer ring is not inflated, the paper's "area" weighting is pinned near the region's
+# centroid (clipped areas sum to the region's area) and moves a few pixels over the whole
+# protocol. Both are fitted and reported; ``r2_table_paper_cop.*`` holds the paper's variant.
+FEATURES = ("area_change", "area")
 
 
 @dataclass(frozen=True)
@@ -26,6 +32,7 @@ class CalibrationResult:
     seconds: float
     samples: int
     timings: dict[str, float]
+    other_rows: list[ScoreRow]  # the same table for the other CoP feature
 
 
 def calibrate(
@@ -38,20 +45,25 @@ def calibrate(
     scheduler: str | None = None,
     progress: bool = True,
     charts: bool = True,
+    feature: str = "area_change",
 ) -> CalibrationResult:
     """Run the reference paper's calibration protocol in simulation (resumable).
 
     For each tip: the training sweep and the test sweeps (datasets under ``out/tip_X/``),
     polynomial regressors of order 1, 2 and 3 fitted on the training CoPs and scored on each
-    test set. Writes ``r2_table.csv``, ``r2_table.md``, ``models/*.json``, charts and
-    ``manifest.json`` into ``out``.
+    test set, for both CoP features (``feature`` is the headline one, see :data:`FEATURES`).
+    Writes ``r2_table.csv``, ``r2_table.md`` (headline feature), ``r2_table_paper_cop.*`` or
+    ``r2_table_area_change_cop.*`` (the other), ``models/*.json``, charts and ``manifest.json``.
     """
+    if feature not in FEATURES:
+        raise ValueError(f"feature={feature!r} must be one of {FEATURES}")
+    other = next(f for f in FEATURES if f != feature)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     tips = list(tips) if tips else list(scene.protocol.tips)
     frames = scene.protocol.frames_per_sample if frames is None else frames
     t_start = time.perf_counter()
-    rows: list[ScoreRow] = []
+    rows: dict[str, list[ScoreRow]] = {feature: [], other: []}
     timings: dict[str, float] = {}
     samples = 0
     models_dir = out / "models"
@@ -67,21 +79,29 @@ def calibrate(
                             scheduler=scheduler, progress=progress)
             results[pose_set.name] = res
             samples += res.computed
-        train = features(results["train"].dataset)
-        for order in ORDERS:
-            model = fit_model(train, order)
-            model.to_json(models_dir / f"tip_{tip}_order{order}.json")
-            for pose_set in sets[1:]:
-                test = features(results[pose_set.name].dataset)
-                rows.append(score(model, test, tip=tip, depth_offset_mm=pose_set.depth_offset_mm))
+        for feat in (feature, other):
+            train = features(results["train"].dataset, variant=feat)
+            folder = models_dir if feat == feature else models_dir / f"{feat}_cop"
+            folder.mkdir(exist_ok=True)
+            for order in ORDERS:
+                model = fit_model(train, order)
+                model.to_json(folder / f"tip_{tip}_order{order}.json")
+                for pose_set in sets[1:]:
+                    test = features(results[pose_set.name].dataset, variant=feat)
+                    rows[feat].append(score(model, test, tip=tip,
+                                            depth_offset_mm=pose_set.depth_offset_mm))
         timings[f"tip_{tip}_s"] = time.perf_counter() - t_tip
         tip_info[tip] = make_tip(scene, tip).draws
         if charts:
             from .report import tip_charts
 
-            tip_charts(out, tip, {k: r.dataset for k, r in results.items()}, train)
-    atomic_write_text(out / "r2_table.csv", r2_table_csv(rows))
-    atomic_write_text(out / "r2_table.md", r2_table_markdown(rows))
+            tip_charts(out, tip, {k: r.dataset for k, r in results.items()},
+                       features(results["train"].dataset, variant=feature), feature=feature)
+    atomic_write_text(out / "r2_table.csv", r2_table_csv(rows[feature]))
+    atomic_write_text(out / "r2_table.md", r2_table_markdown(rows[feature], feature=feature))
+    alt = "r2_table_paper_cop" if other == "area" else f"r2_table_{other}_cop"
+    atomic_write_text(out / f"{alt}.csv", r2_table_csv(rows[other]))
+    atomic_write_text(out / f"{alt}.md", r2_table_markdown(rows[other], feature=other))
     seconds = time.perf_counter() - t_start
     timings["total_s"] = seconds
     manifest = {
@@ -91,6 +111,7 @@ def calibrate(
         "scene_source": scene.source,
         "tips": tip_info,
         "frames_per_sample": frames,
+        "feature": feature,
         "seed": scene.protocol.seed,
         "pose_sets": {s.name: len(s) for s in sets},
         "workers": workers,
@@ -103,5 +124,5 @@ def calibrate(
     if charts:
         from .report import summary_charts
 
-        summary_charts(out, rows)
-    return CalibrationResult(out, rows, seconds, samples, timings)
+        summary_charts(out, rows[feature])
+    return CalibrationResult(out, rows[feature], seconds, samples, timings, rows[other])

@@ -45,7 +45,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     tips = [t.strip() for t in args.tips.split(",")] if args.tips else None
     res = calibrate(scene, args.out, tips=tips, frames=args.frames, workers=args.workers,
                     scheduler=args.scheduler, progress=not args.no_progress,
-                    charts=not args.no_charts)
+                    charts=not args.no_charts, feature=args.feature)
     print((Path(args.out) / "r2_table.md").read_text())
     print(f"{res.samples} samples computed in {res.seconds:.1f} s; results in {args.out}/")
     return 0
@@ -136,6 +136,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true",
                    help="coarser grids (roll step 8°, pitch step 3.5°, 30 test poses)")
     p.add_argument("--no-charts", action="store_true", help="skip the PNG charts")
+    p.add_argument("--feature", default="area_change", choices=["area_change", "area"],
+                   help="headline CoP feature (default area_change; both are reported)")
     _scale_args(p)
     p.set_defaults(func=_cmd_calibrate)
 
@@ -163,8 +165,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "save it as JSON.")
     p.add_argument("dataset", help="dataset folder (from tactip sweep)")
     p.add_argument("--order", type=int, default=2, choices=[1, 2, 3], help="polynomial order")
-    p.add_argument("--variant", default="area", choices=["area", "area_change"],
-                   help="CoP weighting (default: the paper's cell areas)")
+    p.add_argument("--variant", default="area_change", choices=["area", "area_change"],
+                   help="CoP weighting (default: cell growth; 'area' is the paper's)")
     p.add_argument("--out", help="model file (default DATASET/model_orderN.json)")
     p.set_defaults(func=_cmd_fit)
 
@@ -172,6 +174,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="R² and RMSE of a saved regressor on one or more datasets.")
     p.add_argument("model", help="model JSON (from tactip fit or tactip calibrate)")
     p.add_argument("datasets", nargs="+", help="dataset folders")
-    p.add_argument("--variant", default="area", choices=["area", "area_change"])
+    p.add_argument("--variant", default="area_change", choices=["area", "area_change"],
+                   help="CoP weighting the model was fitted with")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_evaluate)

@@ -4,6 +4,7 @@ Layout of a dataset folder::
 
     manifest.json        what made it: scene (resolved) and its hash, tip, pose set, seeds
     images/00000.png     one frame per sample (a noisy frame as the camera would give it)
+    images/rest.png      the tip at rest (the reference frame for perception)
     records/00000.npz    one record per sample: pose, features, ground truth (the unit of resume)
     targets.csv          one row per sample, Bristol TacTip pose columns + our own (finalised)
     truth.npz            ground-truth arrays over all samples (finalised)
@@ -168,6 +169,13 @@ class Dataset:
 
     def image_path(self, index: int) -> Path:
         return self.root / "images" / f"{index:05d}.png"
+
+    @property
+    def rest_image_path(self) -> Path:
+        return self.root / "images" / "rest.png"
+
+    def write_rest(self, png: bytes) -> None:
+        atomic_write_bytes(self.rest_image_path, png)
 
     def done(self) -> set[int]:
         d = self.root / "records"

@@ -33,9 +33,11 @@ class FeatureTable:
     image_size: tuple[int, int]
 
 
-def features(dataset: Dataset | str | Path, *, variant: str = "area") -> FeatureTable:
-    """Read a finished dataset's CoP features (``variant``: "area" (the paper's) or
-    "area_change")."""
+def features(dataset: Dataset | str | Path, *, variant: str = "area_change") -> FeatureTable:
+    """Read a finished dataset's CoP features (``variant``: "area_change" (default: cells
+    weighted by their growth) or "area" (the paper's weighting by clipped cell areas))."""
+    if variant not in ("area", "area_change"):
+        raise ValueError(f"variant={variant!r} must be 'area' or 'area_change'")
     ds = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
     t = ds.table()
     cols = ("cop_x_px", "cop_y_px") if variant == "area" else ("cop_ac_x_px", "cop_ac_y_px")
@@ -93,7 +95,13 @@ def r2_table_csv(rows: list[ScoreRow]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def r2_table_markdown(rows: list[ScoreRow]) -> str:
+FEATURE_TEXT = {
+    "area_change": "CoP weighted by Voronoi cell growth against the rest frame",
+    "area": "the paper's CoP, weighted by (clipped) Voronoi cell areas",
+}
+
+
+def r2_table_markdown(rows: list[ScoreRow], *, feature: str = "area_change") -> str:
     """Laid out like the paper's Table I, ours beside the published numbers."""
     depths = sorted({r.depth_mm for r in rows})
     by = {(r.tip, r.order, r.depth_mm): r for r in rows}
@@ -113,6 +121,8 @@ def r2_table_markdown(rows: list[ScoreRow]) -> str:
                 cells.append(ours + pub)
             lines.append(f"| {tip} | {order} | " + " | ".join(cells) + " |")
     lines.append("")
-    lines.append("R² is the mean of the roll and pitch R² on each 200-pose test set; depths are "
-                 "relative to the training depth. Paper: Pestell et al., Table I.")
+    n = max((r.n for r in rows), default=0)
+    lines.append(f"R² is the mean of the roll and pitch R² on each test set ({n} poses); depths "
+                 "are relative to the training depth. Paper: Pestell et al., Table I. "
+                 f"Feature: {FEATURE_TEXT.get(feature, feature)}.")
     return "\n".join(lines) + "\n"

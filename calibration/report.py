@@ -20,7 +20,8 @@ def _plt():
     return plt
 
 
-def tip_charts(out: Path, tip: str, datasets: dict[str, Dataset], train: FeatureTable) -> None:
+def tip_charts(out: Path, tip: str, datasets: dict[str, Dataset], train: FeatureTable, *,
+               feature: str = "area_change") -> None:
     import perception as pc
 
     charts = out / "charts"
@@ -51,7 +52,7 @@ def tip_charts(out: Path, tip: str, datasets: dict[str, Dataset], train: Feature
     tests = [(k, d) for k, d in datasets.items() if k != "train"]
     fig, axes = plt.subplots(2, len(tests), figsize=(3.6 * len(tests), 6.6), squeeze=False)
     for j, (name, ds) in enumerate(tests):
-        t = features(ds)
+        t = features(ds, variant=feature)
         p = model2.predict(t.cop_px)
         for k, angle in enumerate(("roll", "pitch")):
             ax = axes[k, j]
@@ -70,12 +71,13 @@ def tip_charts(out: Path, tip: str, datasets: dict[str, Dataset], train: Feature
     train_ds = datasets["train"]
     table = train_ds.table()
     n = len(table["index"])
-    rest_path = train_ds.root / "images" / f"{0:05d}.png"
+    rest_path = train_ds.rest_image_path
     if n and rest_path.is_file():
         picks = sorted({0, n // 2, n - 1})
         for i in picks:
             img_path = train_ds.root / "images" / f"{int(table['index'][i]):05d}.png"
-            pc.plots.figure4(img_path, out_path=charts / f"tip_{tip}_fig4_{i:05d}.png",
+            pc.plots.figure4(img_path, rest_image=rest_path,
+                             out_path=charts / f"tip_{tip}_fig4_{i:05d}.png",
                              title=f"tip {tip}: roll {table['roll_deg'][i]:+.0f}°, pitch "
                                    f"{table['pitch_deg'][i]:+.0f}°")
 

@@ -71,6 +71,7 @@ class TipWorker:
 
     def __init__(self, spec: SweepSpec) -> None:
         import perception as pc
+        from tactip_sim.render import Renderer
 
         tip = make_tip(spec.scene, spec.tip, nominal=spec.nominal)
         scene = tip.scene
@@ -80,13 +81,13 @@ class TipWorker:
         self.scene = scene
         self.pad = ts.build_pad(scene, pin_perturbation_mm=tip.pin_offsets_mm)
         self.sim = ts.Simulator(scene, pad=self.pad)
+        self.renderer = Renderer(scene, self.pad)
         self.frames = spec.frames
         self.seed_base = [scene.protocol.seed, scene.protocol.tips.index(spec.tip),
                           zlib.crc32(spec.poses.name.encode())]
         rest_rng = np.random.default_rng([*self.seed_base, 2**31 - 1])
-        rest = self.sim.render(None, rng=rest_rng)
-        self.rest_image = rest.image
-        self.pipeline = pc.FeaturePipeline(rest.image, expected_count=scene.pins.count)
+        self.rest_image = render_frames(self.renderer, None, 1, rest_rng)[2][0]
+        self.pipeline = pc.FeaturePipeline(self.rest_image, expected_count=scene.pins.count)
 
     def sample(self, index: int, pose: Sequence[float]) -> tuple[SampleRecord, bytes]:
         import cv2
@@ -94,20 +95,23 @@ class TipWorker:
         roll, pitch, depth = (float(v) for v in pose)
         state = self.sim.press(ts.Pose(roll_deg=roll, pitch_deg=pitch, depth_mm=depth))
         rng = np.random.default_rng([*self.seed_base, index])
-        clean, images = render_frames(self.sim, state, self.frames, rng)
+        markers_px, visible, images = render_frames(self.renderer, state, self.frames, rng)
         self.pipeline.reset()
         cops, cops_ac, counts, reliable = [], [], [], 0
         for image in images:
             f = self.pipeline.process(image)
             counts.append(f.n_detected)
-            if f.reliable:
-                reliable += 1
+            reliable += int(f.reliable)
+            # a frame with a few lost or merged markers still has a CoP (from the tracked ones);
+            # it is used, and the sample records how many frames were fully reliable
+            if np.all(np.isfinite(f.cop)):
                 cops.append(f.cop)
+            if np.all(np.isfinite(f.cop_area_change)):
                 cops_ac.append(f.cop_area_change)
         nan2 = np.full(2, np.nan)
         cop = np.mean(cops, axis=0) if cops else nan2
-        cop_ac = np.nanmean(cops_ac, axis=0) if cops_ac and np.isfinite(cops_ac).any() else nan2
-        spread = float(np.sqrt(np.mean(np.var(cops, axis=0).sum()))) if len(cops) > 1 else 0.0
+        cop_ac = np.mean(cops_ac, axis=0) if cops_ac else nan2
+        spread = float(np.sqrt(np.var(cops, axis=0).sum())) if len(cops) > 1 else 0.0
         frame0 = images[0]
         ok, png = cv2.imencode(".png", frame0)
         if not ok:  # pragma: no cover - OpenCV cannot fail on a uint8 image
@@ -119,23 +123,24 @@ class TipWorker:
             cop_px=cop, cop_ac_px=cop_ac, cop_std_px=spread,
             n_markers=float(np.mean(counts)), reliable_frames=reliable, frames=len(images),
             contact=int(bool(state.in_contact)), markers_mm=np.asarray(state.markers_mm),
-            markers_px=np.asarray(clean.markers_px, dtype=float),
-            visible=np.asarray(clean.visible, dtype=bool),
+            markers_px=np.asarray(markers_px, dtype=float),
+            visible=np.asarray(visible, dtype=bool),
         )
         return rec, png.tobytes()
 
 
-def render_frames(sim: Any, state: Any, frames: int,
-                  rng: np.random.Generator) -> tuple[Any, list[np.ndarray]]:
-    """Render ``state`` once without noise, then synthesise ``frames`` noisy frames from it.
+def render_frames(renderer: Any, state: Any, frames: int, rng: np.random.Generator
+                  ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Render ``state`` once without noise, then synthesise ``frames`` noisy frames from it with
+    the scene's camera model (exposure, blur, vignetting, shot and read noise).
 
-    Returns the clean ``Frame`` (with the analytic marker pixels and visibility) and the
-    noisy uint8 images."""
-    from tactip_sim.render import apply_camera_noise
-
-    clean = sim.render(state, rng=0, noise=False)
-    return clean, [apply_camera_noise(clean.radiance, sim.scene.imaging, rng=rng)
-                   for _ in range(frames)]
+    Returns the analytic marker pixels (97, 2), their visibility (97,) and the uint8 frames."""
+    markers = None if state is None else state.markers_mm
+    directions = None if state is None else state.marker_directions
+    seed = int(rng.integers(0, 2**31 - 1))
+    radiance = renderer.render_radiance(markers, directions, seed=seed)
+    px, visible, _ = renderer.ground_truth(markers, directions)
+    return px, visible, [renderer.camera.apply(radiance, rng) for _ in range(frames)]
 
 
 _WORKERS: dict[str, TipWorker] = {}
@@ -149,15 +154,19 @@ def _worker_for(spec: SweepSpec) -> TipWorker:
     return _WORKERS[key]
 
 
-def run_chunk(spec: SweepSpec, indices: Sequence[int]) -> list[tuple[SampleRecord, bytes, float]]:
-    """Compute samples ``indices`` of ``spec`` (runs in a worker process)."""
+def run_chunk(spec: SweepSpec, indices: Sequence[int]
+              ) -> tuple[bytes, list[tuple[SampleRecord, bytes, float]]]:
+    """Compute samples ``indices`` of ``spec`` (runs in a worker process). Returns the rest
+    frame (PNG) and, per sample, its record, its frame (PNG) and the seconds it took."""
+    import cv2
+
     worker = _worker_for(spec)
     out = []
     for i in indices:
         t0 = time.perf_counter()
         rec, png = worker.sample(int(i), spec.poses.poses[int(i)])
         out.append((rec, png, time.perf_counter() - t0))
-    return out
+    return cv2.imencode(".png", worker.rest_image)[1].tobytes(), out
 
 
 @dataclass(frozen=True)
@@ -209,7 +218,9 @@ def run_sweep(
     bar = _progress(total=len(spec.poses), initial=len(done), enabled=progress,
                     desc=f"{spec.tip}/{spec.poses.name}")
     try:
-        for results in _execute(spec, chunks, workers, scheduler):
+        for rest_png, results in _execute(spec, chunks, workers, scheduler):
+            if not ds.rest_image_path.is_file():
+                ds.write_rest(rest_png)
             for rec, png, secs in results:
                 ds.write_sample(rec, png)
                 sample_seconds += secs
