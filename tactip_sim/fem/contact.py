@@ -1,0 +1,208 @@
+"""Frictionless node-to-rigid-surface contact: the complementarity problem and its solvers.
+
+For candidate nodes with linearised gaps ``g = g0 + G p`` (``G`` = normal-normal compliance,
+mm/mN, symmetric positive definite) the contact forces ``p`` (mN, along the indenter's outward
+normal) satisfy::
+
+    p >= 0,   g >= 0,   p_i g_i = 0     (a linear complementarity problem)
+
+:func:`solve_lcp` solves it by a primal-dual active set (PDAS) method: on the predicted active
+set A solve ``G_AA p_A = -g0_A`` (so those gaps close exactly), set ``p = 0`` elsewhere, and
+move nodes with ``p < 0`` out of A and nodes with ``g < 0`` into A, until A repeats. If a set
+ever repeats without convergence (cycling; never seen here) it falls back to the exact
+Lawson-Hanson NNLS on the equivalent problem ``min 1/2 p'Gp + g0'p, p >= 0``.
+
+:func:`solve_contact` wraps it with the candidate-set search and, for curved indenters, the
+closest-point updates, against any compliance operator (reduced or full).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import scipy.linalg as sla
+from scipy.optimize import nnls
+
+from .indenters import Placement
+from .tolerances import TOL, Tolerances
+
+
+class ContactError(RuntimeError):
+    """A contact or Newton solve did not converge; the message names the pose."""
+
+
+def solve_lcp(G: np.ndarray, g0: np.ndarray, *, active: np.ndarray | None = None,
+              tol: Tolerances = TOL) -> tuple[np.ndarray, np.ndarray, int]:
+    """Solve ``p >= 0, g = g0 + G p >= 0, p·g = 0`` for symmetric positive-definite ``G``.
+
+    Parameters
+    ----------
+    G : (k, k) float, mm/mN
+    g0 : (k,) float, mm, gaps at zero force
+    active : (k,) bool, initial active set (default: ``g0 < 0``)
+    tol : tolerances (``gap_mm``, ``pdas_max_iter``)
+
+    Returns
+    -------
+    p : (k,) float, mN, contact forces
+    g : (k,) float, mm, gaps
+    iterations : active-set iterations used (NNLS fallback adds the PDAS limit)
+    """
+    k = len(g0)
+    act = (g0 < 0) if active is None else np.asarray(active, dtype=bool).copy()
+    seen: set[bytes] = set()
+    for it in range(1, tol.pdas_max_iter + 1):
+        p = np.zeros(k)
+        idx = np.flatnonzero(act)
+        if idx.size:
+            cf = sla.cho_factor(G[np.ix_(idx, idx)], lower=True, check_finite=False)
+            p[idx] = sla.cho_solve(cf, -g0[idx], check_finite=False)
+        g = g0 + G[:, idx] @ p[idx]
+        new = (act & (p > 0.0)) | (~act & (g < -tol.gap_mm))
+        if np.array_equal(new, act):
+            return p, g, it
+        key = new.tobytes()
+        if key in seen:
+            break
+        seen.add(key)
+        act = new
+    # exact fallback: NNLS on min |L' p - b|^2 with G = L L', L b = -g0
+    low = np.linalg.cholesky(G)
+    b = sla.solve_triangular(low, -g0, lower=True)
+    p, _ = nnls(low.T, b)
+    return p, g0 + G @ p, tol.pdas_max_iter + 1
+
+
+class ComplianceOperator(Protocol):
+    """What :func:`solve_contact` needs from an elastic body (reduced or full). Candidate
+    nodes are indexed 0..s-1; blocks are node-major (dof ``3 k + a``)."""
+
+    def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(3 r, 3 c) compliance (mm/mN): displacement of candidates ``rows`` per unit force
+        on candidates ``cols``."""
+
+    def far_bound(self, nodes: np.ndarray, pressures: np.ndarray) -> np.ndarray | None:
+        """(s,) mm, an upper bound on every candidate's displacement magnitude under normal
+        forces ``pressures`` (mN) on ``nodes``, or ``None`` (then all are checked exactly)."""
+
+    def surface(self, nodes: np.ndarray, forces: np.ndarray) -> np.ndarray:
+        """(s, 3) mm displacements for forces (w, 3) on ``nodes``: exact at least at the
+        candidates that are mesh vertices (others may be NaN)."""
+
+
+@dataclass(frozen=True)
+class ContactSolution:
+    """Result of :func:`solve_contact` on the candidate nodes.
+
+    u : (s, 3) mm, displacements of the candidates (exact at mesh vertices and near the
+        contact; NaN where a reduced model skipped a distant P2 edge node)
+    active : (k,) int, candidate indices carrying force
+    forces : (k, 3) mN, force on the pad at each active candidate
+    pressures : (k,) mN, magnitude of those forces (along the indenter normal)
+    gap : (s,) mm, final gap of every candidate (a lower bound where ``u`` is NaN)
+    complementarity : max_i |p_i g_i| (mN·mm)
+    iterations : total active-set iterations
+    geometry_iterations : closest-point updates (1 for a plate)
+    """
+
+    u: np.ndarray
+    active: np.ndarray
+    forces: np.ndarray
+    pressures: np.ndarray
+    gap: np.ndarray
+    complementarity: float
+    iterations: int
+    geometry_iterations: int
+
+
+def _dofs(nodes: np.ndarray) -> np.ndarray:
+    return (3 * np.asarray(nodes, dtype=np.int64)[:, None] + np.arange(3)).ravel()
+
+
+def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: ComplianceOperator, *,
+                  label: str = "", tol: Tolerances = TOL) -> ContactSolution:
+    """Frictionless contact of the candidate nodes with a placed rigid indenter.
+
+    The working set W starts as the nodes that penetrate the indenter; the LCP is solved on W;
+    every other candidate is then checked with the exact linearised gap, except those the
+    operator's far-field bound proves clear (the gap function is 1-Lipschitz, so a node whose
+    rest gap exceeds its displacement bound cannot touch); penetrating ones join W and the LCP
+    is solved again. Curved indenters repeat this around the deformed positions (closest-point
+    updates) until the displacements stop changing.
+
+    Parameters
+    ----------
+    placement : the indenter in the sensor frame
+    rest_mm : (s, 3) rest positions of the candidate nodes
+    operator : compliance of the candidates (see :class:`ComplianceOperator`)
+    label : named in error messages (the pose)
+    tol : tolerances
+
+    Raises
+    ------
+    ContactError
+        The closest-point updates of a curved indenter did not converge.
+    """
+    s = len(rest_mm)
+    everyone = np.arange(s)
+    g_rest, _ = placement.gap(rest_mm)
+    u = np.zeros((s, 3))
+    work = np.zeros(0, dtype=np.int64)
+    p_work = np.zeros(0)
+    iterations, change, bound = 0, 0.0, None
+    flat = bool(getattr(placement.indenter, "flat", False))
+    for geo in range(1, tol.geometry_max_iter + 1):
+        g, nu = placement.gap(rest_mm + u)
+        g0 = g - np.einsum("ij,ij->i", nu, u)  # gap(u') = g0 + nu . u' (linearised at u)
+        prev = dict(zip(work.tolist(), (p_work > 0).tolist(), strict=True))
+        work = np.union1d(np.flatnonzero(g < 0.0), work[p_work > 0])
+        while True:
+            u_new = np.zeros((s, 3))
+            if work.size == 0:
+                p_work, near = np.zeros(0), everyone[:0]
+                break
+            w = len(work)
+            cw = operator.block(work, work)
+            nw = nu[work]
+            G = np.einsum("ia,iajb,jb->ij", nw, cw.reshape(w, 3, w, 3), nw)
+            warm = np.array([prev.get(i, False) for i in work.tolist()])
+            p_work, _, it = solve_lcp(G, g0[work], active=warm if warm.any() else None,
+                                      tol=tol)
+            iterations += it
+            on = p_work > 0
+            act, f_act = work[on], (p_work[on, None] * nw[on]).ravel()
+            u_new[work] = (cw[:, _dofs(np.flatnonzero(on))] @ f_act).reshape(w, 3)
+            others = np.setdiff1d(everyone, work)
+            bound = operator.far_bound(act, p_work[on])
+            check = others if bound is None else others[g_rest[others] <= bound[others]]
+            if check.size:
+                u_new[check] = (operator.block(check, act) @ f_act).reshape(-1, 3)
+            near = np.union1d(work, check)
+            gl = g0[check] + np.einsum("ij,ij->i", nu[check], u_new[check])
+            extra = check[gl < -tol.gap_mm]
+            if extra.size == 0:
+                break
+            prev = dict(zip(work.tolist(), (p_work > 0).tolist(), strict=True))
+            work = np.union1d(work, extra)
+        change = float(np.abs(u_new[near] - u[near]).max(initial=0.0))
+        u = u_new
+        if flat or change <= tol.geometry_mm:
+            break
+    else:
+        raise ContactError(
+            f"{label or 'contact'}: closest-point updates did not converge in "
+            f"{tol.geometry_max_iter} iterations (last change {change:.3g} mm)")
+    on = p_work > 0
+    active, pressures = work[on], p_work[on]
+    surface = operator.surface(active, pressures[:, None] * nu[active])
+    surface[near] = u[near]
+    known = ~np.isnan(surface[:, 0])
+    g = np.empty(s)
+    g[known], nu_known = placement.gap(rest_mm[known] + surface[known])
+    if not known.all():  # a lower bound (1-Lipschitz gap) for the far nodes skipped
+        g[~known] = g_rest[~known] - bound[~known]
+    forces = pressures[:, None] * nu_known[np.searchsorted(np.flatnonzero(known), active)]
+    comp = float(np.max(np.abs(pressures * g[active]), initial=0.0))
+    return ContactSolution(surface, active, forces, pressures, g, comp, iterations, geo)

@@ -1,0 +1,116 @@
+"""The result of one press: :class:`ContactState` (a small frozen dataclass)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .pose import Pose
+
+_FLOAT_ARRAYS = (
+    "markers_mm", "rest_markers_mm", "marker_directions", "surface_displacements_mm",
+    "contact_points_mm", "contact_forces_N", "contact_pressures_kpa", "force_vector_N",
+    "pressure_centre_mm",
+)
+_INT_ARRAYS = ("surface_vertices", "contact_nodes")
+
+
+@dataclass(frozen=True)
+class ContactState:
+    """The pad pressed by a rigid indenter at one pose (sensor frame, mm, N).
+
+    pose : the pose solved
+    indenter : the indenter used (``Plate()``, ``Sphere(10)``, ...)
+    solver : "reduced", "full" or "neo_hookean"
+    markers_mm : (p, 3) deformed marker (pin tip) positions
+    rest_markers_mm : (p, 3) rest marker positions
+    marker_directions : (p, 3) unit deformed pin axes (root -> tip), for the renderer
+    surface_vertices : (k,) int32, mesh vertex ids of the outer (non-window) surface
+    surface_displacements_mm : (k, 3) their displacements (deformed = rest + this)
+    vertex_displacements_mm : (n_vertices, 3) displacements of every mesh vertex, or ``None``
+        when the solver did not form the full field (the reduced model unless
+        ``full_field=True``)
+    contact_nodes : (a,) int32, discretisation nodes carrying contact force
+    contact_points_mm : (a, 3) their deformed positions
+    contact_forces_N : (a, 3) force of the indenter on the pad at each (N)
+    contact_pressures_kpa : (a,) normal force / lumped nodal area (kPa)
+    force_N : magnitude of the total contact force (N)
+    force_vector_N : (3,) total force of the indenter on the pad (N)
+    contact_area_mm2 : summed lumped area of the nodes in contact (mm²)
+    pressure_centre_mm : (2,) sensor x, y of the centre of pressure (force-weighted mean of the
+        contact points); NaN when not in contact
+    max_penetration_mm : largest penetration of any surface node into the indenter (>= 0)
+    complementarity : max over nodes of |normal force × gap| (mN·mm), ~0 at a solution
+    in_contact : whether any node carries force
+    iterations : active-set iterations (reduced/full) or Newton iterations (neo-Hookean)
+    seconds : wall time of the solve
+    """
+
+    pose: Pose
+    indenter: object
+    solver: str
+    markers_mm: np.ndarray
+    rest_markers_mm: np.ndarray
+    marker_directions: np.ndarray
+    surface_vertices: np.ndarray
+    surface_displacements_mm: np.ndarray
+    vertex_displacements_mm: np.ndarray | None
+    contact_nodes: np.ndarray
+    contact_points_mm: np.ndarray
+    contact_forces_N: np.ndarray
+    contact_pressures_kpa: np.ndarray
+    force_N: float
+    force_vector_N: np.ndarray
+    contact_area_mm2: float
+    pressure_centre_mm: np.ndarray
+    max_penetration_mm: float
+    complementarity: float
+    in_contact: bool
+    iterations: int
+    seconds: float
+
+    def __post_init__(self) -> None:
+        names = [*_FLOAT_ARRAYS]
+        if self.vertex_displacements_mm is not None:
+            names.append("vertex_displacements_mm")
+        for name in names:
+            arr = np.ascontiguousarray(getattr(self, name), dtype=np.float64)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        for name in _INT_ARRAYS:
+            arr = np.ascontiguousarray(getattr(self, name), dtype=np.int32)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        for name in ("force_N", "contact_area_mm2", "max_penetration_mm", "complementarity",
+                     "seconds"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        object.__setattr__(self, "in_contact", bool(self.in_contact))
+        object.__setattr__(self, "iterations", int(self.iterations))
+
+    @property
+    def marker_displacements_mm(self) -> np.ndarray:
+        """(p, 3) marker displacements from rest, mm."""
+        return self.markers_mm - self.rest_markers_mm
+
+    def summary(self) -> dict[str, object]:
+        """Scalars for printing or JSON."""
+        return {
+            "pose": {"roll_deg": self.pose.roll_deg, "pitch_deg": self.pose.pitch_deg,
+                     "depth_mm": self.pose.depth_mm, "offset_mm": list(self.pose.offset_mm),
+                     "yaw_deg": self.pose.yaw_deg},
+            "indenter": repr(self.indenter),
+            "solver": self.solver,
+            "in_contact": self.in_contact,
+            "force_N": self.force_N,
+            "force_vector_N": self.force_vector_N.tolist(),
+            "contact_area_mm2": self.contact_area_mm2,
+            "pressure_centre_mm": [None if np.isnan(v) else float(v)
+                                   for v in self.pressure_centre_mm],
+            "max_marker_displacement_mm": float(
+                np.linalg.norm(self.marker_displacements_mm, axis=1).max(initial=0.0)),
+            "max_penetration_mm": self.max_penetration_mm,
+            "complementarity_mN_mm": self.complementarity,
+            "iterations": self.iterations,
+            "seconds": self.seconds,
+        }

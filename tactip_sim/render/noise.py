@@ -1,0 +1,95 @@
+"""The camera model: rendered radiance -> 8-bit frame.
+
+In order: optical blur (Gaussian, ``blur_px``) -> vignetting (``1 - v (r / r_corner)^2`` about
+the principal point) -> exposure (radiance ``FULL_SCALE_RADIANCE / exposure`` maps to 255 DN)
+-> noise (shot: ``shot_noise * sqrt(DN)``, read: ``read_noise`` DN, one Gaussian draw per
+pixel) -> clip to [0, 255] and round (half up). All randomness comes from the caller's generator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..scene import Scene
+
+FULL_SCALE_RADIANCE = 0.02
+"""Radiance (scene units) that fills the 8-bit range at ``exposure = 1``: the LED-lit caps of
+the default scene (0.06-0.4) then saturate, like real TacTip frames, while the black skin
+stays near the read-noise floor."""
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Exposure, blur, vignetting and noise of the image sensor (DN = 8-bit digital numbers).
+
+    exposure : gain; radiance ``FULL_SCALE_RADIANCE / exposure`` gives 255 DN
+    read_noise : read-noise standard deviation (DN)
+    shot_noise : shot-noise gain (DN per sqrt(DN))
+    blur_px : Gaussian blur standard deviation (px)
+    vignetting : relative fall-off at the image corner (0 = none)
+    principal_point_px : (2,) centre of the vignetting (OpenCV px)
+    """
+
+    exposure: float = 1.0
+    read_noise: float = 2.0
+    shot_noise: float = 0.5
+    blur_px: float = 0.6
+    vignetting: float = 0.3
+    principal_point_px: tuple[float, float] = (319.5, 239.5)
+
+    @classmethod
+    def from_scene(cls, scene: Scene) -> CameraModel:
+        im, cam = scene.imaging, scene.camera
+        w, h = cam.resolution
+        ox, oy = cam.principal_offset_px
+        return cls(im.exposure, im.read_noise, im.shot_noise, im.blur_px, im.vignetting,
+                   ((w - 1) / 2 + ox, (h - 1) / 2 + oy))
+
+    def vignette(self, height: int, width: int) -> np.ndarray:
+        """(H, W) float32 relative illumination."""
+        cx, cy = self.principal_point_px
+        y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+        r2 = (x - cx) ** 2 + (y - cy) ** 2
+        corners = [(0, 0), (width - 1, 0), (0, height - 1), (width - 1, height - 1)]
+        r2c = max((px - cx) ** 2 + (py - cy) ** 2 for px, py in corners)
+        return (1.0 - self.vignetting * r2 / r2c).astype(np.float32)
+
+    def apply(self, radiance: np.ndarray, rng: np.random.Generator | None, *,
+              vignette: np.ndarray | None = None) -> np.ndarray:
+        """Turn radiance into an 8-bit frame.
+
+        Parameters
+        ----------
+        radiance : (H, W) or (H, W, 3) float, linear radiance per pixel
+        rng : generator of the sensor noise; None = no noise (blur, vignetting and
+            quantisation only)
+        vignette : optional precomputed :meth:`vignette` (H, W)
+
+        Returns
+        -------
+        (H, W) or (H, W, 3) uint8
+        """
+        import cv2
+
+        img = np.asarray(radiance, dtype=np.float32)
+        if img.ndim == 3 and img.shape[2] == 1:
+            img = img[..., 0]
+        h, w = img.shape[:2]
+        if self.blur_px > 0:
+            k = 2 * int(np.ceil(3.0 * self.blur_px)) + 1  # odd: no half-pixel shift
+            img = cv2.GaussianBlur(img, (k, k), self.blur_px, borderType=cv2.BORDER_REFLECT)
+        vig = self.vignette(h, w) if vignette is None else vignette
+        gain = vig * np.float32(255.0 * self.exposure / FULL_SCALE_RADIANCE)
+        dn = img * (gain[..., None] if img.ndim == 3 else gain)
+        if rng is not None and (self.read_noise > 0 or self.shot_noise > 0):
+            sigma = np.maximum(dn, 0.0)
+            sigma *= np.float32(self.shot_noise**2)
+            sigma += np.float32(self.read_noise**2)
+            np.sqrt(sigma, out=sigma)
+            sigma *= rng.standard_normal(dn.shape, dtype=np.float32)
+            dn += sigma
+        np.clip(dn, 0.0, 255.0, out=dn)
+        dn += np.float32(0.5)  # round half up
+        return dn.astype(np.uint8)

@@ -1,0 +1,238 @@
+"""The :class:`Simulator`: a scene's pad as an elastic body you can press with rigid indenters.
+
+>>> sim = Simulator(scene)                                   # doctest: +SKIP
+>>> state = sim.press(Pose(roll_deg=4, pitch_deg=-2, depth_mm=1.5))  # doctest: +SKIP
+>>> state.markers_mm, state.force_N, state.pressure_centre_mm       # doctest: +SKIP
+
+The mesh is built (or loaded) at construction; the stiffness, its factorisation and the
+reduced model's compliance are formed on first use and the compliance is cached on disk.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable
+
+import numpy as np
+import trimesh
+
+from .fem.contact import ContactSolution, solve_contact
+from .fem.full import FullOperator
+from .fem.indenters import Indenter, indenter_from_scene, place
+from .fem.model import ElasticBody
+from .fem.pose import Pose
+from .fem.reduced import ReducedModel
+from .fem.snap import snap_to_pad
+from .fem.state import ContactState
+from .fem.tolerances import TOL, Tolerances, single_threaded_blas
+from .geometry import Pad, build_pad
+from .mesh import TetMesh, tetrahedralise
+from .scene import Scene
+
+SOLVERS = ("reduced", "full", "neo_hookean")
+
+
+class Simulator:
+    """Press a scene's pad with rigid, frictionless indenters.
+
+    Parameters
+    ----------
+    scene : the validated scene (materials, fidelity, pins, indenter)
+    pad : an already built (e.g. perturbed) pad; default ``build_pad(scene)``
+    mesh : an already built tet mesh of that pad; default ``tetrahedralise(scene)``
+    element_order : override ``scene.fidelity.element_order`` (1 or 2)
+    solver : default solver, "reduced", "full" or "neo_hookean"; default from the scene
+        (``fidelity.material_model`` = "neo_hookean" selects it, else
+        ``fidelity.contact_solver``)
+    use_cache : read/write meshes and compliances in the on-disk cache
+    snap : move the mesh's outer and skin/gel interface vertices back onto the pad's analytic
+        surfaces (:func:`~tactip_sim.fem.snap.snap_to_pad`; pytetwild leaves them up to
+        ~0.1 mm off, the order of the contact depths)
+    tol : tolerances (:class:`~tactip_sim.fem.tolerances.Tolerances`)
+
+    Attributes
+    ----------
+    mesh : the (snapped) tet mesh actually discretised
+    body : the :class:`~tactip_sim.fem.model.ElasticBody` (space, stiffness, markers)
+    surface_vertices : (k,) int32, mesh vertex ids of the outer (non-window) surface
+    """
+
+    def __init__(self, scene: Scene, *, pad: Pad | None = None, mesh: TetMesh | None = None,
+                 element_order: int | None = None, solver: str | None = None,
+                 use_cache: bool = True, snap: bool = True, tol: Tolerances = TOL) -> None:
+        self.scene = scene
+        self.pad = build_pad(scene) if pad is None else pad
+        mesh = tetrahedralise(scene, use_cache=use_cache) if mesh is None else mesh
+        self.mesh = snap_to_pad(mesh, self.pad) if snap else mesh
+        if solver is None:
+            f = scene.fidelity
+            solver = "neo_hookean" if f.material_model == "neo_hookean" else f.contact_solver
+        self.solver = _check_solver(solver)
+        self.tol = tol
+        self.use_cache = use_cache
+        self.body = ElasticBody(scene, self.mesh, self.pad, order=element_order, tol=tol)
+        self.indenter: Indenter = indenter_from_scene(scene)
+        space = self.body.space
+        self._cand_rest = space.nodes[space.candidates]
+        is_vertex = space.candidates < space.n_vertices
+        self._vertex_cands = np.flatnonzero(is_vertex)
+        self.surface_vertices = space.candidates[is_vertex].astype(np.int32)
+        self._reduced: ReducedModel | None = None
+        self._renderer = None
+
+    # --- lazily built parts ----------------------------------------------------------------
+    @property
+    def reduced(self) -> ReducedModel:
+        """The reduced model (compliance built or loaded on first use)."""
+        if self._reduced is None:
+            self._reduced = ReducedModel(self.body, use_cache=self.use_cache)
+        return self._reduced
+
+    def precompute(self) -> dict[str, float]:
+        """Build everything the default solver needs now; returns timings in seconds."""
+        t0 = time.perf_counter()
+        if self.solver == "reduced":
+            self.reduced  # noqa: B018
+        else:
+            self.body.factor  # noqa: B018
+        return {**self.body.timings, "total_s": time.perf_counter() - t0}
+
+    # --- pressing --------------------------------------------------------------------------
+    def press(self, pose: Pose, indenter: Indenter | None = None, *, solver: str | None = None,
+              full_field: bool = False) -> ContactState:
+        """Press the pad at ``pose`` and return the contact state.
+
+        Parameters
+        ----------
+        pose : orientation, depth beyond first contact (mm) and lateral offset
+        indenter : a rigid indenter (default: the scene's)
+        solver : "reduced", "full" or "neo_hookean" (default: the simulator's)
+        full_field : with the reduced solver, also form every vertex's displacement (one
+            sparse solve; needs the factorisation)
+
+        Raises
+        ------
+        PoseError
+            A pose value is out of range, or the depth exceeds what the pad can take.
+        ContactError
+            The solve did not converge (the message names the pose).
+        """
+        if not isinstance(pose, Pose):
+            raise TypeError(f"pose must be a tactip_sim.Pose, got {type(pose).__name__}")
+        with single_threaded_blas():
+            return self._press(pose, indenter, solver, full_field)
+
+    def _press(self, pose: Pose, indenter: Indenter | None, solver: str | None,
+               full_field: bool) -> ContactState:
+        t0 = time.perf_counter()
+        indenter = self.indenter if indenter is None else indenter
+        solver = self.solver if solver is None else _check_solver(solver)
+        placement = place(indenter, pose, self._cand_rest,
+                          skin_thickness_mm=self.body.skin_thickness_mm)
+        if pose.depth_mm < 0:
+            return self._rest_state(pose, indenter, solver, t0)
+        if solver == "neo_hookean":
+            from .fem.neohookean import solve_neo_hookean
+
+            result = solve_neo_hookean(self.body, placement, pose.depth_mm, label=str(pose),
+                                       tol=self.tol)
+            markers, dirs = self.body.markers.from_field(result.u, finite=True)
+            return self._state(pose, indenter, solver, result.contact, markers, dirs,
+                               result.u, result.iterations, t0)
+        if solver == "reduced":
+            op = self.reduced
+            sol = solve_contact(placement, self._cand_rest, op, label=str(pose), tol=self.tol)
+            markers, dirs = self.body.markers.from_values(op.marker_values(sol.active,
+                                                                           sol.forces))
+            u = (self.body.displacement(self.body.space.candidates[sol.active], sol.forces)
+                 if full_field else None)
+        else:
+            full = FullOperator(self.body)
+            sol = solve_contact(placement, self._cand_rest, full, label=str(pose), tol=self.tol)
+            u = full.field(sol.active, sol.forces)
+            markers, dirs = self.body.markers.from_field(u)
+        return self._state(pose, indenter, solver, sol, markers, dirs, u, sol.iterations, t0)
+
+    def press_many(self, poses: Iterable[Pose], indenter: Indenter | None = None, *,
+                   solver: str | None = None) -> list[ContactState]:
+        """:meth:`press` every pose (the reduced model makes each a few milliseconds)."""
+        with single_threaded_blas():
+            return [self.press(p, indenter, solver=solver) for p in poses]
+
+    def rest_state(self) -> ContactState:
+        """The undeformed pad (no contact)."""
+        return self._rest_state(Pose(0.0, 0.0, -1.0), self.indenter, self.solver,
+                                time.perf_counter())
+
+    # --- outputs ---------------------------------------------------------------------------
+    def surface_mesh(self, state: ContactState | None = None) -> trimesh.Trimesh:
+        """The outer (non-window) surface as linear triangles, deformed by ``state``."""
+        space = self.body.space
+        faces = space.faces[:, :3]
+        used, inverse = np.unique(faces, return_inverse=True)
+        verts = space.nodes[used].copy()
+        if state is not None:
+            pos = np.searchsorted(used, state.surface_vertices)
+            verts[pos] += state.surface_displacements_mm
+        return trimesh.Trimesh(verts, inverse.reshape(-1, 3), process=False)
+
+    def render(self, state: ContactState | None = None, rng=0, **kw):
+        """Render ``state`` (default: the rest pose) with this scene's camera; see
+        :class:`tactip_sim.render.Renderer`."""
+        from .render import Renderer
+
+        if self._renderer is None:
+            self._renderer = Renderer(self.scene, self.pad)
+        if state is None:
+            state = self.rest_state()
+        return self._renderer.render(markers_mm=state.markers_mm,
+                                     directions=state.marker_directions, rng=rng, **kw)
+
+    # --- helpers ---------------------------------------------------------------------------
+    def _rest_state(self, pose: Pose, indenter: Indenter, solver: str, t0: float
+                    ) -> ContactState:
+        m = self.body.markers
+        empty = np.zeros((0, 3))
+        return ContactState(
+            pose=pose, indenter=indenter, solver=solver, markers_mm=m.rest_mm,
+            rest_markers_mm=m.rest_mm, marker_directions=m.directions,
+            surface_vertices=self.surface_vertices,
+            surface_displacements_mm=np.zeros((len(self.surface_vertices), 3)),
+            vertex_displacements_mm=np.zeros((self.body.space.n_vertices, 3)),
+            contact_nodes=np.zeros(0, dtype=np.int32), contact_points_mm=empty,
+            contact_forces_N=empty, contact_pressures_kpa=np.zeros(0), force_N=0.0,
+            force_vector_N=np.zeros(3), contact_area_mm2=0.0,
+            pressure_centre_mm=np.full(2, np.nan), max_penetration_mm=0.0, complementarity=0.0,
+            in_contact=False, iterations=0, seconds=time.perf_counter() - t0)
+
+    def _state(self, pose: Pose, indenter: Indenter, solver: str, sol: ContactSolution,
+               markers: np.ndarray, dirs: np.ndarray, u: np.ndarray | None, iterations: int,
+               t0: float) -> ContactState:
+        space = self.body.space
+        nodes = space.candidates[sol.active]
+        points = self._cand_rest[sol.active] + sol.u[sol.active]
+        area = space.areas[sol.active]
+        total = sol.forces.sum(axis=0)
+        weight = sol.pressures.sum()
+        centre = (sol.pressures @ points[:, :2] / weight if weight > 0
+                  else np.full(2, np.nan))
+        nv = space.n_vertices
+        return ContactState(
+            pose=pose, indenter=indenter, solver=solver, markers_mm=markers,
+            rest_markers_mm=self.body.markers.rest_mm, marker_directions=dirs,
+            surface_vertices=self.surface_vertices,
+            surface_displacements_mm=sol.u[self._vertex_cands],
+            vertex_displacements_mm=None if u is None else u[: 3 * nv].reshape(nv, 3),
+            contact_nodes=nodes, contact_points_mm=points,
+            contact_forces_N=sol.forces / 1000.0, contact_pressures_kpa=sol.pressures / area,
+            force_N=float(np.linalg.norm(total)) / 1000.0, force_vector_N=total / 1000.0,
+            contact_area_mm2=float(area.sum()), pressure_centre_mm=centre,
+            max_penetration_mm=max(0.0, -float(sol.gap.min(initial=0.0))),
+            complementarity=sol.complementarity, in_contact=len(nodes) > 0,
+            iterations=iterations, seconds=time.perf_counter() - t0)
+
+
+def _check_solver(solver: str) -> str:
+    if solver not in SOLVERS:
+        raise ValueError(f"solver={solver!r} is not allowed: one of {', '.join(SOLVERS)}")
+    return solver

@@ -1,0 +1,169 @@
+"""Complementarity solver, indenter geometry, poses and their validation (no FE solve)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tactip_sim as ts
+from tactip_sim.fem import IndenterError, PoseError, place, solve_lcp
+from tactip_sim.fem.pose import rotation
+
+OBJECTS = Path(__file__).resolve().parents[1] / "scenes" / "objects"
+
+
+def random_spd(k: int, rng: np.random.Generator) -> np.ndarray:
+    a = rng.standard_normal((k, k))
+    return a @ a.T / k + 0.05 * np.eye(k)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_lcp_solution_satisfies_the_complementarity_conditions(seed):
+    rng = np.random.default_rng(seed)
+    g_mat = random_spd(40, rng)
+    g0 = rng.normal(0.0, 1.0, 40)
+    p, g, it = solve_lcp(g_mat, g0)
+    assert p.min() >= 0.0
+    assert g.min() >= -1e-10
+    assert np.abs(p * g).max() <= 1e-10
+    np.testing.assert_allclose(g, g0 + g_mat @ p, atol=1e-12)
+    # the NNLS form of the same problem gives the same forces
+    from scipy.optimize import nnls
+
+    low = np.linalg.cholesky(g_mat)
+    q, _ = nnls(low.T, np.linalg.solve(low, -g0))
+    np.testing.assert_allclose(p, q, atol=1e-8)
+
+
+def test_lcp_without_contact_and_fully_active():
+    rng = np.random.default_rng(7)
+    g_mat = random_spd(10, rng)
+    p, g, _ = solve_lcp(g_mat, np.full(10, 0.3))
+    assert not p.any() and np.allclose(g, 0.3)
+    d = np.diag(np.arange(1.0, 11.0))  # uncoupled: p_i = -g0_i / d_i where g0 < 0
+    g0 = np.linspace(-1.0, 1.0, 10)
+    p, g, _ = solve_lcp(d, g0)
+    np.testing.assert_allclose(p, np.maximum(-g0, 0) / np.arange(1.0, 11.0), atol=1e-14)
+
+
+def test_pose_convention_and_approach_axis():
+    # roll tilts the approach axis towards -y, pitch towards +x (R_y(pitch) R_x(roll) e_z)
+    m = ts.Pose(roll_deg=30, pitch_deg=0).approach
+    np.testing.assert_allclose(m, [0.0, -0.5, math.sqrt(3) / 2], atol=1e-15)
+    m = ts.Pose(roll_deg=0, pitch_deg=30).approach
+    np.testing.assert_allclose(m, [0.5, 0.0, math.sqrt(3) / 2], atol=1e-15)
+    r = rotation(10, -20, 30)
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-15)
+    assert np.linalg.det(r) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        ({"roll_deg": float("nan")}, "roll_deg"),
+        ({"pitch_deg": float("inf")}, "pitch_deg"),
+        ({"roll_deg": 90.0}, "roll_deg"),
+        ({"pitch_deg": -95.0}, "pitch_deg"),
+        ({"depth_mm": float("nan")}, "depth_mm"),
+        ({"yaw_deg": 200.0}, "yaw_deg"),
+        ({"offset_mm": (1.0,)}, "offset_mm"),
+    ],
+)
+def test_bad_poses_name_the_value_and_range(kwargs, name):
+    with pytest.raises(PoseError, match=name):
+        ts.Pose(**kwargs)
+    assert issubclass(PoseError, ValueError)
+
+
+@pytest.mark.parametrize("make", [lambda: ts.Sphere(radius_mm=-1.0),
+                                  lambda: ts.Cylinder(radius_mm=2.0, length_mm=0.0),
+                                  lambda: ts.Edge(radius_mm=float("nan")),
+                                  lambda: ts.Edge(angle_deg=180.0)])
+def test_bad_indenter_parameters(make):
+    with pytest.raises(IndenterError, match="out of range|must be"):
+        make()
+
+
+def test_mesh_indenter_must_be_watertight(tmp_path):
+    import trimesh
+
+    box = trimesh.creation.box(extents=(2, 2, 2))
+    open_box = trimesh.Trimesh(box.vertices, box.faces[:-2])
+    with pytest.raises(IndenterError, match="not watertight"):
+        ts.MeshIndenter(open_box)
+    with pytest.raises(IndenterError, match="no such file"):
+        ts.MeshIndenter(tmp_path / "missing.stl")
+
+
+def _sample_surface_points(ind, n, rng):
+    """Points on the indenter surface from its lower_z (vertical lines that hit it)."""
+    xy = rng.uniform(-3, 3, (n, 2))
+    z = ind.lower_z(xy)
+    ok = np.isfinite(z)
+    return np.column_stack([xy[ok], z[ok]])
+
+
+@pytest.mark.parametrize("ind", [ts.Sphere(4.0), ts.Cylinder(3.0, 4.0),
+                                 ts.Edge(radius_mm=0.5, length_mm=4.0, angle_deg=60.0),
+                                 ts.Plate()])
+def test_lower_surface_lies_on_the_zero_level_set(ind):
+    rng = np.random.default_rng(0)
+    pts = _sample_surface_points(ind, 400, rng)
+    d, n = ind.sdf(pts)
+    np.testing.assert_allclose(d, 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
+    # moving along the normal changes the distance by that much (a true distance)
+    d_out, _ = ind.sdf(pts + 0.05 * n)
+    np.testing.assert_allclose(d_out, 0.05, atol=1e-9)
+
+
+def test_sdf_gradient_matches_finite_differences():
+    rng = np.random.default_rng(1)
+    q = rng.uniform([-3, -3, -1], [3, 3, 4], (300, 3))
+    for ind in (ts.Sphere(3.0), ts.Cylinder(2.0, 3.0), ts.Edge(0.4, 3.0, 90.0)):
+        d, n = ind.sdf(q)
+        h = 1e-6
+        fd = np.stack([(ind.sdf(q + h * e)[0] - ind.sdf(q - h * e)[0]) / (2 * h)
+                       for e in np.eye(3)], axis=1)
+        smooth = np.linalg.norm(fd, axis=1) > 0.999  # away from the SDF's creases
+        np.testing.assert_allclose(n[smooth], fd[smooth], atol=1e-5)
+
+
+def test_mesh_sphere_matches_the_analytic_sphere():
+    mesh = ts.MeshIndenter(OBJECTS / "icosphere_r10.stl")
+    sphere = ts.Sphere(10.0)
+    rng = np.random.default_rng(2)
+    q = rng.uniform([-8, -8, -2], [8, 8, 12], (200, 3))
+    d_mesh, n_mesh = mesh.sdf(q)
+    d_ref, n_ref = sphere.sdf(q)
+    # faceting error of a subdivision-3 icosphere of radius 10 mm is below 0.1 mm
+    np.testing.assert_allclose(d_mesh, d_ref, atol=0.1)
+    far = np.abs(d_ref) > 1.0
+    assert np.all(np.einsum("ij,ij->i", n_mesh[far], n_ref[far]) > 0.98)
+    xy = rng.uniform(-5, 5, (50, 2))
+    np.testing.assert_allclose(mesh.lower_z(xy), sphere.lower_z(xy), atol=0.1)
+
+
+def test_placement_first_contact_and_depth_limit():
+    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" / "shadow_fingertip.toml")
+    pad = ts.build_pad(scene)
+    surface = np.asarray(pad.surface.vertices)
+    surface = surface[surface[:, 2] > 1e-6]
+    pose = ts.Pose(roll_deg=10, pitch_deg=-5, depth_mm=0.0)
+    pl = place(ts.Plate(), pose, surface, skin_thickness_mm=1.0)
+    m = pose.approach
+    assert pl.contact_point_mm @ m == pytest.approx((surface @ m).max())
+    gap, _ = pl.gap(surface)
+    assert gap.min() == pytest.approx(0.0, abs=1e-12)  # just touching
+    deeper = place(ts.Plate(), ts.Pose(10, -5, 0.4), surface, skin_thickness_mm=1.0)
+    assert deeper.gap(surface)[0].min() == pytest.approx(-0.4, abs=1e-12)
+    sphere = place(ts.Sphere(5.0), ts.Pose(10, -5, 0.0), surface, skin_thickness_mm=1.0)
+    assert sphere.gap(surface)[0].min() == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(sphere.contact_point_mm, pl.contact_point_mm)
+    with pytest.raises(PoseError, match=r"depth_mm=7 is out of range.*allowed depth_mm <"):
+        place(ts.Plate(), ts.Pose(0, 0, 7.0), surface, skin_thickness_mm=1.0)
+    with pytest.raises(PoseError, match="misses the pad"):
+        place(ts.Sphere(2.0), ts.Pose(0, 0, 1.0, offset_mm=(40.0, 0.0)), surface)

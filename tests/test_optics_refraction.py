@@ -1,0 +1,129 @@
+"""Refraction through the window layers, checked against Fermat's principle and Fresnel."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+import tactip_sim as ts
+from tactip_sim.optics import Layers, Lens, bend_up, fresnel_transmittance, sightlines
+from tactip_sim.optics.refraction import refracted_air_directions
+
+
+def fermat_air_direction(c: np.ndarray, p: np.ndarray, layers: Layers) -> np.ndarray:
+    """The ray from ``c`` (air) to ``p`` (gel) minimising the optical path length, found by
+    direct minimisation over the two crossing points (no Snell's law used)."""
+    t = layers.thickness_mm
+    h_air = -t - c[2]
+    rho_vec = p[:2] - c[:2]
+    rho = np.linalg.norm(rho_vec)
+    u = rho_vec / rho
+
+    def length(ab: np.ndarray) -> float:
+        a, b = ab
+        return (layers.n_air * np.hypot(a, h_air) + layers.n_window * np.hypot(b - a, t)
+                + layers.n_gel * np.hypot(rho - b, p[2]))
+
+    res = minimize(length, x0=[rho * 0.5, rho * 0.6], method="Nelder-Mead",
+                   options={"xatol": 1e-12, "fatol": 1e-15, "maxiter": 20000})
+    a = res.x[0]
+    d = np.array([a * u[0], a * u[1], h_air])
+    return d / np.linalg.norm(d)
+
+
+def project_by_hand(scene, d_air: np.ndarray) -> np.ndarray:
+    """Equidistant projection written out: r = f theta / pitch about the image centre."""
+    mount = ts.geometry.camera_mount(scene)
+    dc = mount.rotation.T @ d_air
+    theta = np.arccos(dc[2])
+    r = scene.lens.focal_length_mm * theta / (scene.camera.pixel_pitch_um * 1e-3)
+    w, h = scene.camera.resolution
+    phi = np.arctan2(dc[1], dc[0])
+    return np.array([(w - 1) / 2 + r * np.cos(phi), (h - 1) / 2 + r * np.sin(phi)])
+
+
+def test_inverse_solve_matches_fermat(scene, pad):
+    layers = Layers.from_scene(scene)
+    c = pad.camera.centre_mm
+    ours = refracted_air_directions(pad.markers_mm, c, layers)
+    for i in (0, 40, 48, 96):
+        assert np.allclose(ours[i], fermat_air_direction(c, pad.markers_mm[i], layers),
+                           atol=1e-6)
+
+
+def test_forward_bending_reaches_the_point(scene, pad):
+    layers = Layers.from_scene(scene)
+    c = pad.camera.centre_mm
+    d = refracted_air_directions(pad.markers_mm, c, layers)
+    origin = tuple(np.broadcast_to(c, d.shape).T)
+    out = bend_up(origin, tuple(d.T), layers)
+    g, e = np.array(out["gel_entry"]).T, np.array(out["gel_direction"]).T
+    t = (pad.markers_mm[:, 2] - g[:, 2]) / e[:, 2]
+    assert np.max(np.abs(g + t[:, None] * e - pad.markers_mm)) < 1e-9
+    # Snell: n sin(angle) is the same in air, acrylic and gel
+    s_air = np.hypot(d[:, 0], d[:, 1])
+    s_gel = layers.n_gel * np.hypot(e[:, 0], e[:, 1])
+    assert np.allclose(s_air, s_gel)
+
+
+def test_refraction_shift_of_a_marker_from_physics(scene, pad):
+    """The pixel shift that refraction causes, computed independently (Fermat + the
+    equidistant formula) for the marker that moves most, equals the library's."""
+    layers = Layers.from_scene(scene)
+    c = pad.camera.centre_mm
+    with_r = ts.project(scene, pad.markers_mm)
+    without = ts.project(scene, pad.markers_mm, refraction="none")
+    shift = np.linalg.norm(with_r - without, axis=1)
+    i = int(np.argmax(shift))
+    p = pad.markers_mm[i]
+    straight = (p - c) / np.linalg.norm(p - c)
+    expected = project_by_hand(scene, fermat_air_direction(c, p, layers)) - project_by_hand(
+        scene, straight)
+    assert np.allclose(with_r[i] - without[i], expected, atol=1e-4)
+    # refraction pulls images towards the image centre's ray by ~10 px at the rim of the pad
+    assert 5.0 < np.linalg.norm(expected) < 40.0
+
+
+def test_gel_angle_stays_inside_the_critical_angle(scene, pad):
+    layers = Layers.from_scene(scene)
+    crit = np.arcsin(1 / scene.gel.refractive_index)
+    assert layers.critical_angle_gel_rad == pytest.approx(crit)
+    far = np.array([[60.0, 0.0, 3.0], [0.0, 200.0, 3.0]])  # far off to the side, in the gel
+    lines = sightlines(scene, np.vstack([pad.markers_mm, far]))
+    assert np.all(lines.gel_angle_rad < crit)
+    assert lines.gel_angle_rad[-1] > crit - np.deg2rad(3)  # grazing in air -> near critical
+
+
+def test_fresnel():
+    n1, n2 = 1.0, 1.49
+    r0 = ((n1 - n2) / (n1 + n2)) ** 2
+    assert fresnel_transmittance(np.array(1.0), n1, n2) == pytest.approx(1 - r0)
+    # total internal reflection from acrylic to air beyond asin(1/1.49)
+    cos_i = np.cos(np.arcsin(1 / 1.49) + 0.05)
+    assert fresnel_transmittance(np.array(cos_i), n2, n1) == 0.0
+    # Brewster's angle: p-polarised reflection vanishes, R = Rs / 2
+    tb = np.arctan(n2 / n1)
+    ct = np.cos(np.arcsin(np.sin(tb) * n1 / n2))
+    rs = ((n1 * np.cos(tb) - n2 * ct) / (n1 * np.cos(tb) + n2 * ct)) ** 2
+    assert fresnel_transmittance(np.array(np.cos(tb)), n1, n2) == pytest.approx(1 - rs / 2)
+
+
+def test_points_below_the_window_are_not_refracted(scene, pad):
+    c = pad.camera.centre_mm
+    p = np.array([[c[0] + 2.0, 1.0, -5.0]])  # in air, above the lens
+    a = ts.project(scene, p)
+    b = ts.project(scene, p, refraction="none")
+    assert np.allclose(a, b)
+    lens = Lens.from_scene(scene)
+    assert np.allclose(a, lens.project_directions((p - c) @ pad.camera.rotation))
+
+
+def test_camera_inside_the_gel_is_rejected(scene, pad):
+    from dataclasses import replace
+
+    from tactip_sim.geometry import CameraMount
+
+    inside = replace(pad, camera=CameraMount(np.array([0.0, 0.0, 1.0]), np.eye(3)))
+    with pytest.raises(ValueError, match="camera.distance_mm"):
+        ts.project(scene, pad.markers_mm, pad=inside)

@@ -1,0 +1,89 @@
+"""The camera model (exposure, vignetting, blur, noise) and the blob centroids, on synthetic
+images with known answers (no Mitsuba)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tactip_sim.render import CameraModel, blob_centroids, match_blobs
+from tactip_sim.render.noise import FULL_SCALE_RADIANCE
+
+
+def disc_image(centres: np.ndarray, radius: float, shape=(120, 160), level=1.0,
+               oversample: int = 8) -> np.ndarray:
+    """Exact-coverage discs (box-filtered by oversampling), OpenCV pixel centres."""
+    h, w = shape
+    s = oversample
+    y, x = np.mgrid[0:h * s, 0:w * s]
+    x = (x + 0.5) / s - 0.5
+    y = (y + 0.5) / s - 0.5
+    img = np.zeros((h * s, w * s))
+    for cx, cy in centres:
+        img[(x - cx) ** 2 + (y - cy) ** 2 <= radius**2] = level
+    return img.reshape(h, s, w, s).mean(axis=(1, 3))
+
+
+def test_exposure_and_quantisation():
+    cam = CameraModel(exposure=1.0, read_noise=0, shot_noise=0, blur_px=0, vignetting=0,
+                      principal_point_px=(1.5, 1.5))
+    img = np.array([[0.0, 0.25, 0.5, 2.0]]) * FULL_SCALE_RADIANCE
+    out = cam.apply(np.repeat(img, 4, axis=0), None)
+    assert out.dtype == np.uint8
+    assert out[0].tolist() == [0, 64, 128, 255]  # 255 * level, rounded, clipped
+
+
+def test_vignetting_profile():
+    cam = CameraModel(vignetting=0.3, principal_point_px=(319.5, 239.5))
+    v = cam.vignette(480, 640)
+    assert v[240, 320] == pytest.approx(1.0, abs=1e-5)
+    assert v[0, 0] == pytest.approx(0.7, abs=1e-6) and v[479, 639] == pytest.approx(0.7, abs=1e-6)
+    # quadratic in the radius
+    assert v[239, 319 + 200] == pytest.approx(1 - 0.3 * (199.5**2 + 0.5**2) / (319.5**2 + 239.5**2),
+                                              abs=1e-5)
+
+
+def test_noise_statistics_and_seeding():
+    cam = CameraModel(exposure=1.0, read_noise=2.0, shot_noise=0.5, blur_px=0.0, vignetting=0.0)
+    level = 100.0  # DN
+    flat = np.full((200, 300), level / 255 * FULL_SCALE_RADIANCE)
+    a = cam.apply(flat, np.random.default_rng(1)).astype(float)
+    b = cam.apply(flat, np.random.default_rng(1))
+    c = cam.apply(flat, np.random.default_rng(2))
+    expected = np.sqrt(2.0**2 + 0.5**2 * level)  # read and shot noise add in quadrature
+    assert a.std() == pytest.approx(np.sqrt(expected**2 + 1 / 12), rel=0.03)  # + rounding
+    assert a.mean() == pytest.approx(level, abs=0.1)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+def test_blur_keeps_centroids():
+    centres = np.array([[40.3, 50.7], [110.55, 60.2]])
+    img = disc_image(centres, 6.0, level=0.8 * FULL_SCALE_RADIANCE)
+    cam = CameraModel(read_noise=0, shot_noise=0, blur_px=0.8, vignetting=0.0)
+    out = cam.apply(img, None)
+    got, _ = blob_centroids(out)
+    matched, found = match_blobs(got, centres)
+    assert found.all()
+    assert np.max(np.abs(matched - centres)) < 0.03
+
+
+def test_blob_centroids_on_known_discs():
+    rng = np.random.default_rng(5)
+    centres = np.array([[20, 20], [60, 25], [100, 30], [140, 40], [30, 90], [90, 85]]) + \
+        rng.uniform(-0.5, 0.5, (6, 2))
+    img = np.clip(np.rint(255 * disc_image(centres, 5.5, level=1.0)), 0, 255).astype(np.uint8)
+    got, area = blob_centroids(img)
+    matched, found = match_blobs(got, centres)
+    assert found.all() and len(got) == 6
+    assert np.max(np.linalg.norm(matched - centres, axis=1)) < 0.02
+    assert np.all(np.abs(area - np.pi * 5.5**2) < 2 * np.pi * 5.5)
+    # nothing to find in an empty image
+    empty, _ = blob_centroids(np.zeros((50, 50), np.uint8), threshold=128)
+    assert empty.shape == (0, 2)
+
+
+def test_matching_is_one_to_one():
+    expected = np.array([[10.0, 10.0], [12.0, 10.0], [np.nan, np.nan]])
+    detected = np.array([[11.1, 10.0]])
+    matched, found = match_blobs(detected, expected, max_dist_px=2.0)
+    assert found.sum() == 1 and found[1] and np.isnan(matched[0]).all()
