@@ -140,7 +140,8 @@ def render_frames(renderer: Any, state: Any, frames: int, rng: np.random.Generat
     seed = int(rng.integers(0, 2**31 - 1))
     radiance = renderer.render_radiance(markers, directions, seed=seed)
     px, visible, _ = renderer.ground_truth(markers, directions)
-    return px, visible, [renderer.camera.apply(radiance, rng) for _ in range(frames)]
+    dn = renderer.camera.expose(radiance)  # blur, vignetting, exposure: the same every frame
+    return px, visible, [renderer.camera.digitise(dn, rng) for _ in range(frames)]
 
 
 _WORKERS: dict[str, TipWorker] = {}

@@ -78,7 +78,15 @@ class Simulator:
         self._vertex_cands = np.flatnonzero(is_vertex)
         self.surface_vertices = space.candidates[is_vertex].astype(np.int32)
         self._reduced: ReducedModel | None = None
+        self._cand_pos: np.ndarray | None = None
         self._renderer = None
+
+    def __getstate__(self) -> dict:
+        """Pickle without the renderer (Mitsuba objects); the factorisation is dropped by the
+        body and rebuilt on first use."""
+        state = self.__dict__.copy()
+        state["_renderer"] = None
+        return state
 
     # --- lazily built parts ----------------------------------------------------------------
     @property
@@ -123,7 +131,7 @@ class Simulator:
             return self._press(pose, indenter, solver, full_field)
 
     def _press(self, pose: Pose, indenter: Indenter | None, solver: str | None,
-               full_field: bool) -> ContactState:
+               full_field: bool, guess: np.ndarray | None = None) -> ContactState:
         t0 = time.perf_counter()
         indenter = self.indenter if indenter is None else indenter
         solver = self.solver if solver is None else _check_solver(solver)
@@ -141,7 +149,8 @@ class Simulator:
                                result.u, result.iterations, t0)
         if solver == "reduced":
             op = self.reduced
-            sol = solve_contact(placement, self._cand_rest, op, label=str(pose), tol=self.tol)
+            sol = solve_contact(placement, self._cand_rest, op, guess=guess, label=str(pose),
+                                tol=self.tol)
             markers, dirs = self.body.markers.from_values(op.marker_values(sol.active,
                                                                            sol.forces))
             u = (self.body.displacement(self.body.space.candidates[sol.active], sol.forces)
@@ -155,9 +164,19 @@ class Simulator:
 
     def press_many(self, poses: Iterable[Pose], indenter: Indenter | None = None, *,
                    solver: str | None = None) -> list[ContactState]:
-        """:meth:`press` every pose (the reduced model makes each a few milliseconds)."""
+        """:meth:`press` every pose (the reduced model makes each a few milliseconds); each
+        pose's contact set seeds the next one's active-set guess (same answers, fewer
+        iterations in a sweep)."""
+        out: list[ContactState] = []
+        guess = None
         with single_threaded_blas():
-            return [self.press(p, indenter, solver=solver) for p in poses]
+            for pose in poses:
+                if not isinstance(pose, Pose):
+                    raise TypeError(f"poses must be tactip_sim.Pose, got {type(pose).__name__}")
+                state = self._press(pose, indenter, solver, False, guess)
+                guess = self._candidate_index(state.contact_nodes)
+                out.append(state)
+        return out
 
     def rest_state(self) -> ContactState:
         """The undeformed pad (no contact)."""
@@ -189,6 +208,14 @@ class Simulator:
                                      directions=state.marker_directions, rng=rng, **kw)
 
     # --- helpers ---------------------------------------------------------------------------
+    def _candidate_index(self, nodes: np.ndarray) -> np.ndarray:
+        """Candidate indices of discretisation nodes (all of them contact candidates)."""
+        if self._cand_pos is None:
+            cand = self.body.space.candidates
+            self._cand_pos = np.full(self.body.space.n_nodes, -1, dtype=np.int64)
+            self._cand_pos[cand] = np.arange(len(cand))
+        return self._cand_pos[nodes]
+
     def _rest_state(self, pose: Pose, indenter: Indenter, solver: str, t0: float
                     ) -> ContactState:
         m = self.body.markers

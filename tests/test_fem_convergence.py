@@ -53,5 +53,5 @@ def test_observed_convergence_rates():
     rate1, rate2 = observed_rate(sizes, err[1]), observed_rate(sizes, err[2])
     # P2 is more accurate than P1 on every mesh, by a wide margin
     assert np.all(err[2] < 0.5 * err[1])
-    # both converge; P2 at least as fast as P1 (P1's rate is spoiled by locking)
-    assert rate1 > 0.3 and rate2 > rate1
+    # both converge (measured: P1 1.3, P2 1.4 against this reference)
+    assert rate1 > 0.5 and rate2 > 0.5

@@ -64,9 +64,12 @@ def _indenter(args: argparse.Namespace, scene):
         return ind.Cylinder(radius, length)
     if kind == "edge":
         return ind.Edge(radius_mm=radius, length_mm=length)
-    if args.mesh is None:
-        return ind.indenter_from_scene(scene)
-    return ind.MeshIndenter(args.mesh)
+    if args.mesh is not None:
+        return ind.MeshIndenter(args.mesh)
+    if scene.indenter.kind != "mesh":
+        raise ind.IndenterError("--indenter mesh needs --mesh PATH (the scene's indenter.kind "
+                                f"is {scene.indenter.kind!r})")
+    return ind.indenter_from_scene(scene)
 
 
 def _cmd_press(args: argparse.Namespace) -> int:

@@ -122,7 +122,8 @@ def _dofs(nodes: np.ndarray) -> np.ndarray:
 
 
 def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: ComplianceOperator, *,
-                  label: str = "", tol: Tolerances = TOL) -> ContactSolution:
+                  guess: np.ndarray | None = None, label: str = "",
+                  tol: Tolerances = TOL) -> ContactSolution:
     """Frictionless contact of the candidate nodes with a placed rigid indenter.
 
     The working set W starts as the nodes that penetrate the indenter; the LCP is solved on W;
@@ -137,6 +138,8 @@ def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: Complianc
     placement : the indenter in the sensor frame
     rest_mm : (s, 3) rest positions of the candidate nodes
     operator : compliance of the candidates (see :class:`ComplianceOperator`)
+    guess : optional candidate indices expected in contact (e.g. the previous pose's of a
+        sweep): the first active-set guess; the answer does not depend on it
     label : named in error messages (the pose)
     tol : tolerances
 
@@ -153,21 +156,31 @@ def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: Complianc
     p_work = np.zeros(0)
     iterations, change, bound = 0, 0.0, None
     flat = bool(getattr(placement.indenter, "flat", False))
-    for geo in range(1, tol.geometry_max_iter + 1):
+    geo = 0
+    for _ in range(tol.geometry_max_iter):
+        geo += 1
         g, nu = placement.gap(rest_mm + u)
         g0 = g - np.einsum("ij,ij->i", nu, u)  # gap(u') = g0 + nu . u' (linearised at u)
-        prev = dict(zip(work.tolist(), (p_work > 0).tolist(), strict=True))
-        work = np.union1d(np.flatnonzero(g < 0.0), work[p_work > 0])
+        # the working set starts as every penetrating node (a smaller seed, e.g. the deepest
+        # half, cost more in extra rounds than it saved in gathering the block of C)
+        seed = g < 0.0
+        expected = guess if geo == 1 else work[p_work > 0]
+        if geo > 1:
+            seed[expected] = True  # last round's contact set, touching at g ~ 0
+        prev = np.zeros(s, dtype=bool)
+        if expected is not None and len(expected):
+            prev[np.asarray(expected)] = True
+        work = np.flatnonzero(seed)
+        cw = operator.block(work, work) if work.size else np.zeros((0, 0))
         while True:
             u_new = np.zeros((s, 3))
             if work.size == 0:
                 p_work, near = np.zeros(0), everyone[:0]
                 break
             w = len(work)
-            cw = operator.block(work, work)
             nw = nu[work]
             G = np.einsum("ia,iajb,jb->ij", nw, cw.reshape(w, 3, w, 3), nw)
-            warm = np.array([prev.get(i, False) for i in work.tolist()])
+            warm = prev[work] & (g0[work] < 0)
             p_work, _, it = solve_lcp(G, g0[work], active=warm if warm.any() else None,
                                       tol=tol)
             iterations += it
@@ -184,8 +197,11 @@ def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: Complianc
             extra = check[gl < -tol.gap_mm]
             if extra.size == 0:
                 break
-            prev = dict(zip(work.tolist(), (p_work > 0).tolist(), strict=True))
-            work = np.union1d(work, extra)
+            prev[:] = False
+            prev[act] = True
+            cross = operator.block(work, extra)
+            cw = np.block([[cw, cross], [cross.T, operator.block(extra, extra)]])
+            work = np.concatenate([work, extra])
         change = float(np.abs(u_new[near] - u[near]).max(initial=0.0))
         u = u_new
         if flat or change <= tol.geometry_mm:

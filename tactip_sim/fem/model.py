@@ -77,6 +77,13 @@ class ElasticBody:
         self._factor: Factor | None = None
         self.timings: dict[str, float] = {}
 
+    def __getstate__(self) -> dict:
+        """Pickle without the factorisation (a CHOLMOD factor cannot be pickled; it is formed
+        again on first use)."""
+        state = self.__dict__.copy()
+        state["_factor"] = None
+        return state
+
     @property
     def stiffness(self) -> sp.csr_matrix:
         """(n_dofs, n_dofs) stiffness, mN/mm (assembled on first use)."""

@@ -27,8 +27,8 @@ import scipy.sparse as sp
 
 from .contact import ContactError, ContactSolution, solve_contact
 from .elasticity import Factor, element_dofs
-from .full import FullOperator
 from .elements import quadrature, shape_gradients
+from .full import FullOperator
 from .indenters import Placement
 from .model import ElasticBody
 from .tolerances import TOL, Tolerances

@@ -1,17 +1,19 @@
 """The reduced contact model: the pad's compliance restricted to the candidate contact nodes.
 
-Precompute, once per discretisation (cached on disk, keyed by the mesh content, element order
-and materials)::
+Precompute, once per discretisation (cached on disk, keyed by the mesh content, element order,
+materials and candidate set)::
 
     C = E_s' K^-1 E_s      (3 s, 3 s) mm/mN, s = candidate nodes, 3 components each
     R = M K^-1 E_s         (6 p, 3 s)       marker response (:class:`~.markers.Markers`)
 
 by one partial Cholesky factorisation with the candidates ordered last
-(:func:`~.elasticity.schur_inverse`; blocked solves when CHOLMOD is absent). A pose is then a small dense
-complementarity problem on the candidates near the indenter (:func:`~.contact.solve_contact`):
-the displacement of every candidate is ``C[:, A] f_A`` and the markers follow from
-``R[:, A] f_A``, where ``f_A`` are the contact forces on the active nodes. For a plate the
-indenter normal is uniform, so the normal-normal block is ``m' C_ij m``.
+(:func:`~.elasticity.schur_inverse`; blocked solves when CHOLMOD is absent), plus a cluster
+bound on the compliance between distant parts of the surface. A pose is then a small dense
+complementarity problem on the candidates near the indenter
+(:func:`~.contact.solve_contact`): the working set's block of ``C`` gives the forces, the rows
+of the active nodes give the displacements of every vertex of the surface, and ``R`` gives the
+markers. For a plate the indenter normal is uniform, so the normal-normal block is
+``m' C_ij m``; distant candidates are cleared by the bound without reading their compliance.
 """
 
 from __future__ import annotations

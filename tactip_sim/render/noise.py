@@ -56,9 +56,53 @@ class CameraModel:
         r2c = max((px - cx) ** 2 + (py - cy) ** 2 for px, py in corners)
         return (1.0 - self.vignetting * r2 / r2c).astype(np.float32)
 
+    def expose(self, radiance: np.ndarray, *, vignette: np.ndarray | None = None
+               ) -> np.ndarray:
+        """The noise-free part: blur, vignetting and exposure.
+
+        Parameters
+        ----------
+        radiance : (H, W) or (H, W, 3) float, linear radiance per pixel
+        vignette : optional precomputed :meth:`vignette` (H, W)
+
+        Returns
+        -------
+        (H, W) or (H, W, 3) float32, DN before noise and quantisation
+        """
+        import cv2
+
+        img = np.asarray(radiance, dtype=np.float32)
+        if img.ndim == 3 and img.shape[2] == 1:
+            img = img[..., 0]
+        h, w = img.shape[:2]
+        if self.blur_px > 0:
+            k = 2 * int(np.ceil(3.0 * self.blur_px)) + 1  # odd: no half-pixel shift
+            img = cv2.GaussianBlur(img, (k, k), self.blur_px, borderType=cv2.BORDER_REFLECT)
+        vig = self.vignette(h, w) if vignette is None else vignette
+        scale = np.float32(255.0 * self.exposure / FULL_SCALE_RADIANCE)
+        return img * (vig[..., None] if img.ndim == 3 else vig) * scale
+
+    def digitise(self, dn: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
+        """Add shot and read noise to exposed DN (from :meth:`expose`) and quantise.
+
+        Parameters
+        ----------
+        dn : (H, W) or (H, W, 3) float32
+        rng : generator of the sensor noise; None = no noise
+
+        Returns
+        -------
+        (H, W) or (H, W, 3) uint8
+        """
+        if rng is not None and (self.read_noise > 0 or self.shot_noise > 0):
+            sigma = np.sqrt(np.float32(self.read_noise**2)
+                            + np.float32(self.shot_noise**2) * np.maximum(dn, 0.0))
+            dn = dn + sigma * rng.standard_normal(dn.shape, dtype=np.float32)
+        return np.clip(np.rint(dn), 0, 255).astype(np.uint8)
+
     def apply(self, radiance: np.ndarray, rng: np.random.Generator | None, *,
               vignette: np.ndarray | None = None) -> np.ndarray:
-        """Turn radiance into an 8-bit frame.
+        """Turn radiance into an 8-bit frame: :meth:`expose` then :meth:`digitise`.
 
         Parameters
         ----------
@@ -71,25 +115,4 @@ class CameraModel:
         -------
         (H, W) or (H, W, 3) uint8
         """
-        import cv2
-
-        img = np.asarray(radiance, dtype=np.float32)
-        if img.ndim == 3 and img.shape[2] == 1:
-            img = img[..., 0]
-        h, w = img.shape[:2]
-        if self.blur_px > 0:
-            k = 2 * int(np.ceil(3.0 * self.blur_px)) + 1  # odd: no half-pixel shift
-            img = cv2.GaussianBlur(img, (k, k), self.blur_px, borderType=cv2.BORDER_REFLECT)
-        vig = self.vignette(h, w) if vignette is None else vignette
-        gain = vig * np.float32(255.0 * self.exposure / FULL_SCALE_RADIANCE)
-        dn = img * (gain[..., None] if img.ndim == 3 else gain)
-        if rng is not None and (self.read_noise > 0 or self.shot_noise > 0):
-            sigma = np.maximum(dn, 0.0)
-            sigma *= np.float32(self.shot_noise**2)
-            sigma += np.float32(self.read_noise**2)
-            np.sqrt(sigma, out=sigma)
-            sigma *= rng.standard_normal(dn.shape, dtype=np.float32)
-            dn += sigma
-        np.clip(dn, 0.0, 255.0, out=dn)
-        dn += np.float32(0.5)  # round half up
-        return dn.astype(np.uint8)
+        return self.digitise(self.expose(radiance, vignette=vignette), rng)

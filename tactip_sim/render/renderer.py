@@ -118,8 +118,10 @@ class Renderer:
         """(x0, y0, width, height) of the image of the gel cavity, where caps can appear."""
         w, h = self.scene.camera.resolution
         surf = self.pad.interface if self.pad.interface is not None else self.pad.surface
-        px = sightlines(self.scene, np.asarray(surf.vertices), refraction="analytic",
-                        mount=self.pad.camera, lens=self.lens).px
+        px = np.concatenate([  # with and without refraction: one crop serves both modes
+            sightlines(self.scene, np.asarray(surf.vertices), refraction=mode,
+                       mount=self.pad.camera, lens=self.lens).px
+            for mode in ("analytic", "none")])
         px = px[np.all(np.isfinite(px), axis=1)]
         if len(px) == 0:
             return 0, 0, w, h

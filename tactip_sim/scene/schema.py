@@ -86,7 +86,9 @@ class Window:
 
 @dataclass(frozen=True)
 class Body:
-    """The rigid fingertip body below the window, and the distal unit's protrusion."""
+    """The rigid fingertip body below the window, and the protrusion by which the hand's distal
+    unit holds the fingertip: it enters the body from the fingertip's base, i.e. the pad's
+    proximal end (−x), which is why the camera is shifted forward (+x) and tilted back."""
 
     depth_mm: float = positive(20.0, "window inner face to the back of the body", hi=500)
     protrusion_length_mm: float = nonneg(15.0, "protrusion extent along x", hi=500)

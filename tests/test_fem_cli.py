@@ -1,0 +1,58 @@
+"""The ``tactip press`` command."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from tactip_sim.cli import main
+
+SCENE = str(Path(__file__).resolve().parents[1] / "scenes" / "shadow_fingertip.toml")
+P1 = ["--set", "fidelity.element_order=1"]
+
+
+def test_press_prints_json(capsys):
+    assert main(["press", SCENE, *P1, "--roll", "4", "--pitch", "-2", "--depth", "1.0",
+                 "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["in_contact"] and out["force_N"] > 0 and out["contact_area_mm2"] > 0
+    assert out["pose"] == {"roll_deg": 4.0, "pitch_deg": -2.0, "depth_mm": 1.0,
+                           "offset_mm": [0.0, 0.0], "yaw_deg": 0.0}
+    assert out["pressure_centre_mm"][0] < 0 and out["pressure_centre_mm"][1] < 0
+
+
+def test_press_text_with_sphere_and_no_contact(capsys):
+    assert main(["press", SCENE, *P1, "--indenter", "sphere", "--radius", "8", "--depth",
+                 "0.5"]) == 0
+    text = capsys.readouterr().out
+    assert "Sphere(radius_mm=8.0)" in text and "force" in text and "centre of pressure" in text
+    assert main(["press", SCENE, *P1, "--depth", "-0.5"]) == 0
+    assert "no contact" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--roll", "95"], "roll_deg=95 is out of range"),
+    (["--depth", "9"], "depth_mm=9 is out of range"),
+    (["--indenter", "sphere", "--radius", "-2"], "radius_mm=-2.0 is out of range"),
+    (["--indenter", "mesh"], "needs --mesh PATH"),
+])
+def test_press_bad_input_exits_with_a_message(capsys, argv, message):
+    assert main(["press", SCENE, *P1, *argv]) == 1
+    assert message in capsys.readouterr().err
+
+
+def test_press_help(capsys):
+    with pytest.raises(SystemExit):
+        main(["press", "--help"])
+    text = " ".join(capsys.readouterr().out.split())  # argparse wraps lines
+    assert "--roll" in text and "R_y(pitch) R_x(roll) e_z" in text
+
+
+def test_press_with_a_mesh_indenter(capsys):
+    mesh = str(Path(SCENE).parent / "objects" / "capsule_r4.stl")
+    assert main(["press", SCENE, *P1, "--indenter", "mesh", "--mesh", mesh, "--yaw", "30",
+                 "--depth", "0.5", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["in_contact"] and out["max_penetration_mm"] < 1e-6
