@@ -11,11 +11,13 @@ SUDO=""
 [ "$(id -u)" -ne 0 ] && SUDO="sudo"
 
 # Dr.Jit's LLVM backend needs a libLLVM it can use (Debian 12's 14-16 abort at the first render);
-# scikit-sparse's CHOLMOD builds against SuiteSparse.
-if ! dpkg -s libllvm19 libsuitesparse-dev >/dev/null 2>&1; then
-  echo "== installing system packages: libllvm19 libsuitesparse-dev"
+# scikit-sparse's CHOLMOD builds against SuiteSparse, and runs 6x faster on OpenBLAS than on the
+# reference BLAS it would otherwise link (the FEM precompute: 20 s instead of 2 minutes).
+PKGS="libllvm19 libsuitesparse-dev libopenblas0-pthread"
+if ! dpkg -s $PKGS >/dev/null 2>&1; then
+  echo "== installing system packages: $PKGS"
   $SUDO apt-get update -qq
-  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 libsuitesparse-dev
+  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $PKGS
 fi
 
 echo "== installing the Python package (editable) and its dependencies"
@@ -25,6 +27,8 @@ echo "== checking the renderer's libLLVM"
 python3 -c "import tactip_sim.llvm as l; print('   Dr.Jit will use', l.ensure_llvm())"
 
 if [ "$RUN" = 1 ]; then
-  echo "== main job on scenes/shadow_fingertip.toml"
-  tactip mesh scenes/shadow_fingertip.toml
+  echo "== main job: the calibration protocol on scenes/shadow_fingertip.toml (resumable: rerun"
+  echo "   ./setup.sh after an interruption and it continues where it stopped)"
+  python3 -m tactip_sim.cli mesh scenes/shadow_fingertip.toml
+  python3 -m tactip_sim.cli calibrate scenes/shadow_fingertip.toml --out out/calibration --workers 2
 fi
