@@ -14,7 +14,7 @@ from tactip_sim.scene import scene_hash, scene_to_dict
 from .dataset import _json, atomic_write_text
 from .fit import ScoreRow, features, fit_model, r2_table_csv, r2_table_markdown, score
 from .protocol import evaluation_sets, make_tip, training_set
-from .sweep import SweepSpec, _versions, run_sweep
+from .sweep import SweepSpec, _versions, close_client, open_client, run_sweep
 
 ORDERS = (1, 2, 3)
 # The CoP feature the regressors use. "area_change" (cells weighted by their growth against the
@@ -70,33 +70,37 @@ def calibrate(
     models_dir.mkdir(exist_ok=True)
     tip_info = {}
     sets = [training_set(scene), *evaluation_sets(scene)]
-    for tip in tips:
-        t_tip = time.perf_counter()
-        results = {}
-        for pose_set in sets:
-            spec = SweepSpec(scene, tip, pose_set, frames=frames)
-            res = run_sweep(spec, out / f"tip_{tip}" / pose_set.name, workers=workers,
-                            scheduler=scheduler, progress=progress)
-            results[pose_set.name] = res
-            samples += res.computed
-        for feat in (feature, other):
-            train = features(results["train"].dataset, variant=feat)
-            folder = models_dir if feat == feature else models_dir / f"{feat}_cop"
-            folder.mkdir(exist_ok=True)
-            for order in ORDERS:
-                model = fit_model(train, order)
-                model.to_json(folder / f"tip_{tip}_order{order}.json")
-                for pose_set in sets[1:]:
-                    test = features(results[pose_set.name].dataset, variant=feat)
-                    rows[feat].append(score(model, test, tip=tip,
-                                            depth_offset_mm=pose_set.depth_offset_mm))
-        timings[f"tip_{tip}_s"] = time.perf_counter() - t_tip
-        tip_info[tip] = make_tip(scene, tip).draws
-        if charts:
-            from .report import tip_charts
+    client = open_client(workers, scheduler)  # one cluster for every sweep of the run
+    try:
+        for tip in tips:
+            t_tip = time.perf_counter()
+            results = {}
+            for pose_set in sets:
+                spec = SweepSpec(scene, tip, pose_set, frames=frames)
+                res = run_sweep(spec, out / f"tip_{tip}" / pose_set.name, client=client,
+                                progress=progress)
+                results[pose_set.name] = res
+                samples += res.computed
+            for feat in (feature, other):
+                train = features(results["train"].dataset, variant=feat)
+                folder = models_dir if feat == feature else models_dir / f"{feat}_cop"
+                folder.mkdir(exist_ok=True)
+                for order in ORDERS:
+                    model = fit_model(train, order)
+                    model.to_json(folder / f"tip_{tip}_order{order}.json")
+                    for pose_set in sets[1:]:
+                        test = features(results[pose_set.name].dataset, variant=feat)
+                        rows[feat].append(score(model, test, tip=tip,
+                                                depth_offset_mm=pose_set.depth_offset_mm))
+            timings[f"tip_{tip}_s"] = time.perf_counter() - t_tip
+            tip_info[tip] = make_tip(scene, tip).draws
+            if charts:
+                from .report import tip_charts
 
-            tip_charts(out, tip, {k: r.dataset for k, r in results.items()},
-                       features(results["train"].dataset, variant=feature), feature=feature)
+                tip_charts(out, tip, {k: r.dataset for k, r in results.items()},
+                           features(results["train"].dataset, variant=feature), feature=feature)
+    finally:
+        close_client(client)
     atomic_write_text(out / "r2_table.csv", r2_table_csv(rows[feature]))
     atomic_write_text(out / "r2_table.md", r2_table_markdown(rows[feature], feature=feature))
     alt = "r2_table_paper_cop" if other == "area" else f"r2_table_{other}_cop"

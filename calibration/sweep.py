@@ -62,8 +62,17 @@ class SweepSpec:
             "indenter": dict(sorted(self.indenter.items())),
         }
 
-    def key(self) -> str:
-        return hashlib.sha256(repr(sorted(self.identity().items())).encode()).hexdigest()[:16]
+    def worker_key(self) -> str:
+        """What a worker process's simulator/renderer/perception depend on (not the poses):
+        the sweeps of one tip share a worker and its rest frame."""
+        ident = {k: v for k, v in self.identity().items()
+                 if k not in ("pose_set", "poses_digest")}
+        return hashlib.sha256(repr(sorted(ident.items())).encode()).hexdigest()[:16]
+
+    @property
+    def set_tag(self) -> int:
+        """Seeds the pose set's noise apart from the other sets of the same tip."""
+        return zlib.crc32(self.poses.name.encode())
 
 
 class TipWorker:
@@ -83,18 +92,18 @@ class TipWorker:
         self.sim = ts.Simulator(scene, pad=self.pad)
         self.renderer = Renderer(scene, self.pad)
         self.frames = spec.frames
-        self.seed_base = [scene.protocol.seed, scene.protocol.tips.index(spec.tip),
-                          zlib.crc32(spec.poses.name.encode())]
+        self.seed_base = [scene.protocol.seed, scene.protocol.tips.index(spec.tip)]
         rest_rng = np.random.default_rng([*self.seed_base, 2**31 - 1])
         self.rest_image = render_frames(self.renderer, None, 1, rest_rng)[2][0]
         self.pipeline = pc.FeaturePipeline(self.rest_image, expected_count=scene.pins.count)
 
-    def sample(self, index: int, pose: Sequence[float]) -> tuple[SampleRecord, bytes]:
+    def sample(self, index: int, pose: Sequence[float], set_tag: int = 0
+               ) -> tuple[SampleRecord, bytes]:
         import cv2
 
         roll, pitch, depth = (float(v) for v in pose)
         state = self.sim.press(ts.Pose(roll_deg=roll, pitch_deg=pitch, depth_mm=depth))
-        rng = np.random.default_rng([*self.seed_base, index])
+        rng = np.random.default_rng([*self.seed_base, set_tag, index])
         markers_px, visible, images = render_frames(self.renderer, state, self.frames, rng)
         self.pipeline.reset()
         cops, cops_ac, counts, reliable = [], [], [], 0
@@ -148,7 +157,7 @@ _WORKERS: dict[str, TipWorker] = {}
 
 
 def _worker_for(spec: SweepSpec) -> TipWorker:
-    key = spec.key()
+    key = spec.worker_key()
     if key not in _WORKERS:
         _WORKERS.clear()  # one tip per process at a time keeps memory flat
         _WORKERS[key] = TipWorker(spec)
@@ -165,7 +174,7 @@ def run_chunk(spec: SweepSpec, indices: Sequence[int]
     out = []
     for i in indices:
         t0 = time.perf_counter()
-        rec, png = worker.sample(int(i), spec.poses.poses[int(i)])
+        rec, png = worker.sample(int(i), spec.poses.poses[int(i)], spec.set_tag)
         out.append((rec, png, time.perf_counter() - t0))
     return cv2.imencode(".png", worker.rest_image)[1].tobytes(), out
 
@@ -189,6 +198,7 @@ def run_sweep(
     progress: bool = True,
     limit: int | None = None,
     on_sample: Callable[[int], None] | None = None,
+    client: Any = None,
 ) -> SweepResult:
     """Run (or resume) a sweep into dataset folder ``out``.
 
@@ -199,6 +209,8 @@ def run_sweep(
     chunk : samples per task
     limit : stop after computing this many new samples (used to test resume)
     on_sample : called with each written index (used to test interruption)
+    client : an open ``dask.distributed.Client`` to use (and leave open), e.g. one shared by
+        all the sweeps of a calibration
     """
     import platform
 
@@ -219,7 +231,7 @@ def run_sweep(
     bar = _progress(total=len(spec.poses), initial=len(done), enabled=progress,
                     desc=f"{spec.tip}/{spec.poses.name}")
     try:
-        for rest_png, results in _execute(spec, chunks, workers, scheduler):
+        for rest_png, results in _execute(spec, chunks, workers, scheduler, client):
             if not ds.rest_image_path.is_file():
                 ds.write_rest(rest_png)
             for rec, png, secs in results:
@@ -236,31 +248,51 @@ def run_sweep(
     return SweepResult(ds, len(todo), len(done), time.perf_counter() - t0, sample_seconds)
 
 
-def _execute(spec: SweepSpec, chunks: list[list[int]], workers: int, scheduler: str | None):
+def open_client(workers: int, scheduler: str | None):
+    """A Dask client: on ``scheduler`` if given, else on a LocalCluster of ``workers``
+    single-threaded processes; None for in-process work (``workers <= 1``, no scheduler).
+    Close it with :func:`close_client`."""
+    if scheduler is None and workers <= 1:
+        return None
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        return Client(scheduler)
+    return Client(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None))
+
+
+def close_client(client: Any) -> None:
+    if client is None:
+        return
+    cluster = client.cluster
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+def _execute(spec: SweepSpec, chunks: list[list[int]], workers: int, scheduler: str | None,
+             client: Any = None):
     """Yield chunk results as they complete: in order in-process, or from Dask."""
     if not chunks:
         return
-    if scheduler is None and workers <= 1:
+    own = client is None
+    if own:
+        client = open_client(workers, scheduler)
+    if client is None:
         for c in chunks:
             yield run_chunk(spec, c)
         return
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import as_completed
 
-    if scheduler is not None:
-        client, cluster = Client(scheduler), None
-    else:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
-        client = Client(cluster)
     try:
         spec_f = client.scatter(spec, broadcast=True)
         futures = [client.submit(run_chunk, spec_f, c, pure=False) for c in chunks]
         for fut in as_completed(futures):
             yield fut.result()
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        if own:
+            close_client(client)
 
 
 def _progress(total: int, initial: int, enabled: bool, desc: str):
