@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 
@@ -43,7 +41,7 @@ def test_cache_hit_returns_identical_mesh(tmp_path, monkeypatch, scene):
     coarse = ts.replace_in(scene, fidelity={"mesh_edge_mm": 4.0, "surface_resolution": 16})
     first = ts.tetrahedralise(coarse)
     assert not first.from_cache
-    assert not os.listdir(tmp_path / ".") == []  # the cache folder exists
+    assert (tmp_path / "cache" / "mesh" / f"{first.key}.npz").is_file()  # stored in the cache
     assert not (tmp_path / "__tracked_surface.stl").exists()  # pytetwild ran in a temp dir
     second = ts.tetrahedralise(coarse)
     assert second.from_cache and second.key == first.key
