@@ -133,7 +133,9 @@ def validate() -> None:
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
     from test_fem_convergence import solve
-    from test_fem_hertz import hertz_force_mN, layer_factor, make_sim, press_sphere
+    from test_fem_hertz import make_sim, press_sphere
+
+    from tactip_sim.fem.analytic import hertz_force_mN, layer_factor
 
     print("\nHertz: sphere on scenes/hertz_block.toml (E = 100 kPa), P2, full solver")
     print(f"  {'nu':>5} {'R mm':>5} {'d mm':>7} {'a mm':>6} {'F mN':>9} {'F/Hertz-1':>10} "

@@ -22,19 +22,10 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
+from tactip_sim.fem.analytic import hertz_force_mN, layer_factor
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "hertz_block.toml"
 REFINED = {"mesh_edge_mm": 5.0, "refine_edge_mm": 0.3, "refine_radius_mm": 3.0}
-
-
-def hertz_force_mN(e_kpa, nu, radius, depth):
-    return 4.0 / 3.0 * e_kpa / (1.0 - nu**2) * np.sqrt(radius) * depth**1.5
-
-
-def layer_factor(nu, radius, depth, thickness=20.0):
-    chi = np.sqrt(radius * depth) / thickness
-    a0 = -(1.2876 - 1.4678 * nu + 1.3442 * nu**2) / (1.0 - nu)
-    return 1.0 - 2.0 * a0 * chi / np.pi + 4.0 * a0**2 * chi**2 / np.pi**2
 
 
 def make_sim(nu: float, order: int = 2) -> ts.Simulator:
