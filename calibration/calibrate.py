@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import tactip_sim as ts
-from tactip_sim.scene import scene_hash, scene_to_dict
+from tactip_sim.scene import preset_of, scene_hash, scene_to_dict
 
 from .dataset import _json, atomic_write_text
 from .fit import ScoreRow, features, fit_model, r2_table_csv, r2_table_markdown, score
@@ -46,6 +46,7 @@ def calibrate(
     progress: bool = True,
     charts: bool = True,
     feature: str = "area_change",
+    fidelity: dict | None = None,
 ) -> CalibrationResult:
     """Run the reference paper's calibration protocol in simulation (resumable).
 
@@ -54,6 +55,8 @@ def calibrate(
     test set, for both CoP features (``feature`` is the headline one, see :data:`FEATURES`).
     Writes ``r2_table.csv``, ``r2_table.md`` (headline feature), ``r2_table_paper_cop.*`` or
     ``r2_table_area_change_cop.*`` (the other), ``models/*.json``, charts and ``manifest.json``.
+    ``fidelity`` records how the scene's fidelity was chosen (``--fidelity``, or the
+    ``--fidelity auto`` choice) in the manifest.
     """
     if feature not in FEATURES:
         raise ValueError(f"feature={feature!r} must be one of {FEATURES}")
@@ -66,6 +69,7 @@ def calibrate(
     rows: dict[str, list[ScoreRow]] = {feature: [], other: []}
     timings: dict[str, float] = {}
     samples = 0
+    sample_seconds = 0.0
     models_dir = out / "models"
     models_dir.mkdir(exist_ok=True)
     tip_info = {}
@@ -81,6 +85,7 @@ def calibrate(
                                 progress=progress)
                 results[pose_set.name] = res
                 samples += res.computed
+                sample_seconds += res.sample_seconds
             for feat in (feature, other):
                 train = features(results["train"].dataset, variant=feat)
                 folder = models_dir if feat == feature else models_dir / f"{feat}_cop"
@@ -108,6 +113,10 @@ def calibrate(
     atomic_write_text(out / f"{alt}.md", r2_table_markdown(rows[other], feature=other))
     seconds = time.perf_counter() - t_start
     timings["total_s"] = seconds
+    timings["compute_s"] = sample_seconds  # per-sample compute summed over workers
+    if samples:
+        timings["samples_per_s"] = samples / seconds
+        timings["frames_per_s"] = samples * frames / seconds  # perceived frames, end to end
     manifest = {
         "kind": "tactip-sim calibration",
         "scene": scene_to_dict(scene),
@@ -115,6 +124,7 @@ def calibrate(
         "scene_source": scene.source,
         "tips": tip_info,
         "frames_per_sample": frames,
+        "fidelity": {"preset": preset_of(scene), **(fidelity or {})},
         "feature": feature,
         "seed": scene.protocol.seed,
         "pose_sets": {s.name: len(s) for s in sets},

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactip_sim.cli import add_scene_argument, load_scene_args
+from tactip_sim.cli import add_scene_argument, load_scene_args, parse_overrides
 
 QUICK = {  # a reduced protocol for a first look (and for tests): same ranges, coarser grids
     "protocol.roll_step_deg": 8.0,
@@ -35,19 +35,47 @@ def _check_scale(args: argparse.Namespace) -> None:
         raise ValueError(f"--frames={args.frames} must be at least 1")
 
 
+def _scene_and_fidelity(args: argparse.Namespace):
+    """The scene of a sweeping command and how its fidelity was chosen: ``--fidelity NAME``
+    applies a preset; ``--fidelity auto`` the cheapest level of ``--study`` that meets the
+    tolerances (``--set`` overrides win either way)."""
+    if args.fidelity != "auto":
+        return load_scene_args(args), ({"requested": args.fidelity} if args.fidelity else {})
+    from tactip_sim.scene import replace_in
+
+    from .studies.fidelity import resolve_auto
+
+    args.fidelity = None
+    scene, record = resolve_auto(load_scene_args(args), args)
+    overrides = parse_overrides(args.overrides)
+    if overrides:
+        by_section: dict[str, dict] = {}
+        for dotted, value in overrides.items():
+            sec, _, key = dotted.partition(".")
+            by_section.setdefault(sec, {})[key] = value
+        scene = replace_in(scene, **by_section)
+    print(f"--fidelity auto: level {record['level']!r} ({record['sample_s']:.3f} s per sample, "
+          f"{record['speedup_vs_reference']:.3g}x the reference) meets "
+          f"{record['tolerances']}")
+    return scene, {"requested": "auto", "auto": record}
+
+
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .calibrate import calibrate
 
     _check_scale(args)
     if args.quick:
         args.overrides = [f"{k}={v}" for k, v in QUICK.items()] + list(args.overrides)
-    scene = load_scene_args(args)
+    scene, fidelity = _scene_and_fidelity(args)
     tips = [t.strip() for t in args.tips.split(",")] if args.tips else None
     res = calibrate(scene, args.out, tips=tips, frames=args.frames, workers=args.workers,
                     scheduler=args.scheduler, progress=not args.no_progress,
-                    charts=not args.no_charts, feature=args.feature)
+                    charts=not args.no_charts, feature=args.feature, fidelity=fidelity)
     print((Path(args.out) / "r2_table.md").read_text())
-    print(f"{res.samples} samples computed in {res.seconds:.1f} s; results in {args.out}/")
+    t = res.timings
+    print(f"{res.samples} samples computed in {res.seconds:.1f} s"
+          + (f" ({t['frames_per_s']:.1f} perceived frames/s end to end)"
+             if "frames_per_s" in t else "") + f"; results in {args.out}/")
     return 0
 
 
@@ -56,7 +84,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from .sweep import SweepSpec, run_sweep
 
     _check_scale(args)
-    scene = load_scene_args(args)
+    scene, _ = _scene_and_fidelity(args)
     if args.random is not None:
         p = scene.protocol
         rng = np.random.default_rng([p.seed if args.seed is None else args.seed, 99])
@@ -125,12 +153,14 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from .studies.fidelity import add_tolerance_arguments
+
     p = sub.add_parser(
         "calibrate", help="run the paper's roll/pitch calibration protocol in simulation",
         description="Training sweep (255 poses) and three 200-pose test sets at -0.5/0/+0.5 mm "
         "for each tip; 1st-3rd order regressors from perceived CoP to roll/pitch; R² table, "
         "models, charts and manifest in --out. Rerunning the same command resumes.")
-    add_scene_argument(p, optional=True)
+    add_scene_argument(p, optional=True, auto=True)
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--tips", help="comma-separated tips (default: protocol.tips, e.g. A,B,C)")
     p.add_argument("--quick", action="store_true",
@@ -139,13 +169,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--feature", default="area_change", choices=["area_change", "area"],
                    help="headline CoP feature (default area_change; both are reported)")
     _scale_args(p)
+    add_tolerance_arguments(p)
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("sweep", help="render a pose set into a dataset folder",
                        description="Press, render and perceive a pose set (the protocol's "
                        "training grid or a test set, or N random poses) with any indenter; "
                        "resumable.")
-    add_scene_argument(p)
+    add_scene_argument(p, auto=True)
     p.add_argument("--out", required=True, help="dataset folder")
     p.add_argument("--poses", default="train",
                    help="'train' or a test set name such as test+0p0mm (default train)")
@@ -158,6 +189,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="indenter kind (default: the scene's)")
     p.add_argument("--radius", type=float, help="indenter radius (mm)")
     _scale_args(p)
+    add_tolerance_arguments(p)
     p.set_defaults(func=_cmd_sweep)
 
     p = sub.add_parser("fit", help="fit a roll/pitch regressor on a dataset",
@@ -178,3 +210,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="CoP weighting the model was fitted with")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_evaluate)
+
+    from .studies.cli import register as register_studies
+
+    register_studies(sub)

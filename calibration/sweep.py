@@ -97,45 +97,83 @@ class TipWorker:
         self.rest_image = render_frames(self.renderer, None, 1, rest_rng)[2][0]
         self.pipeline = pc.FeaturePipeline(self.rest_image, expected_count=scene.pins.count)
 
-    def sample(self, index: int, pose: Sequence[float], set_tag: int = 0
-               ) -> tuple[SampleRecord, bytes]:
+    def sample(self, index: int, pose: Sequence[float], set_tag: int = 0, *,
+               timings: dict[str, float] | None = None) -> tuple[SampleRecord, bytes]:
+        """Press, render and perceive one pose. ``timings``, if given, accumulates the seconds
+        spent in ``physics``, ``render`` (radiance, camera model and noise) and ``perception``;
+        the perceived markers (mean tracked position per rest-frame marker, NaN if never
+        tracked) are stored under ``self.last_points``."""
         import cv2
 
         roll, pitch, depth = (float(v) for v in pose)
+        t0 = time.perf_counter()
         state = self.sim.press(ts.Pose(roll_deg=roll, pitch_deg=pitch, depth_mm=depth))
+        t1 = time.perf_counter()
         rng = np.random.default_rng([*self.seed_base, set_tag, index])
         markers_px, visible, images = render_frames(self.renderer, state, self.frames, rng)
-        self.pipeline.reset()
-        cops, cops_ac, counts, reliable = [], [], [], 0
-        for image in images:
-            f = self.pipeline.process(image)
-            counts.append(f.n_detected)
-            reliable += int(f.reliable)
-            # a frame with a few lost or merged markers still has a CoP (from the tracked ones);
-            # it is used, and the sample records how many frames were fully reliable
-            if np.all(np.isfinite(f.cop)):
-                cops.append(f.cop)
-            if np.all(np.isfinite(f.cop_area_change)):
-                cops_ac.append(f.cop_area_change)
-        nan2 = np.full(2, np.nan)
-        cop = np.mean(cops, axis=0) if cops else nan2
-        cop_ac = np.mean(cops_ac, axis=0) if cops_ac else nan2
-        spread = float(np.sqrt(np.var(cops, axis=0).sum())) if len(cops) > 1 else 0.0
-        frame0 = images[0]
-        ok, png = cv2.imencode(".png", frame0)
+        t2 = time.perf_counter()
+        p = perceive(self.pipeline, images)
+        t3 = time.perf_counter()
+        if timings is not None:
+            for k, v in (("physics", t1 - t0), ("render", t2 - t1), ("perception", t3 - t2)):
+                timings[k] = timings.get(k, 0.0) + v
+        self.last_points = p.points
+        ok, png = cv2.imencode(".png", images[0])
         if not ok:  # pragma: no cover - OpenCV cannot fail on a uint8 image
             raise RuntimeError(f"could not encode sample {index} as PNG")
         rec = SampleRecord(
             index=index, roll_deg=roll, pitch_deg=pitch, depth_mm=depth,
             force_N=float(state.force_N), contact_area_mm2=float(state.contact_area_mm2),
             true_cop_mm=np.asarray(state.pressure_centre_mm, dtype=float)[:2],
-            cop_px=cop, cop_ac_px=cop_ac, cop_std_px=spread,
-            n_markers=float(np.mean(counts)), reliable_frames=reliable, frames=len(images),
+            cop_px=p.cop, cop_ac_px=p.cop_ac, cop_std_px=p.spread,
+            n_markers=p.n_markers, reliable_frames=p.reliable, frames=len(images),
             contact=int(bool(state.in_contact)), markers_mm=np.asarray(state.markers_mm),
             markers_px=np.asarray(markers_px, dtype=float),
             visible=np.asarray(visible, dtype=bool),
         )
         return rec, png.tobytes()
+
+
+@dataclass(frozen=True)
+class Perceived:
+    """Features of one sample, averaged over its frames."""
+
+    cop: np.ndarray  # (2,) paper's CoP, mean over frames where it is defined (NaN if none)
+    cop_ac: np.ndarray  # (2,) growth-weighted CoP, likewise
+    spread: float  # RMS spread of the per-frame CoP about its mean (px)
+    n_markers: float  # mean detections per frame
+    reliable: int  # fully reliable frames
+    points: np.ndarray  # (m, 2) mean tracked position of each rest-frame marker (NaN if lost)
+
+
+def perceive(pipeline: Any, images: Sequence[np.ndarray]) -> Perceived:
+    """Run the perception pipeline over one sample's frames (from the rest frame's identities)
+    and average the features."""
+    pipeline.reset()
+    cops, cops_ac, counts, pts, reliable = [], [], [], [], 0
+    for image in images:
+        f = pipeline.process(image)
+        counts.append(f.n_detected)
+        reliable += int(f.reliable)
+        pts.append(f.points)
+        # a frame with a few lost or merged markers still has a CoP (from the tracked ones);
+        # it is used, and the sample records how many frames were fully reliable
+        if np.all(np.isfinite(f.cop)):
+            cops.append(f.cop)
+        if np.all(np.isfinite(f.cop_area_change)):
+            cops_ac.append(f.cop_area_change)
+    nan2 = np.full(2, np.nan)
+    with np.errstate(invalid="ignore"):
+        stack = np.stack(pts)
+        seen = np.isfinite(stack).all(axis=2)
+        total = np.where(seen[..., None], stack, 0.0).sum(axis=0)
+        n = seen.sum(axis=0)[:, None]
+        points = np.where(n > 0, total / np.maximum(n, 1), np.nan)
+    return Perceived(
+        cop=np.mean(cops, axis=0) if cops else nan2,
+        cop_ac=np.mean(cops_ac, axis=0) if cops_ac else nan2,
+        spread=float(np.sqrt(np.var(cops, axis=0).sum())) if len(cops) > 1 else 0.0,
+        n_markers=float(np.mean(counts)), reliable=reliable, points=points)
 
 
 def render_frames(renderer: Any, state: Any, frames: int, rng: np.random.Generator
@@ -149,8 +187,10 @@ def render_frames(renderer: Any, state: Any, frames: int, rng: np.random.Generat
     seed = int(rng.integers(0, 2**31 - 1))
     radiance = renderer.render_radiance(markers, directions, seed=seed)
     px, visible, _ = renderer.ground_truth(markers, directions)
-    dn = renderer.camera.expose(radiance)  # blur, vignetting, exposure: the same every frame
-    return px, visible, [renderer.camera.digitise(dn, rng) for _ in range(frames)]
+    cam = renderer.camera
+    dn = cam.expose(radiance)  # blur, vignetting, exposure: the same every frame
+    sigma = cam.noise_sigma(dn)
+    return px, visible, [cam.digitise(dn, rng, sigma=sigma) for _ in range(frames)]
 
 
 _WORKERS: dict[str, TipWorker] = {}

@@ -10,7 +10,7 @@ from importlib import import_module
 
 from .geometry import Pad, build_pad
 from .mesh import REGION_GEL, REGION_SKIN, TetMesh, tetrahedralise
-from .scene import Scene, SceneError, load_scene, replace_in, scene_to_toml
+from .scene import Scene, SceneError, apply_preset, load_scene, replace_in, scene_to_toml
 
 __version__ = "0.1.0"
 
@@ -50,6 +50,7 @@ __all__ = [
     "Scene",
     "SceneError",
     "TetMesh",
+    "apply_preset",
     "build_pad",
     "load_scene",
     "replace_in",

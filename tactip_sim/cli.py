@@ -42,22 +42,45 @@ def parse_overrides(pairs: Sequence[str]) -> dict[str, object]:
     return out
 
 
-def add_scene_argument(p: argparse.ArgumentParser, *, optional: bool = False) -> None:
-    """The SCENE positional and ``--set`` overrides, shared by every scene-reading command."""
+def add_scene_argument(p: argparse.ArgumentParser, *, optional: bool = False,
+                       auto: bool = False) -> None:
+    """The SCENE positional, ``--fidelity`` and ``--set`` overrides, shared by every
+    scene-reading command. ``auto``: the command also accepts ``--fidelity auto``."""
     if optional:
         p.add_argument("scene", nargs="?", default=str(DEFAULT_SCENE),
                        help=f"scene file (default: {DEFAULT_SCENE.relative_to(Path.cwd())})"
                        if DEFAULT_SCENE.is_relative_to(Path.cwd()) else "scene file")
     else:
         p.add_argument("scene", help="scene file (.toml), e.g. scenes/shadow_fingertip.toml")
+    p.add_argument("--fidelity", metavar="PRESET",
+                   help="apply a fidelity preset of the scene: fast, balanced, reference or one "
+                   "the scene defines" + (", or auto (the cheapest level of a fidelity study "
+                   "that meets the tolerance)" if auto else "") + "; --set overrides it")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene key, e.g. --set camera.tilt_deg=6 (repeatable)")
 
 
-def load_scene_args(args: argparse.Namespace):
-    from .scene import load_scene
+def load_scene_args(args: argparse.Namespace, *, preset: str | None = None):
+    """The scene of a command's arguments: the file, then ``--fidelity`` (or ``preset``), then
+    ``--set`` overrides on top."""
+    from .scene import apply_preset, load_scene, replace_in
 
-    return load_scene(args.scene, parse_overrides(args.overrides))
+    overrides = parse_overrides(args.overrides)
+    scene = load_scene(args.scene, overrides)
+    name = preset if preset is not None else getattr(args, "fidelity", None)
+    if name is None:
+        return scene
+    if name == "auto":
+        raise SceneError("--fidelity auto is only accepted by the calibration commands "
+                         "(calibrate, sweep), which read a fidelity study")
+    scene = apply_preset(scene, name)
+    if overrides:
+        by_section: dict[str, dict[str, object]] = {}
+        for dotted, value in overrides.items():
+            section, _, key = dotted.partition(".")
+            by_section.setdefault(section, {})[key] = value
+        scene = replace_in(scene, **by_section)
+    return scene
 
 
 def _cmd_scene(args: argparse.Namespace) -> int:

@@ -82,23 +82,35 @@ class CameraModel:
         scale = np.float32(255.0 * self.exposure / FULL_SCALE_RADIANCE)
         return img * (vig[..., None] if img.ndim == 3 else vig) * scale
 
-    def digitise(self, dn: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
+    def noise_sigma(self, dn: np.ndarray) -> np.ndarray:
+        """Per-pixel noise standard deviation (DN) of exposed ``dn``: read and shot noise
+        combined. Precompute it once when digitising many frames of one exposure."""
+        return np.sqrt(np.float32(self.read_noise**2)
+                       + np.float32(self.shot_noise**2) * np.maximum(dn, np.float32(0.0)))
+
+    def digitise(self, dn: np.ndarray, rng: np.random.Generator | None, *,
+                 sigma: np.ndarray | None = None) -> np.ndarray:
         """Add shot and read noise to exposed DN (from :meth:`expose`) and quantise.
 
         Parameters
         ----------
         dn : (H, W) or (H, W, 3) float32
         rng : generator of the sensor noise; None = no noise
+        sigma : optional precomputed :meth:`noise_sigma` of ``dn`` (same result, less work)
 
         Returns
         -------
         (H, W) or (H, W, 3) uint8
         """
         if rng is not None and (self.read_noise > 0 or self.shot_noise > 0):
-            sigma = np.sqrt(np.float32(self.read_noise**2)
-                            + np.float32(self.shot_noise**2) * np.maximum(dn, 0.0))
-            dn = dn + sigma * rng.standard_normal(dn.shape, dtype=np.float32)
-        return np.clip(np.rint(dn), 0, 255).astype(np.uint8)
+            out = rng.standard_normal(dn.shape, dtype=np.float32)
+            out *= self.noise_sigma(dn) if sigma is None else sigma
+            out += dn
+        else:
+            out = np.array(dn, dtype=np.float32)
+        np.rint(out, out=out)
+        np.clip(out, 0, 255, out=out)
+        return out.astype(np.uint8)
 
     def apply(self, radiance: np.ndarray, rng: np.random.Generator | None, *,
               vignette: np.ndarray | None = None) -> np.ndarray:

@@ -68,8 +68,9 @@ class Renderer:
     scene : the scene
     pad : its geometry (default: ``build_pad(scene)``)
     pins : also render the black pins (occluders; off by default: black on black)
-    shading : "diffused" (translucent caps of uniform radiance, the default) or "lambert"
-        (opaque caps shaded point by point); see :mod:`tactip_sim.render.scene`
+    shading : "diffused" (translucent caps of uniform radiance) or "lambert" (opaque caps
+        shaded point by point); see :mod:`tactip_sim.render.scene`. Default:
+        ``imaging.shading``
     albedo : the materials' reflectances (default :class:`~tactip_sim.render.scene.Albedo`)
 
     Raises
@@ -82,7 +83,8 @@ class Renderer:
     """
 
     def __init__(self, scene: Scene, pad: Pad | None = None, *, pins: bool = False,
-                 shading: str = "diffused", albedo: Albedo | None = None) -> None:
+                 shading: str | None = None, albedo: Albedo | None = None) -> None:
+        shading = scene.imaging.shading if shading is None else shading
         if shading not in SHADINGS:
             raise ValueError(f"shading={shading!r} is not allowed: expected one of {SHADINGS}")
         self.scene = scene

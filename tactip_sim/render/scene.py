@@ -44,6 +44,7 @@ import trimesh
 from ..geometry import Pad
 from ..optics.visibility import cap_outline
 from ..scene import Scene
+from ..scene.schema import SHADINGS
 
 CAP_SEGMENTS = 48
 """Polygon sides of a rendered cap disc (a centrally symmetric polygon: its image centroid is
@@ -63,8 +64,6 @@ class Albedo:
     rim: float = 0.85  # Vero White
     body: float = 0.5  # printed body, inside
 
-
-SHADINGS = ("diffused", "lambert")
 
 
 def cap_radiance(scene: Scene, leds_mm: np.ndarray, centres: np.ndarray,

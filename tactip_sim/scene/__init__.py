@@ -10,9 +10,14 @@ from .load import (
     scene_to_dict,
     scene_to_toml,
 )
+from .presets import BUILTIN_PRESETS, PRESET_KEYS, apply_preset, preset_of
 from .schema import SECTIONS, Scene
 
 __all__ = [
+    "BUILTIN_PRESETS",
+    "PRESET_KEYS",
+    "apply_preset",
+    "preset_of",
     "SECTIONS",
     "Scene",
     "SceneError",

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ._spec import SceneError
+from .presets import parse_presets
 from .schema import SECTIONS, Scene
 
 
@@ -37,7 +38,7 @@ def scene_from_dict(data: Mapping[str, Any], *, source: str = "") -> Scene:
     """
     if not isinstance(data, Mapping):
         raise SceneError(f"a scene must be a table, got {type(data).__name__}")
-    unknown = sorted(set(data) - set(SECTIONS) - {"name"})
+    unknown = sorted(set(data) - set(SECTIONS) - {"name", "presets"})
     if unknown:
         raise SceneError(
             f"unknown section or key {unknown[0]!r}; allowed sections: {', '.join(SECTIONS)}"
@@ -46,7 +47,8 @@ def scene_from_dict(data: Mapping[str, Any], *, source: str = "") -> Scene:
     if not isinstance(name, str) or not name:
         raise SceneError(f"name={name!r} must be a non-empty string")
     sections = {s: _parse_section(s, cls, data.get(s, {})) for s, cls in SECTIONS.items()}
-    scene = Scene(name=name, source=source, **sections)
+    presets = parse_presets(data.get("presets"))
+    scene = Scene(name=name, source=source, presets=presets, **sections)
     _cross_checks(scene, base_dir=Path(source).parent if source else Path.cwd())
     return scene
 
@@ -127,6 +129,7 @@ def scene_hash(scene: Scene, sections: tuple[str, ...] | None = None) -> str:
     """A short, stable hash of the whole scene or of some of its sections (not its name)."""
     d = scene_to_dict(scene)
     d.pop("name", None)
+    d.pop("presets", None)
     if sections is not None:
         d = {s: d[s] for s in sections}
     blob = json.dumps(d, sort_keys=True, separators=(",", ":")).encode()

@@ -17,6 +17,7 @@ PIN_MODELS = ("embedded", "rod")
 REFRACTION = ("none", "analytic", "path")
 MATERIAL_MODELS = ("linear", "neo_hookean")
 CONTACT_SOLVERS = ("reduced", "full")
+SHADINGS = ("diffused", "lambert")
 
 
 @dataclass(frozen=True)
@@ -147,6 +148,11 @@ class Imaging:
 
     spp: int = spec(4, "int", "samples per pixel", lo=1, hi=4096)
     refraction: str = spec("analytic", "str", "window/gel refraction", choices=REFRACTION)
+    shading: str = spec(
+        "diffused", "str", "marker caps: uniform translucent (diffused, a cap layer over a "
+        "static background) or lit point by point (lambert, whole scene each frame)",
+        choices=SHADINGS,
+    )
     exposure: float = positive(1.0, "exposure gain", hi=1e6)
     read_noise: float = nonneg(2.0, "read noise standard deviation (DN)", hi=255)
     shot_noise: float = nonneg(0.5, "shot-noise gain (DN per sqrt DN)", hi=100)
@@ -234,6 +240,10 @@ class Scene:
     fidelity: Fidelity = field(default_factory=Fidelity)
     protocol: Protocol = field(default_factory=Protocol)
     tolerances: Tolerances = field(default_factory=Tolerances)
+    presets: dict = field(default_factory=dict)
+    """Named fidelity presets, ``{name: {section: {key: value}}}``: the built-in ones
+    (:data:`tactip_sim.scene.presets.BUILTIN_PRESETS`) updated by the file's ``[presets.NAME]``
+    tables. Not part of the scene hash: they are alternatives, not applied settings."""
     source: str = ""  # file the scene came from ("" if built in code); not part of the hash
 
     @property
