@@ -49,8 +49,10 @@ def main() -> None:
         rad = w.renderer.render_radiance(st.markers_mm, st.marker_directions, seed=1)
         w.renderer.ground_truth(st.markers_mm, st.marker_directions)
         c = time.perf_counter()
-        dn = w.renderer.camera.expose(rad)
-        imgs = [w.renderer.camera.digitise(dn, rng) for _ in range(args.frames)]
+        cam = w.renderer.camera
+        dn = cam.expose(rad)
+        sigma = cam.noise_sigma(dn)
+        imgs = [cam.digitise(dn, rng, sigma=sigma) for _ in range(args.frames)]
         d = time.perf_counter()
         w.pipeline.reset()
         for im in imgs:

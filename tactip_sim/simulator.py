@@ -78,7 +78,6 @@ class Simulator:
         self._vertex_cands = np.flatnonzero(is_vertex)
         self.surface_vertices = space.candidates[is_vertex].astype(np.int32)
         self._reduced: ReducedModel | None = None
-        self._cand_pos: np.ndarray | None = None
         self._renderer = None
 
     def __getstate__(self) -> dict:
@@ -131,7 +130,7 @@ class Simulator:
             return self._press(pose, indenter, solver, full_field)
 
     def _press(self, pose: Pose, indenter: Indenter | None, solver: str | None,
-               full_field: bool, guess: np.ndarray | None = None) -> ContactState:
+               full_field: bool) -> ContactState:
         t0 = time.perf_counter()
         indenter = self.indenter if indenter is None else indenter
         solver = self.solver if solver is None else _check_solver(solver)
@@ -149,8 +148,7 @@ class Simulator:
                                result.u, result.iterations, t0)
         if solver == "reduced":
             op = self.reduced
-            sol = solve_contact(placement, self._cand_rest, op, guess=guess, label=str(pose),
-                                tol=self.tol)
+            sol = solve_contact(placement, self._cand_rest, op, label=str(pose), tol=self.tol)
             markers, dirs = self.body.markers.from_values(op.marker_values(sol.active,
                                                                            sol.forces))
             u = (self.body.displacement(self.body.space.candidates[sol.active], sol.forces)
@@ -164,18 +162,20 @@ class Simulator:
 
     def press_many(self, poses: Iterable[Pose], indenter: Indenter | None = None, *,
                    solver: str | None = None) -> list[ContactState]:
-        """:meth:`press` every pose (the reduced model makes each a few milliseconds); each
-        pose's contact set seeds the next one's active-set guess (same answers, fewer
-        iterations in a sweep)."""
+        """:meth:`press` every pose (the reduced model makes each a few milliseconds).
+
+        Each pose is solved on its own, exactly as :meth:`press` would (no state carries over
+        from one pose to the next, so results do not depend on the order or the grouping of
+        the poses). Seeding each pose's active set with the previous pose's contact set was
+        measured to take more iterations than the solver's own start on the protocol's poses
+        (4.5 against 3.5 on the training grid, 5.7 against 3.7 on random test poses, P2).
+        """
         out: list[ContactState] = []
-        guess = None
         with single_threaded_blas():
             for pose in poses:
                 if not isinstance(pose, Pose):
                     raise TypeError(f"poses must be tactip_sim.Pose, got {type(pose).__name__}")
-                state = self._press(pose, indenter, solver, False, guess)
-                guess = self._candidate_index(state.contact_nodes)
-                out.append(state)
+                out.append(self._press(pose, indenter, solver, False))
         return out
 
     def rest_state(self) -> ContactState:
@@ -208,14 +208,6 @@ class Simulator:
                                      directions=state.marker_directions, rng=rng, **kw)
 
     # --- helpers ---------------------------------------------------------------------------
-    def _candidate_index(self, nodes: np.ndarray) -> np.ndarray:
-        """Candidate indices of discretisation nodes (all of them contact candidates)."""
-        if self._cand_pos is None:
-            cand = self.body.space.candidates
-            self._cand_pos = np.full(self.body.space.n_nodes, -1, dtype=np.int64)
-            self._cand_pos[cand] = np.arange(len(cand))
-        return self._cand_pos[nodes]
-
     def _rest_state(self, pose: Pose, indenter: Indenter, solver: str, t0: float
                     ) -> ContactState:
         m = self.body.markers

@@ -23,13 +23,13 @@ from ..optics.project import check_mount, resolve_refraction, sightlines
 from ..optics.refraction import Layers
 from ..optics.visibility import cap_images, check_view, visibility
 from ..scene import Scene, scene_hash
+from ..scene.schema import SHADINGS
 from . import integrator as _integrator
 from . import sensor as _sensor
 from .frame import Frame
 from .noise import CameraModel
 from .scene import (
     CAP_SEGMENTS,
-    SHADINGS,
     Albedo,
     cap_colours,
     cap_radiance,

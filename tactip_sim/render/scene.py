@@ -44,7 +44,6 @@ import trimesh
 from ..geometry import Pad
 from ..optics.visibility import cap_outline
 from ..scene import Scene
-from ..scene.schema import SHADINGS
 
 CAP_SEGMENTS = 48
 """Polygon sides of a rendered cap disc (a centrally symmetric polygon: its image centroid is
