@@ -1,22 +1,47 @@
-"""Time the perception stages per 640x480 frame.
+"""Time the perception stages per 640x480 frame, against the previous implementation.
 
-    python benchmarks/bench_perception.py [--repeats 50] [--threads N] [--real ../shared/real]
+    python benchmarks/bench_perception.py [--repeats 100] [--threads N] [--real ../shared/real]
+                                          [--frames REST FRAME [--expected N]]
+                                          [--baseline REV | --no-baseline]
 
-Prints the median (and 10th/90th percentile) milliseconds per frame of detect, track,
-Voronoi, CoP and their total (the four back to back, timed as one unit, not summed), plus
-``FeaturePipeline.process`` (which adds grey conversion, both CoP variants and contact), on a
-synthetic ~97-marker frame and on the real 331-pin rest frame. The stages take turns in every
-repeat, so load from other processes falls on all of them alike. Detection is timed with the
-marker size estimated from the frame and with the size measured on the rest frame (what
-``FeaturePipeline`` does for every frame after the rest frame; the total uses the latter).
+For each frame pair (rest frame, frame) it prints the median (and 10th/90th percentile)
+milliseconds per frame of
+
+* ``detect``: ``detect_markers_detailed`` with the sensor region and the marker size measured on
+  the rest frame, as ``FeaturePipeline`` runs it;
+* ``track``: ``MarkerTracker.update`` from a reset tracker;
+* ``voronoi``: the clipped cell areas of the tracked markers in the pipeline's region, as the
+  pipeline computes them (``FeaturePipeline.voronoi``, which reuses the last triangulation while
+  it stays Delaunay; the reference implementation has no such state);
+* ``cop``: both centres of pressure (cell areas and cell growth);
+* ``total``: the four back to back, timed as one unit (not summed);
+* ``FeaturePipeline.process``: the whole frame as the calibration sweeps run it (adds grey
+  conversion, area change, contact and the result record), as the next frame of a sequence;
+* ``process after reset()``: the same for the first frame of a sequence (``reset()`` returns
+  the Voronoi triangulation to the rest frame's, and if the contact has flipped Delaunay
+  edges the frame pays for a new triangulation; a sweep sample does this once for its frames).
+
+The same stages of the perception package at git revision ``--baseline`` (default 7c8f6c3,
+the implementation before the speed work) are timed in the same run, interleaved with the
+current ones, and their ratio printed: this machine is shared, and only a comparison made
+under the same load means much. Each repeat runs every stage of both once, in a shuffled
+order.
+
+Frames: a synthetic 97-marker frame (rest and pressed, ``perception.synthetic``), the real
+331-pin rest frame against itself (``--real``), and any pair given with ``--frames`` (e.g. a
+rendered rest frame and a pressed frame from a calibration sweep's ``images/`` folder).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import platform
+import shutil
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -31,20 +56,18 @@ import cv2  # noqa: E402
 import perception as pc  # noqa: E402
 from perception.synthetic import render_markers  # noqa: E402
 
+DEFAULT_BASELINE = "7c8f6c3"
 
-def _time_round_robin(stages: dict, repeats: int, warmup: int = 3) -> dict[str, np.ndarray]:
-    """ms per call of every stage; the stages take turns, so load from other processes on a
-    shared machine falls on all of them alike instead of on whichever ran at the wrong time."""
-    for fn in stages.values():
-        for _ in range(warmup):
-            fn()
-    out = {name: np.empty(repeats) for name in stages}
-    for i in range(repeats):
-        for name, fn in stages.items():
-            t0 = time.perf_counter()
-            fn()
-            out[name][i] = (time.perf_counter() - t0) * 1e3
-    return out
+
+def load_baseline(rev: str, workdir: Path):
+    """Import ``perception`` as it was at git revision ``rev`` (as package ``perception_ref``)."""
+    target = workdir / "perception_ref"
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "perception"],
+                             capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(workdir)], input=archive, check=True)
+    shutil.move(str(workdir / "perception"), str(target))
+    sys.path.insert(0, str(workdir))
+    return importlib.import_module("perception_ref")
 
 
 def _frames_synthetic():
@@ -59,61 +82,108 @@ def _frames_synthetic():
             render_markers(pressed, rng=1, **opts).image)
 
 
-def bench(name: str, rest_image: np.ndarray, image: np.ndarray, expected: int,
-          repeats: int) -> list[str]:
-    pipe = pc.FeaturePipeline(rest_image, expected_count=expected)
-    region = pipe.region
-    diameter = pipe.expected_diameter_px  # measured on the rest frame, as the pipeline does
-    tracker = pc.MarkerTracker(pipe.rest_points)
-    det = pc.detect_markers_detailed(image, expected_count=expected,
-                                     expected_diameter_px=diameter)
-    tracked = tracker.update(det.points)
-    areas = pc.voronoi_areas(tracked, region)
+def _stages(lib, rest_image: np.ndarray, image: np.ndarray, expected: int) -> dict:
+    """The timed callables for one implementation (``perception`` or the baseline)."""
+    pipe = lib.FeaturePipeline(rest_image, expected_count=expected)
+    region, diameter = pipe.region, pipe.expected_diameter_px
+    tracker = lib.MarkerTracker(pipe.rest_points, rest_areas=pipe.rest.areas_px)
+    det = lib.detect_markers_detailed(image, mask=region, expected_count=expected,
+                                      expected_diameter_px=diameter)
+    tracked = tracker.update(det.points, areas=det.areas_px)
+    seeds = np.where(np.isnan(tracked), tracker.last_known, tracked)
+    voronoi = getattr(pipe, "voronoi", None)  # the baseline has no stateful Voronoi
+    areas_of = voronoi.areas if voronoi is not None else (
+        lambda pts: lib.voronoi_areas(pts, region))
+    areas = areas_of(seeds)
+
+    def detect():
+        return lib.detect_markers_detailed(image, mask=region, expected_count=expected,
+                                           expected_diameter_px=diameter)
 
     def track():
         tracker.reset()
-        tracker.update(det.points)
+        return tracker.update(det.points, areas=det.areas_px)
+
+    def cop():
+        lib.centre_of_pressure(tracked, areas, on_empty="nan")
+        lib.centre_of_pressure(tracked, areas, weighting="area_change",
+                               rest_areas=pipe.rest_areas, on_empty="nan")
 
     def total():
-        d = pc.detect_markers_detailed(image, expected_count=expected,
-                                       expected_diameter_px=diameter)
+        d = detect()
         tracker.reset()
-        p = tracker.update(d.points)
-        a = pc.voronoi_areas(p, region)
-        pc.centre_of_pressure(p, a)
+        p = tracker.update(d.points, areas=d.areas_px)
+        a = areas_of(np.where(np.isnan(p), tracker.last_known, p))
+        lib.centre_of_pressure(p, a, on_empty="nan")
+        lib.centre_of_pressure(p, a, weighting="area_change", rest_areas=pipe.rest_areas,
+                               on_empty="nan")
 
-    def process():
+    def process():  # the next frame of a sequence (e.g. the noisy frames of one contact)
+        pipe.process(image)
+
+    def first():  # the first frame after reset(): the rest frame's triangulation is re-checked
         pipe.reset()
         pipe.process(image)
 
-    stages = {
-        "detect (marker size estimated)":
-            lambda: pc.detect_markers_detailed(image, expected_count=expected),
-        "detect (size from the rest frame)":
-            lambda: pc.detect_markers_detailed(image, expected_count=expected,
-                                               expected_diameter_px=diameter),
-        "track": track,
-        "voronoi": lambda: pc.voronoi_areas(tracked, region),
-        "cop": lambda: pc.centre_of_pressure(tracked, areas),
-        "total (detect+track+voronoi+cop)": total,
-        "FeaturePipeline.process": process,
-    }
-    lines = [f"{name}: {image.shape[1]}x{image.shape[0]}, {det.count} markers detected "
-             f"(expected {expected}), median of {repeats} runs",
-             f"  {'stage':34s} {'median ms':>10s} {'p10':>8s} {'p90':>8s}"]
-    for stage, t in _time_round_robin(stages, repeats).items():
-        lines.append(f"  {stage:34s} {np.median(t):10.2f} {np.percentile(t, 10):8.2f} "
-                     f"{np.percentile(t, 90):8.2f}")
+    return {"detect": detect, "track": track, "voronoi": lambda: areas_of(seeds), "cop": cop,
+            "total": total, "FeaturePipeline.process": process,
+            "process after reset()": first}, det.count
+
+
+def bench(name: str, rest_image: np.ndarray, image: np.ndarray, expected: int, repeats: int,
+          baseline) -> list[str]:
+    new, count = _stages(pc, rest_image, image, expected)
+    impls = {"new": new}
+    if baseline is not None:
+        impls["ref"], _ = _stages(baseline, rest_image, image, expected)
+    calls = [(impl, stage, fn) for stage in new for impl, fns in impls.items()
+             for fn in [fns[stage]]]
+    for _, _, fn in calls:  # warm-up
+        for _ in range(3):
+            fn()
+    times = {(impl, stage): np.empty(repeats) for impl, stage, _ in calls}
+    order = np.random.default_rng(0)
+    for i in range(repeats):
+        # a fresh order every repeat: whatever ran just before (and what it left in the
+        # caches) falls on every stage alike
+        for j in order.permutation(len(calls)):
+            impl, stage, fn = calls[j]
+            t0 = time.perf_counter()
+            fn()
+            times[impl, stage][i] = (time.perf_counter() - t0) * 1e3
+    h, w = image.shape[:2]
+    lines = [f"{name}: {w}x{h}, {count} markers detected (expected {expected}), "
+             f"median of {repeats} runs, ms per frame",
+             f"  {'stage':24s} {'median':>8s} {'p10':>7s} {'p90':>7s}"
+             + (f" | {'reference':>9s} {'p10':>7s} {'p90':>7s} | {'speed-up':>8s}"
+                if baseline is not None else "")]
+    for stage in new:
+        t = times["new", stage]
+        line = (f"  {stage:24s} {np.median(t):8.2f} {np.percentile(t, 10):7.2f} "
+                f"{np.percentile(t, 90):7.2f}")
+        if baseline is not None:
+            r = times["ref", stage]
+            line += (f" | {np.median(r):9.2f} {np.percentile(r, 10):7.2f} "
+                     f"{np.percentile(r, 90):7.2f} | {np.median(r) / np.median(t):7.1f}x")
+        lines.append(line)
     return lines
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=50, help="timed runs per stage")
+    parser.add_argument("--repeats", type=int, default=100, help="timed runs per stage")
     parser.add_argument("--threads", type=int, default=None,
                         help="cv2.setNumThreads(N) first (default: OpenCV's own choice)")
     parser.add_argument("--real", type=Path, default=ROOT.parent / "shared" / "real",
                         help="folder of real frames (default: %(default)s)")
+    parser.add_argument("--frames", type=Path, nargs=2, metavar=("REST", "FRAME"),
+                        help="also time this pair of frames (e.g. rendered ones)")
+    parser.add_argument("--expected", type=int, default=97,
+                        help="marker count of --frames (default: %(default)s)")
+    parser.add_argument("--baseline", default=DEFAULT_BASELINE,
+                        help="git revision of the reference implementation "
+                             "(default: %(default)s)")
+    parser.add_argument("--no-baseline", action="store_true", help="time the current code only")
     args = parser.parse_args(argv)
     if args.threads is not None:
         cv2.setNumThreads(args.threads)
@@ -122,17 +192,32 @@ def main(argv: list[str] | None = None) -> int:
     print(f"python {platform.python_version()}, numpy {np.__version__}, opencv {cv2.__version__}"
           f", cores {os.cpu_count()}, cv2 threads {cv2.getNumThreads()}, "
           f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
-    rest, pressed = _frames_synthetic()
-    for line in bench("synthetic 97-marker frame", rest, pressed, 97, args.repeats):
-        print(line)
-    real = args.real / "tactip331_raw" / "raw_tactile_image.png"
-    if real.is_file():
-        image = pc.read_image(real)
-        for line in bench("real 331-pin rest frame (raw_tactile_image.png)", image, image, 331,
-                          args.repeats):
-            print(line)
-    else:
-        print(f"real frame not found at {real}: skipped")
+    with tempfile.TemporaryDirectory() as tmp:
+        baseline = None
+        if not args.no_baseline:
+            try:
+                baseline = load_baseline(args.baseline, Path(tmp))
+                print(f"reference: perception at git revision {args.baseline}")
+            except (OSError, subprocess.CalledProcessError) as exc:
+                print(f"reference at {args.baseline!r} not available ({exc}): current code only")
+        cases = [("synthetic 97-marker frame (pressed, against its rest frame)",
+                  *_frames_synthetic(), 97)]
+        real = args.real / "tactip331_raw" / "raw_tactile_image.png"
+        if real.is_file():
+            image = pc.read_image(real)
+            cases.append(("real 331-pin rest frame (raw_tactile_image.png, against itself)",
+                          image, image, 331))
+        else:
+            print(f"real frame not found at {real}: skipped")
+        if args.frames is not None:
+            rest_path, frame_path = args.frames
+            cases.append((f"{frame_path.name} against {rest_path.name}",
+                          pc.read_image(rest_path), pc.read_image(frame_path), args.expected))
+        for name, rest_image, image, expected in cases:
+            for line in bench(name, rest_image, image, expected, args.repeats, baseline):
+                print(line)
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    print(f"load average at the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
     return 0
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactip_sim.cli import add_scene_argument, load_scene_args, parse_overrides
+from tactip_sim.cli import add_scene_argument, load_scene_args, parse_overrides, with_overrides
 
 QUICK = {  # a reduced protocol for a first look (and for tests): same ranges, coarser grids
     "protocol.roll_step_deg": 8.0,
@@ -41,19 +41,11 @@ def _scene_and_fidelity(args: argparse.Namespace):
     tolerances (``--set`` overrides win either way)."""
     if args.fidelity != "auto":
         return load_scene_args(args), ({"requested": args.fidelity} if args.fidelity else {})
-    from tactip_sim.scene import replace_in
-
     from .studies.fidelity import resolve_auto
 
     args.fidelity = None
     scene, record = resolve_auto(load_scene_args(args), args)
-    overrides = parse_overrides(args.overrides)
-    if overrides:
-        by_section: dict[str, dict] = {}
-        for dotted, value in overrides.items():
-            sec, _, key = dotted.partition(".")
-            by_section.setdefault(sec, {})[key] = value
-        scene = replace_in(scene, **by_section)
+    scene = with_overrides(scene, parse_overrides(args.overrides))
     print(f"--fidelity auto: level {record['level']!r} ({record['sample_s']:.3f} s per sample, "
           f"{record['speedup_vs_reference']:.3g}x the reference) meets "
           f"{record['tolerances']}")

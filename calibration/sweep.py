@@ -299,7 +299,7 @@ def open_client(workers: int, scheduler: str | None):
     if scheduler is not None:
         return Client(scheduler)
     return Client(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None))
+                               dashboard_address=":0"))  # any free port: no clash with another run
 
 
 def close_client(client: Any) -> None:

@@ -26,13 +26,14 @@ from .pipeline import FeaturePipeline, FrameFeatures
 from .region import as_polygon, fit_region, mask_to_polygon, points_inside
 from .regression import PoseRegressor, RegressionScore, average_frames
 from .track import LOST, MERGED, TRACKED, MarkerTracker
-from .voronoi import area_change, voronoi_areas, voronoi_cells
+from .voronoi import ClippedVoronoi, area_change, voronoi_areas, voronoi_cells
 
 __all__ = [
     "COP_WEIGHTINGS",
     "LOST",
     "MERGED",
     "TRACKED",
+    "ClippedVoronoi",
     "ContactDetector",
     "ContactParams",
     "DetectionParams",

@@ -8,7 +8,6 @@ measurements vectorised over blobs with ``bincount``. Kept apart from
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -57,17 +56,6 @@ class BlobMoments:
     fill: np.ndarray
 
 
-@lru_cache(maxsize=4)
-def _pixel_grid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Flat x and y coordinates of every pixel (cached: gathering beats integer division)."""
-    h, w = shape
-    x = np.tile(np.arange(w, dtype=np.float64), h)
-    y = np.repeat(np.arange(h, dtype=np.float64), w)
-    x.setflags(write=False)
-    y.setflags(write=False)
-    return x, y
-
-
 def blob_measures(labels: np.ndarray, n_labels: int, intensity: np.ndarray, level: float,
                   grow_px: int) -> tuple[BlobMoments, np.ndarray]:
     """Shape moments of each blob and its intensity-weighted centroid over a grown footprint.
@@ -75,6 +63,16 @@ def blob_measures(labels: np.ndarray, n_labels: int, intensity: np.ndarray, leve
     Growing the footprint takes in the anti-aliased and blurred rim of each marker, which the
     half-maximum segmentation cuts off; with the background subtracted from the weights, the
     centroid of a symmetric spot is then unbiased to well below 0.1 px.
+
+    One image scan lists the pixels of the grown footprints (row-major flat indices ``idx``);
+    everything else works on that list, split into row runs (stretches of one label on one
+    row). Per run, the weights are summed with ``np.add.reduceat`` - sum w and sum w idx, and
+    sum w y = y sum w since a run lies on one row, so that sum w x = sum w idx - width sum w y
+    needs no per-pixel coordinates. The shape moments of each blob come from its runs in
+    closed form and exact integer arithmetic (a run of n pixels from x0 to x1 has
+    sum x = n (x0 + x1) / 2 and sum x² = S(x1) - S(x0 - 1), S(m) = m (m + 1) (2m + 1) / 6):
+    small blobs sit exactly on the elongation and fill thresholds (a 1 x 3 line has
+    elongation 3), so the decisions must not depend on rounding.
 
     Parameters
     ----------
@@ -97,45 +95,73 @@ def blob_measures(labels: np.ndarray, n_labels: int, intensity: np.ndarray, leve
     centroids : (n_labels - 1, 2) float64, px, OpenCV (x, y)
         NaN where a blob's weights sum to zero.
     """
+    h, w = labels.shape[:2]
     grown = labels
     if grow_px > 0:
         if labels.dtype != np.uint16:  # dilate needs 8U/16U/32F
             labels = labels.astype(np.uint16) if n_labels < 65536 else labels.astype(np.float32)
         kernel = np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8)
         grown = cv2.dilate(labels, kernel)
-    idx = np.flatnonzero(grown != 0)  # the one full-image scan (on bool: fastest)
-    lab_g = grown.ravel()[idx].astype(np.intp)
-    gx, gy = _pixel_grid((labels.shape[0], labels.shape[1]))
-    x = gx[idx]
-    y = gy[idx]
+    idx = np.flatnonzero(grown != 0)  # the one image scan (on bool: fastest)
+    # where a run cannot continue from the previous listed pixel: a gap, or a new row
+    row_start = np.searchsorted(idx, np.arange(0, h * w, w))
+    gap = np.empty(len(idx), dtype=bool)
+    gap[:1] = True
+    np.not_equal(np.diff(idx), 1, out=gap[1:])
+    gap[row_start[row_start < len(idx)]] = True
 
-    # weighted centroid over the grown footprint
-    w = np.maximum(intensity.ravel()[idx].astype(np.float64) - level, 0.0)
-    total = np.bincount(lab_g, w, n_labels)
+    def row_runs(lab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """First listed pixel and label of every run of ``lab`` (labels of the listed pixels)."""
+        new = gap.copy()
+        new[1:] |= lab[1:] != lab[:-1]
+        first = np.flatnonzero(new)
+        return first, lab[first]
+
+    # weighted centroid over the grown footprint, from per-run sums
+    wt = intensity.ravel().take(idx).astype(np.float64)
+    wt -= level
+    np.maximum(wt, 0.0, out=wt)
+    first, run_lab = row_runs(grown.ravel().take(idx))
+    run_w = np.add.reduceat(wt, first)
+    run_wi = np.add.reduceat(wt * idx, first)
+    run_lab = run_lab.astype(np.intp)
+    total = np.bincount(run_lab, run_w, n_labels)
+    sum_y = np.bincount(run_lab, run_w * (idx[first] // w), n_labels)
+    sum_x = np.bincount(run_lab, run_wi, n_labels) - w * sum_y
     with np.errstate(invalid="ignore", divide="ignore"):
-        cx = np.bincount(lab_g, w * x, n_labels) / total
-        cy = np.bincount(lab_g, w * y, n_labels) / total
-    centroids = np.stack([cx, cy], axis=1)[1:]
+        centroids = np.stack([sum_x / total, sum_y / total], axis=1)[1:]
     centroids[~(total[1:] > 0)] = np.nan
 
-    # unweighted shape moments on the blob itself
-    lab = labels.ravel()[idx]
-    inside = lab > 0
-    lab = lab[inside].astype(np.intp)
-    x = x[inside]
-    y = y[inside]
-    area = np.bincount(lab, minlength=n_labels).astype(np.float64)
-    a = np.maximum(area, 1.0)
-    mx = np.bincount(lab, x, n_labels) / a
-    my = np.bincount(lab, y, n_labels) / a
-    dx = x - mx[lab]
-    dy = y - my[lab]
-    # + 1/12: variance of a uniform pixel footprint, so a single pixel is a 1x1 square
-    sxx = np.bincount(lab, dx * dx, n_labels) / a + 1.0 / 12.0
-    syy = np.bincount(lab, dy * dy, n_labels) / a + 1.0 / 12.0
-    sxy = np.bincount(lab, dx * dy, n_labels) / a
-    half_tr = 0.5 * (sxx + syy)
-    det = sxx * syy - sxy * sxy
+    # unweighted shape moments of the blobs themselves, from their runs (int64 from here on)
+    first, run_lab = row_runs(labels.ravel().take(idx))
+    last = np.append(first[1:], len(idx)) - 1
+    blob = run_lab != 0
+    first, last, run_lab = first[blob], last[blob], run_lab[blob].astype(np.intp)
+    ry = idx[first] // w
+    x0 = idx[first] - ry * w
+    x1 = x0 + (last - first)
+    n = x1 - x0 + 1
+    sx = n * (x0 + x1) // 2
+    sxx = (x1 * (x1 + 1) * (2 * x1 + 1) - (x0 - 1) * x0 * (2 * x0 - 1)) // 6
+
+    def per_blob(values: np.ndarray) -> np.ndarray:  # integer sums, exact in float64 (< 2^53)
+        return np.bincount(run_lab, values, n_labels).astype(np.int64)
+
+    area_i = per_blob(n)
+    s_x, s_y = per_blob(sx), per_blob(n * ry)
+    s_xx, s_yy, s_xy = per_blob(sxx), per_blob(n * ry * ry), per_blob(sx * ry)
+    area = area_i.astype(np.float64)
+    if float(area.max()) * max(h, w) >= 2.0**31:  # n² x² could overflow int64: use floats
+        area_i, s_x, s_y, s_xx, s_yy, s_xy = (v.astype(np.float64) for v in
+                                              (area_i, s_x, s_y, s_xx, s_yy, s_xy))
+    a2 = np.maximum(area, 1.0) ** 2
+    # central second moments n² var = n sum(x²) - (sum x)², exact in int64; + 1/12: variance of
+    # a uniform pixel footprint, so a single pixel is a 1x1 square
+    cxx = (area_i * s_xx - s_x * s_x) / a2 + 1.0 / 12.0
+    cyy = (area_i * s_yy - s_y * s_y) / a2 + 1.0 / 12.0
+    cxy = (area_i * s_xy - s_x * s_y) / a2
+    half_tr = 0.5 * (cxx + cyy)
+    det = cxx * cyy - cxy * cxy
     disc = np.sqrt(np.maximum(half_tr * half_tr - det, 0.0))
     elongation = np.sqrt((half_tr + disc) / np.maximum(half_tr - disc, 1e-12))
     fill = area / (4.0 * np.pi * np.sqrt(np.maximum(det, 1e-12)))
@@ -144,14 +170,17 @@ def blob_measures(labels: np.ndarray, n_labels: int, intensity: np.ndarray, leve
 
 
 def median(values: np.ndarray) -> float:
-    """Median of a non-empty 1-D array (``np.partition``: far less overhead than np.median)."""
+    """Median of a non-empty 1-D array (``np.partition``: far less overhead than np.median).
+
+    One selection: for an even count the lower middle value is the largest of the lower half.
+    """
     v = np.asarray(values).ravel()
     n = v.size
     half = n // 2
+    part = np.partition(v, half)
     if n % 2:
-        return float(np.partition(v, half)[half])
-    part = np.partition(v, (half - 1, half))
-    return 0.5 * (float(part[half - 1]) + float(part[half]))
+        return float(part[half])
+    return 0.5 * (float(part[:half].max()) + float(part[half]))
 
 
 def robust_spread(values: np.ndarray) -> tuple[float, float]:
@@ -204,12 +233,15 @@ def half_max_mask(th: np.ndarray, local_max: np.ndarray, fraction: float,
                   floor: float) -> np.ndarray:
     """uint8 mask of ``th > floor and th >= fraction * local_max`` (OpenCV ops, exact)."""
     if th.dtype == np.uint8:
-        # th is an integer: th >= f * m  <=>  th >= ceil(f * m); addWeighted rounds to nearest
+        if floor >= 255.0:
+            return np.zeros(th.shape, np.uint8)
+        # th is an integer: th >= f * m  <=>  th >= ceil(f * m) (addWeighted rounds to nearest),
+        # and th > floor  <=>  th >= floor(floor) + 1; both in one threshold image
         need = cv2.addWeighted(local_max, fraction, local_max, 0.0, 0.5 - 1e-6)
-        above = cv2.threshold(th, int(np.floor(floor)), 255, cv2.THRESH_BINARY)[1]
-    else:
-        need = cv2.multiply(local_max, fraction)
-        above = ((th > floor).view(np.uint8) * np.uint8(255))
+        cv2.max(need, float(np.floor(floor) + 1.0), dst=need)
+        return cv2.compare(th, need, cv2.CMP_GE)
+    need = cv2.multiply(local_max, fraction)
+    above = ((th > floor).view(np.uint8) * np.uint8(255))
     return cv2.bitwise_and(cv2.compare(th, need, cv2.CMP_GE), above)
 
 
@@ -220,25 +252,34 @@ def near_bright(bg: np.ndarray, level: float, radius: int, ix: np.ndarray,
     The disc of the given radius is approximated by the union of three boxes inscribed in it
     (a square of half-size r cos 45° and two bars of half-sizes (r cos 22.5°, r sin 22.5°)),
     each counted with one summed-area table: a shape that reaches between 0.92 r and r in
-    every direction, for twelve look-ups per point.
+    every direction, for twelve look-ups per point. The table covers only the window the
+    boxes reach (the points are the blob centroids, not the whole frame).
     """
-    bright = bg > level
-    if not bright.any():
-        return np.zeros(len(ix), dtype=bool)
-    s = cv2.integral(bright.view(np.uint8))  # (h + 1, w + 1)
     h, w = bg.shape
-
-    def any_in_box(hx: int, hy: int) -> np.ndarray:
-        x0 = np.clip(ix - hx, 0, w)
-        x1 = np.clip(ix + hx + 1, 0, w)
-        y0 = np.clip(iy - hy, 0, h)
-        y1 = np.clip(iy + hy + 1, 0, h)
-        return (s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0]) > 0
-
+    if len(ix) == 0:
+        return np.zeros(0, dtype=bool)
     diag = int(np.floor(radius * np.cos(np.pi / 4)))
     along = int(np.floor(radius * np.cos(np.pi / 8)))
     across = int(np.floor(radius * np.sin(np.pi / 8)))
-    return any_in_box(diag, diag) | any_in_box(along, across) | any_in_box(across, along)
+    hx = np.array([diag, along, across])[:, None]  # (3 boxes, 1)
+    hy = np.array([diag, across, along])[:, None]
+    x0 = max(int(ix.min()) - along, 0)  # window of every box, clipped to the image
+    y0 = max(int(iy.min()) - along, 0)
+    x1 = min(int(ix.max()) + along + 1, w)
+    y1 = min(int(iy.max()) + along + 1, h)
+    # bg > level as 0/1 (for 8-bit bg the threshold compares with floor(level): the same
+    # for integer pixels)
+    bright = cv2.threshold(bg[y0:y1, x0:x1], level, 1, cv2.THRESH_BINARY)[1]
+    if not cv2.countNonZero(bright):
+        return np.zeros(len(ix), dtype=bool)
+    s = cv2.integral(bright)  # (y1 - y0 + 1, x1 - x0 + 1)
+    wx, wy = x1 - x0, y1 - y0  # box corners in the window's table, clipped to it
+    bx0 = np.maximum(ix - (x0 + hx), 0)
+    bx1 = np.minimum(ix + (hx + 1 - x0), wx)
+    by0 = np.maximum(iy - (y0 + hy), 0)
+    by1 = np.minimum(iy + (hy + 1 - y0), wy)
+    count = s[by1, bx1] - s[by0, bx1] - s[by1, bx0] + s[by0, bx0]  # (3, n)
+    return (count > 0).any(axis=0)
 
 
 def otsu_level(th: np.ndarray, full_scale: float) -> float:

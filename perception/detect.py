@@ -12,7 +12,9 @@ The method, with no per-image tuning (every threshold is a ratio to something me
    blob area of a first Otsu segmentation (the blob-size distribution).
 4. **Segmentation at half maximum**: a pixel is foreground when it is above the floor and at
    least ``half_max_fraction`` of the maximum within one marker diameter, so every marker is cut
-   at its own half maximum (dim and bright markers alike; touching markers separate).
+   at its own half maximum (dim and bright markers alike; touching markers separate). Steps 4-5
+   run in the bounding box of the pixels above the floor only (the same result, see
+   :func:`_foreground_window`).
 5. **Centroids**: intensity-weighted (top-hat minus its median, clipped at zero) over each blob
    grown by a few pixels, which is what reaches <= 0.1 px.
 6. **Filters**: area ratio to the reference marker area, elongation and fill (glint arcs,
@@ -30,9 +32,11 @@ from os import PathLike
 
 import cv2
 import numpy as np
+import shapely
 from scipy.spatial import cKDTree
 
 from .blobs import (
+    BlobMoments,
     blob_measures,
     blob_scale,
     half_max_mask,
@@ -47,11 +51,15 @@ from .blobs import (
 from .errors import PerceptionError
 from .image import as_grey
 from .params import DetectionParams
-from .region import RegionLike, as_polygon, points_inside
+from .region import RegionLike, as_polygon
 
 __all__ = ["MarkerDetection", "detect_markers", "detect_markers_detailed"]
 
 _DEFAULT_BG_FRACTION = 1.0 / 16.0  # background kernel / shorter image side when size unknown
+
+#: Rejection reasons by code (0: accepted).
+_REASONS = ("", "small", "shape", "size", "glint", "rim", "outside")
+_SMALL, _SHAPE, _SIZE, _GLINT, _RIM, _OUTSIDE = range(1, 7)
 
 
 def _frozen(a: np.ndarray, shape_tail: tuple[int, ...] = ()) -> np.ndarray:
@@ -67,7 +75,7 @@ class MarkerDetection:
     Attributes
     ----------
     points : (n, 2) float64, px, OpenCV (x, y), pixel centres at integer coordinates
-        Marker centroids, in raster order of the blobs.
+        Marker centroids, in raster order (sorted by y, then x).
     areas_px : (n,) float64, px²
         Half-maximum footprint of each marker.
     peaks : (n,) float64, fraction of full scale
@@ -200,11 +208,12 @@ def detect_markers_detailed(
     d_known = float(expected_diameter_px) if expected_diameter_px is not None else None
     k_bg = odd(2.0 * d_known + 1.0) if d_known else odd(min(shape) * _DEFAULT_BG_FRACTION)
     th, bg = top_hat(grey, k_bg)
-    th_level, _ = robust_spread(th[::8, ::8].ravel().astype(np.float32))
+    th_level = median(th[::8, ::8])
     otsu = otsu_level(th, full_scale)
     lsb = 1.0 if grey.dtype == np.uint8 else 1e-4
     floor = th_level + max(p.noise_sigmas * pixel_noise_sigma(grey), 0.5 * otsu, lsb)
-    if float(th.max()) <= floor:
+    rows_above, cols_above = _above_floor(th, floor)
+    if not rows_above.size:
         return _empty(shape, "no blobs above the noise floor (blank, saturated or pure noise)")
 
     # 3. marker scale ----------------------------------------------------------------------
@@ -218,10 +227,16 @@ def detect_markers_detailed(
     else:
         d_scale = d_known
 
-    # 4. segmentation at half maximum ------------------------------------------------------
+    # 4. segmentation at half maximum, within the bounding box of the pixels above the floor
+    # (grown by the centroid footprint): nothing outside it can be foreground, and a local
+    # maximum at a pixel above the floor never comes from a pixel below it, so the result is
+    # that of the whole frame
+    grow = min(max(round(d_scale / 6.0), 1), 3)
+    y0, y1, x0, x1 = _foreground_window(rows_above, cols_above, grow, shape)
+    th_box = np.ascontiguousarray(th[y0:y1, x0:x1])
     k_loc = odd(d_scale)
-    local_max = cv2.dilate(th, cv2.getStructuringElement(cv2.MORPH_RECT, (k_loc, k_loc)))
-    fg = half_max_mask(th, local_max, p.half_max_fraction, floor)
+    local_max = cv2.dilate(th_box, cv2.getStructuringElement(cv2.MORPH_RECT, (k_loc, k_loc)))
+    fg = half_max_mask(th_box, local_max, p.half_max_fraction, floor)
     # 16-bit labels when they surely fit (fewer foreground pixels than 65536): no conversion
     ltype = cv2.CV_16U if cv2.countNonZero(fg) < 65535 else cv2.CV_32S
     n_labels, labels = cv2.connectedComponents(fg, connectivity=8, ltype=ltype)
@@ -229,59 +244,81 @@ def detect_markers_detailed(
         return _empty(shape, "no blobs above the noise floor")
 
     # 5. centroids and shape -----------------------------------------------------------------
-    grow = int(np.clip(round(d_scale / 6.0), 1, 3))
-    mom, pts = blob_measures(labels, n_labels, th, th_level, grow)
-    ix = np.clip(np.round(np.nan_to_num(pts[:, 0])).astype(np.intp), 0, shape[1] - 1)
-    iy = np.clip(np.round(np.nan_to_num(pts[:, 1])).astype(np.intp), 0, shape[0] - 1)
-    peaks = local_max[iy, ix].astype(np.float64) / full_scale
+    mom, pts = blob_measures(labels, n_labels, th_box, th_level, grow)
+    pts += (x0, y0)
+    # blobs in raster order of their centroids (y, then x; NaN last): OpenCV's label order
+    # depends on the labelling algorithm and on where the window starts
+    order = np.lexsort((pts[:, 0], pts[:, 1]))
+    pts = pts[order]
+    mom = BlobMoments(area=mom.area[order], elongation=mom.elongation[order],
+                      fill=mom.fill[order])
+    finite = np.isfinite(pts).all(axis=1)
+    pix = np.rint(np.where(finite[:, None], pts, 0.0)).astype(np.intp)
+    ix = np.minimum(np.maximum(pix[:, 0], x0), x1 - 1)
+    iy = np.minimum(np.maximum(pix[:, 1], y0), y1 - 1)
+    peaks = local_max[iy - y0, ix - x0].astype(np.float64) / full_scale
 
-    # 6. filters ---------------------------------------------------------------------------
-    reason = np.full(len(pts), "", dtype=object)
-    reason[(mom.area < p.min_area_px) | ~np.isfinite(pts).all(axis=1)] = "small"
-    shape_bad = (mom.elongation > p.max_elongation) | (mom.fill < p.min_fill)
-    reason[(reason == "") & shape_bad] = "shape"
-    ok = reason == ""
+    # 6. filters (reason codes index _REASONS; 0 = accepted so far) -------------------------
+    code = np.zeros(len(pts), dtype=np.int8)
+    code[(mom.area < p.min_area_px) | ~finite] = _SMALL
+    code[(code == 0) & ((mom.elongation > p.max_elongation) | (mom.fill < p.min_fill))] = _SHAPE
+    ok = code == 0
     if not ok.any():
-        return _reject_all(shape, pts, reason, "no marker-shaped blobs")
+        return _reject_all(shape, pts, finite, code, "no marker-shaped blobs")
     area_ref = np.pi * d_known**2 / 4.0 if d_known else float(median(mom.area[ok]))
     ratio = mom.area / area_ref
-    reason[ok & ((ratio < p.area_ratio_min) | (ratio > p.area_ratio_max))] = "size"
-    ok = reason == ""
+    code[ok & ((ratio < p.area_ratio_min) | (ratio > p.area_ratio_max))] = _SIZE
+    ok = code == 0
     if not ok.any():
-        return _reject_all(shape, pts, reason, "no blobs of marker size")
+        return _reject_all(shape, pts, finite, code, "no blobs of marker size")
     peak_med, peak_sd = robust_spread(peaks[ok])
     glint = (peaks > p.glint_peak_ratio * peak_med) & (peaks > peak_med + p.glint_peak_mads
                                                        * peak_sd)
-    reason[ok & glint] = "glint"
-    ok = reason == ""
+    code[ok & glint] = _GLINT
+    ok = code == 0
     d_ref = 2.0 * np.sqrt(float(median(mom.area[ok])) / np.pi)
     skin = float(median(bg[iy[ok], ix[ok]]))
     near = near_bright(bg, skin + p.skin_contrast_fraction * peak_med * full_scale,
-                        max(int(round(d_ref)), 1), ix, iy)
-    reason[ok & near] = "rim"
-    if region is not None:
-        ok = reason == ""
-        reason[ok & ~points_inside(region, pts)] = "outside"
-    ok = reason == ""
+                        max(int(round(d_ref)), 1), ix[ok], iy[ok])
+    code[np.flatnonzero(ok)[near]] = _RIM
+    if region is not None:  # (the points still accepted are finite)
+        ok = np.flatnonzero(code == 0)
+        code[ok[~shapely.intersects_xy(region, pts[ok, 0], pts[ok, 1])]] = _OUTSIDE
+    ok = code == 0
     if not ok.any():
-        return _reject_all(shape, pts, reason, "every blob was rejected")
+        return _reject_all(shape, pts, finite, code, "every blob was rejected")
 
     # 7. reliability -------------------------------------------------------------------------
     acc_area = mom.area[ok]
     d_final = 2.0 * np.sqrt(float(median(acc_area)) / np.pi)
     reliable, why = _reliability(pts[ok], acc_area, d_final, expected_count, p)
-    rej = (reason != "") & np.isfinite(pts).all(axis=1)
+    rej = ~ok & finite
     return MarkerDetection(
         points=pts[ok], areas_px=acc_area, peaks=peaks[ok], marker_diameter_px=d_final,
         image_shape=shape, reliable=reliable, reason=why,
-        rejected_points=pts[rej], rejected_reasons=tuple(reason[rej]),
+        rejected_points=pts[rej], rejected_reasons=tuple(_REASONS[c] for c in code[rej]),
     )
 
 
-def _reject_all(shape: tuple[int, int], pts: np.ndarray, reason: np.ndarray,
+def _above_floor(th: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of ``th`` holding a pixel above ``floor`` (two reductions)."""
+    return np.flatnonzero(th.max(axis=1) > floor), np.flatnonzero(th.max(axis=0) > floor)
+
+
+def _foreground_window(rows: np.ndarray, cols: np.ndarray, grow: int,
+                       shape: tuple[int, int]) -> tuple[int, int, int, int]:
+    """``(y0, y1, x0, x1)``: the bounding box of the pixels above the floor, grown by the
+    centroid footprint and clipped to the image. Its top-left corner is rounded down to even
+    coordinates: OpenCV labels in 2 x 2 blocks, and the labelling order decides (larger label
+    wins) where two grown footprints meet, so even offsets give the whole frame's labels."""
+    y0, x0 = max(int(rows[0]) - grow, 0) & ~1, max(int(cols[0]) - grow, 0) & ~1
+    return y0, min(int(rows[-1]) + grow + 1, shape[0]), x0, min(int(cols[-1]) + grow + 1,
+                                                                  shape[1])
+
+
+def _reject_all(shape: tuple[int, int], pts: np.ndarray, finite: np.ndarray, code: np.ndarray,
                 why: str) -> MarkerDetection:
-    finite = np.isfinite(pts).all(axis=1)
-    return _empty(shape, why, pts[finite], tuple(reason[finite]))
+    return _empty(shape, why, pts[finite], tuple(_REASONS[c] for c in code[finite]))
 
 
 def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,

@@ -20,7 +20,7 @@ from .image import as_grey
 from .params import ContactParams, DetectionParams, TrackingParams
 from .region import RegionLike, as_polygon, fit_region
 from .track import MarkerTracker
-from .voronoi import area_change, voronoi_areas
+from .voronoi import ClippedVoronoi, area_change
 
 __all__ = ["FeaturePipeline", "FrameFeatures"]
 
@@ -111,6 +111,8 @@ class FeaturePipeline:
     rest : MarkerDetection
         The rest-frame detection.
     region : Polygon
+    voronoi : ClippedVoronoi
+        Cell areas in ``region`` (reuses the triangulation from frame to frame).
     rest_areas : (m,) float64, px²
     spacing_px : float
     tracker : MarkerTracker
@@ -152,7 +154,9 @@ class FeaturePipeline:
             raise PerceptionError(f"rest frame detection is unreliable: {rest.reason}")
         self.rest = rest
         self.region = user_region if user_region is not None else fit_region(rest.points)
-        self.rest_areas = _ro(voronoi_areas(rest.points, self.region))
+        self.voronoi = ClippedVoronoi(self.region)
+        self.rest_areas = _ro(self.voronoi.areas(rest.points))
+        self.voronoi.mark()  # every sequence starts from the rest frame's triangulation
         self.tracker = MarkerTracker(rest.points, rest_areas=rest.areas_px,
                                      params=self.tracking_params)
         self.spacing_px = self.tracker.spacing_px
@@ -173,9 +177,12 @@ class FeaturePipeline:
             expected_diameter_px=self.expected_diameter_px, params=self.detection_params)
 
     def reset(self) -> None:
-        """Restart the sequence (tracks back at rest, no contact)."""
+        """Restart the sequence (tracks back at rest, no contact, the rest frame's Voronoi
+        triangulation): the features of the frames that follow do not depend, to the last
+        bit, on anything processed before."""
         self.tracker.reset()
         self.contact_detector.reset()
+        self.voronoi.reset()
 
     def process(self, image: np.ndarray | str | PathLike[str]) -> FrameFeatures:
         """Extract the features of one frame of the sequence.
@@ -200,7 +207,7 @@ class FeaturePipeline:
         # not absorbed by (and does not inflate) their neighbours; their own area is NaN
         lost = ~np.isfinite(points).all(axis=1)
         seeds = np.where(lost[:, None], self.tracker.last_known, points)
-        areas = voronoi_areas(seeds, self.region)
+        areas = self.voronoi.areas(seeds)
         areas[lost] = np.nan
         change = area_change(areas, self.rest_areas)
         cop = centre_of_pressure(points, areas, on_empty="nan")

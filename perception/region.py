@@ -16,9 +16,14 @@ from shapely.geometry.base import BaseGeometry
 from .errors import RegionError
 from .geometry import as_points, marker_spacing
 
-__all__ = ["RegionLike", "as_polygon", "fit_region", "mask_to_polygon", "points_inside"]
+__all__ = ["RegionLike", "as_polygon", "convex_ring", "fit_region", "mask_to_polygon",
+           "points_inside", "ring_area"]
 
 RegionLike = Polygon | MultiPolygon | np.ndarray
+
+#: Convexity test: a turn against the ring's orientation smaller than this fraction of the
+#: product of the two edge lengths counts as straight (rounding in ``buffer`` arcs).
+CONVEX_TOL = 1e-9
 
 
 def _as_mask(mask: np.ndarray) -> np.ndarray:
@@ -198,3 +203,40 @@ def fit_region(points: np.ndarray, *, margin_px: float | None = None) -> Polygon
     if not isinstance(region, Polygon) or region.area <= 0:
         raise RegionError("the points are collinear: their hull has zero area (give margin_px>0)")
     return region
+
+
+def convex_ring(region: Polygon | MultiPolygon) -> np.ndarray | None:
+    """Vertices of a convex region, counter-clockwise in (x, y), or None if it is not convex.
+
+    Parameters
+    ----------
+    region : Polygon or MultiPolygon, px
+
+    Returns
+    -------
+    ring : (k, 2) float64, px, or None
+        The exterior's vertices without the closing repeat and without zero-length edges,
+        ordered so that the shoelace (signed) area is positive; None for a MultiPolygon, a
+        polygon with holes, a non-convex polygon or fewer than three distinct vertices.
+    """
+    if not isinstance(region, Polygon) or len(region.interiors) > 0:
+        return None
+    xy = np.asarray(region.exterior.coords, dtype=np.float64)[:-1]
+    if len(xy) >= 2:
+        xy = xy[(np.roll(xy, -1, axis=0) != xy).any(axis=1)]
+    if len(xy) < 3:
+        return None
+    if ring_area(xy) < 0.0:
+        xy = xy[::-1]
+    edge = np.roll(xy, -1, axis=0) - xy
+    prev = np.roll(edge, 1, axis=0)
+    turn = prev[:, 0] * edge[:, 1] - prev[:, 1] * edge[:, 0]
+    if (turn < -CONVEX_TOL * np.hypot(*prev.T) * np.hypot(*edge.T)).any():
+        return None
+    return np.ascontiguousarray(xy)
+
+
+def ring_area(ring: np.ndarray) -> float:
+    """Signed shoelace area of a ring of (k, 2) vertices, px² (positive counter-clockwise)."""
+    nxt = np.roll(ring, -1, axis=0)
+    return 0.5 * float((ring[:, 0] * nxt[:, 1] - nxt[:, 0] * ring[:, 1]).sum())

@@ -196,9 +196,31 @@ class MarkerTracker:
             cost[lost] = np.minimum(cost[lost], cdist(self.rest_points[lost], det))
         gate = self.gate_px
         feasible = cost <= gate
+        # The optimum decomposes over the connected parts of the gated pairs: a track and a
+        # detection that are each other's only candidate (the usual case between frames) are
+        # matched directly, and only the tangled rest goes to the assignment solver.
+        row_n = np.count_nonzero(feasible, axis=1)
+        col_n = np.count_nonzero(feasible, axis=0)
+        only = feasible.argmax(axis=1)  # a row's first (for row_n == 1: only) candidate
+        r1 = np.flatnonzero((row_n == 1) & (col_n[only] == 1))
+        c1 = only[r1]
+        rest_r = np.flatnonzero(row_n > 0)
+        if len(r1) == len(rest_r):  # every gated pair is isolated
+            return r1, c1
+        taken_r = np.zeros(len(row_n), dtype=bool)
+        taken_r[r1] = True
+        taken_c = np.zeros(len(col_n), dtype=bool)
+        taken_c[c1] = True
+        rest_r = rest_r[~taken_r[rest_r]]
+        rest_c = np.flatnonzero((col_n > 0) & ~taken_c)
+        sub = cost[np.ix_(rest_r, rest_c)]
+        sub_ok = feasible[np.ix_(rest_r, rest_c)]
         # an infeasible pair costs more than any set of feasible pairs: maximum number of
         # gated matches first, then minimum total distance among those
-        big = gate * (min(cost.shape) + 1.0) + 1.0
-        rows, cols = linear_sum_assignment(np.where(feasible, cost, big))
-        accept = feasible[rows, cols]
-        return rows[accept], cols[accept]
+        big = gate * (min(sub.shape) + 1.0) + 1.0
+        rows, cols = linear_sum_assignment(np.where(sub_ok, sub, big))
+        accept = sub_ok[rows, cols]
+        rows = np.concatenate([r1, rest_r[rows[accept]]])
+        cols = np.concatenate([c1, rest_c[cols[accept]]])
+        order = np.argsort(rows, kind="stable")
+        return rows[order], cols[order]

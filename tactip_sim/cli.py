@@ -63,7 +63,7 @@ def add_scene_argument(p: argparse.ArgumentParser, *, optional: bool = False,
 def load_scene_args(args: argparse.Namespace, *, preset: str | None = None):
     """The scene of a command's arguments: the file, then ``--fidelity`` (or ``preset``), then
     ``--set`` overrides on top."""
-    from .scene import apply_preset, load_scene, replace_in
+    from .scene import apply_preset, load_scene
 
     overrides = parse_overrides(args.overrides)
     scene = load_scene(args.scene, overrides)
@@ -73,14 +73,19 @@ def load_scene_args(args: argparse.Namespace, *, preset: str | None = None):
     if name == "auto":
         raise SceneError("--fidelity auto is only accepted by the calibration commands "
                          "(calibrate, sweep), which read a fidelity study")
-    scene = apply_preset(scene, name)
-    if overrides:
-        by_section: dict[str, dict[str, object]] = {}
-        for dotted, value in overrides.items():
-            section, _, key = dotted.partition(".")
-            by_section.setdefault(section, {})[key] = value
-        scene = replace_in(scene, **by_section)
-    return scene
+    return with_overrides(apply_preset(scene, name), overrides)
+
+
+def with_overrides(scene, overrides: dict[str, object]):
+    """``scene`` with ``{"section.key": value}`` overrides applied on top (validated), e.g. to
+    let ``--set`` win over a fidelity level applied after the file was read."""
+    from .scene import replace_in
+
+    by_section: dict[str, dict[str, object]] = {}
+    for dotted, value in overrides.items():
+        section, _, key = dotted.partition(".")
+        by_section.setdefault(section, {})[key] = value
+    return replace_in(scene, **by_section) if by_section else scene
 
 
 def _cmd_scene(args: argparse.Namespace) -> int:

@@ -109,7 +109,7 @@ def test_dask_cluster_by_address_is_byte_identical_to_serial(spec, serial, tmp_p
     from dask.distributed import LocalCluster
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster:
+                      dashboard_address=":0") as cluster:
         out = tmp_path / "cluster"
         run_sweep(spec, out, scheduler=cluster.scheduler_address, progress=False, chunk=3)
     assert _files(out) == _files(serial)

@@ -242,3 +242,77 @@ def test_result_is_frozen():
     with pytest.raises(ValueError, match="read-only"):
         det.points[0, 0] = 1.0
     assert np.allclose(det.diameters_px, 2 * np.sqrt(det.areas_px / np.pi))
+
+
+# -- the vectorised blob measures and the foreground window against plain references ----------
+
+def _reference_blob_measures(labels, n_labels, intensity, level, grow_px):
+    """Straightforward per-pixel version: bincount over the whole image, centred moments."""
+    import cv2
+
+    h, w = labels.shape
+    lab16 = labels.astype(np.uint16)
+    grown = cv2.dilate(lab16, np.ones((2 * grow_px + 1,) * 2, np.uint8)) if grow_px else lab16
+    y, x = np.mgrid[0:h, 0:w]
+    wt = np.maximum(intensity.astype(np.float64) - level, 0.0).ravel()
+    g = grown.ravel().astype(np.intp)
+    total = np.bincount(g, wt, n_labels)
+    cx = np.bincount(g, wt * x.ravel(), n_labels) / total
+    cy = np.bincount(g, wt * y.ravel(), n_labels) / total
+    b = labels.ravel().astype(np.intp)
+    area = np.bincount(b, minlength=n_labels).astype(float)
+    mx = np.bincount(b, x.ravel(), n_labels) / area
+    my = np.bincount(b, y.ravel(), n_labels) / area
+    dx, dy = x.ravel() - mx[b], y.ravel() - my[b]
+    sxx = np.bincount(b, dx * dx, n_labels) / area + 1 / 12
+    syy = np.bincount(b, dy * dy, n_labels) / area + 1 / 12
+    sxy = np.bincount(b, dx * dy, n_labels) / area
+    ht = 0.5 * (sxx + syy)
+    det = sxx * syy - sxy**2
+    disc = np.sqrt(np.maximum(ht**2 - det, 0))
+    elong = np.sqrt((ht + disc) / np.maximum(ht - disc, 1e-12))
+    fill = area / (4 * np.pi * np.sqrt(np.maximum(det, 1e-12)))
+    return area[1:], elong[1:], fill[1:], np.stack([cx, cy], axis=1)[1:]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_blob_measures_equal_a_plain_per_pixel_reference(seed):
+    import cv2
+
+    from perception.blobs import blob_measures
+
+    rng = np.random.default_rng(seed)
+    # blobs of every shape: thresholded smoothed noise (lines, arcs, single pixels, blobs
+    # touching the border and each other), with 8-bit intensities
+    field = cv2.GaussianBlur(rng.random((120, 160)).astype(np.float32), (0, 0), 1.5 + seed)
+    intensity = (255 * (field - field.min()) / np.ptp(field)).astype(np.uint8)
+    fg = (intensity > np.percentile(intensity, 70)).astype(np.uint8)
+    n, labels = cv2.connectedComponents(fg, connectivity=8, ltype=cv2.CV_16U)
+    for grow in (0, 1, 3):
+        mom, pts = blob_measures(labels, n, intensity, 40.5, grow)
+        area, elong, fill, ref = _reference_blob_measures(labels, n, intensity, 40.5, grow)
+        assert np.array_equal(mom.area, area)
+        assert np.allclose(mom.elongation, elong, rtol=1e-9)
+        assert np.allclose(mom.fill, fill, rtol=1e-9)
+        assert np.allclose(pts, ref, rtol=0, atol=1e-9, equal_nan=True)
+
+
+@pytest.mark.parametrize("seed, inset", [(19, None), (97, 10.0)])
+def test_foreground_window_gives_the_whole_frame_answer(monkeypatch, seed, inset):
+    import perception.detect as detect_module
+
+    # (97, inset 10): glints on the skin whose grown footprints meet markers', where the
+    # labelling order decides pixels; the window keeps it (even offsets)
+    frame = _frame(97, 36.0, 10.0, seed=seed, glint_inset_px=inset)
+    windowed = pc.detect_markers_detailed(frame.image)
+    h, w = frame.image.shape
+    # the whole frame as the window: must change nothing (the window only skips pixels that
+    # cannot be foreground)
+    monkeypatch.setattr(detect_module, "_foreground_window", lambda *args: (0, h, 0, w))
+    whole = pc.detect_markers_detailed(frame.image)
+    monkeypatch.undo()
+    assert windowed.count == whole.count == 97
+    assert np.allclose(windowed.points, whole.points, rtol=0, atol=1e-9)  # to rounding
+    assert np.array_equal(windowed.peaks, whole.peaks)
+    assert windowed.rejected_reasons == whole.rejected_reasons
+    assert np.allclose(windowed.rejected_points, whole.rejected_points, rtol=0, atol=1e-9)

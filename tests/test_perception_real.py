@@ -82,3 +82,21 @@ def test_331_tap_frames(path):
     assert det.reliable, det.reason
     disc = _dark_disc(pc.as_grey(path))
     assert _inside_with_margin(disc, det.points, det.marker_diameter_px).all()
+
+
+@pytest.mark.parametrize("path", [REAL / "tactip331_raw" / "raw_tactile_image.png",
+                                  *_tap_frames()], ids=lambda p: p.name)
+def test_foreground_window_gives_the_whole_frame_answer_on_real_frames(path, monkeypatch):
+    # the detector segments only the bounding box of the pixels above the noise floor; on the
+    # real frames touching footprints make the result depend on the labelling order, which
+    # the window keeps (even offsets), so it must give the whole frame's answer
+    import perception.detect as detect_module
+
+    windowed = pc.detect_markers_detailed(path, expected_count=331)
+    h, w = pc.as_grey(path).shape
+    monkeypatch.setattr(detect_module, "_foreground_window", lambda *args: (0, h, 0, w))
+    whole = pc.detect_markers_detailed(path, expected_count=331)
+    assert windowed.count == whole.count
+    assert np.allclose(windowed.points, whole.points, rtol=0, atol=1e-9)
+    assert windowed.rejected_reasons == whole.rejected_reasons
+    assert np.allclose(windowed.rejected_points, whole.rejected_points, rtol=0, atol=1e-9)

@@ -170,3 +170,33 @@ def test_update_validation():
         tracker.update(_rest(), areas=np.ones(3))
     with pytest.raises(pc.PointsError, match="shape"):
         tracker.update(np.zeros((4, 3)))
+
+
+def test_assignment_shortcut_equals_the_full_assignment():
+    """Isolated gated pairs are matched directly and only the tangled rest goes to the solver;
+    the result must be the assignment the solver gives on the whole cost matrix."""
+    from scipy.optimize import linear_sum_assignment
+    from scipy.spatial.distance import cdist
+
+    rng = np.random.default_rng(5)
+    rest = _rest()
+    tracker = pc.MarkerTracker(rest)
+    gate = tracker.gate_px
+    tangled = 0
+    for _ in range(60):
+        # noise from tiny (all pairs isolated) to about a gate (many ambiguous pairs),
+        # some markers missing and some spurious detections
+        noise = rng.choice([0.1, 3.0, 8.0, 12.0])
+        det = rest + rng.normal(0.0, noise, rest.shape)
+        det = det[rng.random(len(det)) > 0.1]
+        det = np.vstack([det, rng.uniform(rest.min(0), rest.max(0), (5, 2))])
+        tracker.reset()
+        rows, cols = tracker._assign(det)
+        cost = cdist(rest, det)
+        feasible = cost <= gate
+        big = gate * (min(cost.shape) + 1.0) + 1.0
+        r_ref, c_ref = linear_sum_assignment(np.where(feasible, cost, big))
+        keep = feasible[r_ref, c_ref]
+        assert np.array_equal(rows, r_ref[keep]) and np.array_equal(cols, c_ref[keep])
+        tangled += int((feasible.sum(axis=1) > 1).any())
+    assert tangled > 20  # the solver path was exercised, not only the shortcut

@@ -157,3 +157,104 @@ def test_cop_errors_and_nan_mode():
     assert np.isnan(cop).all()
     with pytest.raises(pc.PointsError, match="areas"):
         pc.centre_of_pressure(pts, [1.0])
+
+
+# -- the convex path against the GEOS reference -------------------------------------------------
+
+def _random_case(rng, kind):
+    """A seed set and a convex region of one of several kinds (some seeds may be outside)."""
+    if kind == "fitted":  # a jittered marker lattice in its fitted region
+        pts = pc.hex_lattice(int(rng.integers(3, 200)), 20.0, (300.0, 240.0))
+        pts = pts + rng.normal(0.0, rng.choice([0.0, 0.5, 3.0]), pts.shape)
+        return pts, pc.fit_region(pts)
+    if kind == "disc":  # uniform seeds, a coarse or fine polygonal disc
+        pts = rng.uniform(0.0, 400.0, (int(rng.integers(1, 150)), 2))
+        return pts, Point(200.0, 200.0).buffer(rng.uniform(80.0, 250.0),
+                                               quad_segs=int(rng.integers(1, 20)))
+    if kind == "grid":  # a square grid: every quadruple co-circular
+        g = np.arange(int(rng.integers(2, 12))) * 10.0 + 5.0
+        pts = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
+        return pts, Polygon([(-1, -1), (g[-1] + 6, -1), (g[-1] + 6, g[-1] + 6), (-1, g[-1] + 6)])
+    if kind == "mask":  # integer seeds, a mask region (bisectors on pixel edges)
+        mask = np.zeros((60, 80), bool)
+        x0, y0 = rng.integers(0, 20, 2)
+        mask[y0:y0 + 30, x0:x0 + 40] = True
+        return rng.integers(0, 80, (int(rng.integers(2, 30)), 2)).astype(float), mask
+    if kind == "triangle":  # a few-sided random convex polygon, seeds around it
+        region = shapely.convex_hull(shapely.multipoints(rng.uniform(0, 100, (3, 2))))
+        return rng.uniform(-50.0, 150.0, (int(rng.integers(2, 40)), 2)), region
+    # collinear seeds
+    t = np.sort(rng.uniform(0.0, 100.0, int(rng.integers(2, 10))))
+    a = rng.uniform(0.0, np.pi)
+    pts = np.stack([50 + (t - 50) * np.cos(a), 50 + (t - 50) * np.sin(a)], axis=1)
+    return pts, Point(50.0, 50.0).buffer(60.0)
+
+
+KINDS = ["fitted", "disc", "grid", "mask", "triangle", "collinear"]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_convex_path_equals_geos_on_random_sets(kind):
+    rng = np.random.default_rng(KINDS.index(kind))
+    for _ in range(40):
+        pts, region = _random_case(rng, kind)
+        poly = pc.as_polygon(region)
+        if poly.area < 1.0:
+            continue
+        ref = pc.voronoi_areas(pts, region, method="geos")
+        fast = pc.voronoi_areas(pts, region, method="convex")
+        assert np.abs(fast - ref).max() <= 1e-9 * poly.area
+        assert _rel(fast.sum(), poly.area) < 1e-9
+
+
+def test_clipped_voronoi_reuses_the_triangulation_while_it_is_delaunay():
+    rng = np.random.default_rng(7)
+    pts, disc = _lattice_and_disc()
+    vor = pc.ClippedVoronoi(disc)
+    assert vor.convex
+    moved = pts
+    for _ in range(6):  # small motions: the first triangulation stays Delaunay
+        moved = moved + rng.normal(0.0, 0.2, pts.shape)
+        assert np.allclose(vor.areas(moved), pc.voronoi_areas(moved, disc, method="geos"),
+                           rtol=1e-9, atol=0.0)
+    assert vor._fast.n_triangulations == 1
+    # a large shear flips edges: the stale triangulation is detected and replaced
+    sheared = pts + np.stack([0.8 * (pts[:, 1] - C[1]), np.zeros(len(pts))], axis=1)
+    assert np.allclose(vor.areas(sheared), pc.voronoi_areas(sheared, disc, method="geos"),
+                       rtol=1e-9, atol=0.0)
+    assert vor._fast.n_triangulations == 2
+    # duplicates and lost markers in the middle of a sequence
+    dup = sheared.copy()
+    dup[5] = dup[6]
+    dup[9] = np.nan
+    got = vor.areas(dup)
+    ref = pc.voronoi_areas(dup, disc, method="geos")
+    assert np.isnan(got[9]) and np.isnan(ref[9])
+    assert np.allclose(np.delete(got, 9), np.delete(ref, 9), rtol=1e-9, atol=0.0)
+    assert got[5] == got[6]
+
+
+def test_bisector_along_the_boundary_falls_back_to_geos():
+    # seeds mirrored across the region's left edge: their bisectors are that edge's line,
+    # which the convex path cannot split between cell and region; the answer is GEOS's
+    square = Polygon([(0, 0), (100, 0), (100, 100), (0, 100)])
+    inside = np.array([[20.0, 30.0], [40.0, 70.0], [70.0, 50.0]])
+    pts = np.vstack([inside, inside * [-1.0, 1.0]])
+    from perception.region import convex_ring
+    from perception.voronoi_convex import ConvexVoronoi
+
+    assert ConvexVoronoi(convex_ring(square)).areas(pts) is None
+    auto = pc.voronoi_areas(pts, square)
+    assert np.allclose(auto, pc.voronoi_areas(pts, square, method="geos"), rtol=1e-12)
+    assert _rel(auto.sum(), square.area) < 1e-9
+
+
+def test_non_convex_region_uses_geos():
+    ell = Polygon([(0, 0), (100, 0), (100, 40), (40, 40), (40, 100), (0, 100)])
+    pts = np.random.default_rng(3).uniform(0, 100, (30, 2))
+    assert not pc.ClippedVoronoi(ell).convex
+    assert np.allclose(pc.voronoi_areas(pts, ell), pc.voronoi_areas(pts, ell, method="geos"))
+    with pytest.raises(pc.PerceptionError, match="convex"):
+        pc.voronoi_areas(pts, ell, method="convex")
+    with pytest.raises(pc.PerceptionError, match="method"):
+        pc.voronoi_areas(pts, ell, method="fast")
