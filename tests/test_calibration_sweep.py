@@ -42,7 +42,15 @@ def _files(root):
 
 
 def test_dataset_round_trip(serial, spec):
+    import os
+    import stat
+
     ds = Dataset(serial)
+    umask = os.umask(0)
+    os.umask(umask)
+    for f in ("targets.csv", "truth.npz", "images/00000.png", "records/00000.npz"):
+        # atomic writes go through mkstemp (0600); outside tools must be able to read them
+        assert stat.S_IMODE((serial / f).stat().st_mode) == 0o666 & ~umask, f
     with (serial / "targets.csv").open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert list(rows[0]) == TARGET_COLUMNS

@@ -18,3 +18,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=fidelity.__doc__.splitlines()[0])
     fidelity.configure_parser(s)
     s.set_defaults(func=fidelity.main)
+
+    from . import stability
+
+    s = studies.add_parser(
+        "stability", help="maps of where each method fails (PNG + summary.json + report.md)",
+        description=stability.__doc__.splitlines()[0])
+    stability.configure_parser(s)
+    s.set_defaults(func=stability.main)
