@@ -97,27 +97,16 @@ class TipWorker:
         self.rest_image = render_frames(self.renderer, None, 1, rest_rng)[2][0]
         self.pipeline = pc.FeaturePipeline(self.rest_image, expected_count=scene.pins.count)
 
-    def sample(self, index: int, pose: Sequence[float], set_tag: int = 0, *,
-               timings: dict[str, float] | None = None) -> tuple[SampleRecord, bytes]:
-        """Press, render and perceive one pose. ``timings``, if given, accumulates the seconds
-        spent in ``physics``, ``render`` (radiance, camera model and noise) and ``perception``;
-        the perceived markers (mean tracked position per rest-frame marker, NaN if never
-        tracked) are stored under ``self.last_points``."""
+    def sample(self, index: int, pose: Sequence[float], set_tag: int = 0
+               ) -> tuple[SampleRecord, bytes]:
+        """Press, render and perceive one pose: its record and its first frame (PNG)."""
         import cv2
 
         roll, pitch, depth = (float(v) for v in pose)
-        t0 = time.perf_counter()
         state = self.sim.press(ts.Pose(roll_deg=roll, pitch_deg=pitch, depth_mm=depth))
-        t1 = time.perf_counter()
         rng = np.random.default_rng([*self.seed_base, set_tag, index])
         markers_px, visible, images = render_frames(self.renderer, state, self.frames, rng)
-        t2 = time.perf_counter()
         p = perceive(self.pipeline, images)
-        t3 = time.perf_counter()
-        if timings is not None:
-            for k, v in (("physics", t1 - t0), ("render", t2 - t1), ("perception", t3 - t2)):
-                timings[k] = timings.get(k, 0.0) + v
-        self.last_points = p.points
         ok, png = cv2.imencode(".png", images[0])
         if not ok:  # pragma: no cover - OpenCV cannot fail on a uint8 image
             raise RuntimeError(f"could not encode sample {index} as PNG")
