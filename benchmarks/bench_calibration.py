@@ -49,10 +49,7 @@ def main() -> None:
         rad = w.renderer.render_radiance(st.markers_mm, st.marker_directions, seed=1)
         w.renderer.ground_truth(st.markers_mm, st.marker_directions)
         c = time.perf_counter()
-        cam = w.renderer.camera
-        dn = cam.expose(rad)
-        sigma = cam.noise_sigma(dn)
-        imgs = [cam.digitise(dn, rng, sigma=sigma) for _ in range(args.frames)]
+        imgs = w.renderer.camera.frames(rad, rng, args.frames)
         d = time.perf_counter()
         w.pipeline.reset()
         for im in imgs:

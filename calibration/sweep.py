@@ -176,10 +176,7 @@ def render_frames(renderer: Any, state: Any, frames: int, rng: np.random.Generat
     seed = int(rng.integers(0, 2**31 - 1))
     radiance = renderer.render_radiance(markers, directions, seed=seed)
     px, visible, _ = renderer.ground_truth(markers, directions)
-    cam = renderer.camera
-    dn = cam.expose(radiance)  # blur, vignetting, exposure: the same every frame
-    sigma = cam.noise_sigma(dn)
-    return px, visible, [cam.digitise(dn, rng, sigma=sigma) for _ in range(frames)]
+    return px, visible, renderer.camera.frames(radiance, rng, frames)
 
 
 _WORKERS: dict[str, TipWorker] = {}

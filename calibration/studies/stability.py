@@ -660,9 +660,7 @@ def _imaging_cell(rig: _Rig, camera: Any, radiances: list[np.ndarray], blobs: li
 
     def frames(k: int, count: int) -> list[np.ndarray]:
         rad = radiances[k] if edit is None else edit(k, radiances[k])
-        dn = camera.expose(rad)
-        sigma = camera.noise_sigma(dn)
-        return [camera.digitise(dn, rng, sigma=sigma) for _ in range(count)]
+        return camera.frames(rad, rng, count)
 
     rest = frames(0, 1)[0]
     try:
@@ -857,9 +855,7 @@ def map_missing_markers(st: _Study) -> MapResult:
 
                 def frames(idx: int, count: int, gone=gone, rng=rng, cam=cam) -> list:
                     rad = _remove_markers(rads[idx], background, blobs[idx], gone, radius)
-                    dn = cam.expose(rad)
-                    sigma = cam.noise_sigma(dn)
-                    return [cam.digitise(dn, rng, sigma=sigma) for _ in range(count)]
+                    return cam.frames(rad, rng, count)
 
                 rest = frames(0, 1)[0]
                 try:

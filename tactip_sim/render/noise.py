@@ -112,6 +112,15 @@ class CameraModel:
         np.clip(out, 0, 255, out=out)
         return out.astype(np.uint8)
 
+    def frames(self, radiance: np.ndarray, rng: np.random.Generator | None, count: int
+               ) -> list[np.ndarray]:
+        """``count`` frames of one static exposure, as a camera delivers them: blur, vignetting
+        and exposure once (:meth:`expose`), then fresh sensor noise per frame (:meth:`digitise`).
+        """
+        dn = self.expose(radiance)
+        sigma = self.noise_sigma(dn)
+        return [self.digitise(dn, rng, sigma=sigma) for _ in range(count)]
+
     def apply(self, radiance: np.ndarray, rng: np.random.Generator | None, *,
               vignette: np.ndarray | None = None) -> np.ndarray:
         """Turn radiance into an 8-bit frame: :meth:`expose` then :meth:`digitise`.
