@@ -305,6 +305,11 @@ def _r2(train: _Run, test: _Run, grid: StudyGrid, image_size: tuple[int, int]
     return float(s.r2_overall), float(s.r2[0]), float(s.r2[1]), note
 
 
+def _too_slow_for_quick(scene: ts.Scene) -> bool:
+    return (scene.fidelity.material_model == "neo_hookean"
+            or scene.imaging.refraction == "path")
+
+
 def pareto_front(times: Sequence[float], errors: Sequence[float]) -> np.ndarray:
     """Mask of the levels no other level beats on both time and error (ties kept)."""
     t, e = np.asarray(times, float), np.asarray(errors, float)
@@ -349,7 +354,6 @@ def run_fidelity_study(scene: ts.Scene, out: str | Path, *, quick: bool = False,
     physics_cache: dict = {}
     results: list[LevelResult] = []
     ref_run: _Run | None = None
-    ref_test: tuple[_Run, _Run] | None = None
     t_start = time.perf_counter()
     n_acc = len(grid.accuracy)
     bar = tqdm(total=len(all_levels) * n_acc, disable=not progress, desc="fidelity study",
@@ -360,6 +364,12 @@ def run_fidelity_study(scene: ts.Scene, out: str | Path, *, quick: bool = False,
             res = LevelResult(lv.name, lv.stage, lv.note, lv.overrides(scene),
                               lscene.protocol.frames_per_sample)
             bar.set_postfix_str(lv.name)
+            if quick and lv is not ref_level and _too_slow_for_quick(lscene):
+                res.error = ("skipped in --quick: neo-Hookean physics or path tracing cost "
+                             "minutes per sample")
+                results.append(res)
+                bar.update(n_acc)
+                continue
             try:
                 runner = _LevelRunner(lscene, ref_size, physics_cache, grid.frames_cap)
                 res.frames = runner.frames
@@ -388,15 +398,12 @@ def run_fidelity_study(scene: ts.Scene, out: str | Path, *, quick: bool = False,
                 te = runner.run(grid.test, 3)
                 res.r2, res.r2_roll, res.r2_pitch, res.r2_note = _r2(
                     tr, te, grid, tuple(lscene.camera.resolution))
-                if lv is ref_level:
-                    ref_test = (tr, te)
             results.append(res)
             log(f"  {lv.name:24s} {1e3 * res.sample_s:9.1f} ms/sample  marker "
                 f"{res.marker_px_p95:.3f} px p95  CoP {res.cop_px_max:.3f} px max  R² "
                 f"{res.r2:.4f}")
     finally:
         bar.close()
-    del ref_test
     front = pareto_front([r.sample_s for r in results],
                          [r.marker_px_p95 if not r.error else np.nan for r in results])
     for r, f in zip(results, front, strict=True):
@@ -516,8 +523,8 @@ def report_markdown(summary: dict[str, Any], *, charts: bool = True) -> str:
     lines.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in summary["levels"]:
         if r["error"]:
-            lines.append(f"| {r['name']} | {r['stage']} | | | | | | | | | | | failed: "
-                         f"{r['error']} | |")
+            what = r["error"] if r["error"].startswith("skipped") else f"failed: {r['error']}"
+            lines.append(f"| {r['name']} | {r['stage']} | | | | | | | | | | | {what} | |")
             continue
         ms = [_fmt(None if r[k] is None else 1e3 * r[k], ".1f")
               for k in ("physics_s", "render_s", "perception_s", "sample_s")]
