@@ -60,14 +60,14 @@ def add_scene_argument(p: argparse.ArgumentParser, *, optional: bool = False,
                    help="override a scene key, e.g. --set camera.tilt_deg=6 (repeatable)")
 
 
-def load_scene_args(args: argparse.Namespace, *, preset: str | None = None):
-    """The scene of a command's arguments: the file, then ``--fidelity`` (or ``preset``), then
-    ``--set`` overrides on top."""
+def load_scene_args(args: argparse.Namespace):
+    """The scene of a command's arguments: the file, then ``--fidelity``, then ``--set``
+    overrides on top."""
     from .scene import apply_preset, load_scene
 
     overrides = parse_overrides(args.overrides)
     scene = load_scene(args.scene, overrides)
-    name = preset if preset is not None else getattr(args, "fidelity", None)
+    name = getattr(args, "fidelity", None)
     if name is None:
         return scene
     if name == "auto":

@@ -41,7 +41,8 @@ def scene_from_dict(data: Mapping[str, Any], *, source: str = "") -> Scene:
     unknown = sorted(set(data) - set(SECTIONS) - {"name", "presets"})
     if unknown:
         raise SceneError(
-            f"unknown section or key {unknown[0]!r}; allowed sections: {', '.join(SECTIONS)}"
+            f"unknown section or key {unknown[0]!r}; allowed sections: {', '.join(SECTIONS)}, "
+            "presets"
         )
     name = data.get("name", Path(source).stem if source else "scene")
     if not isinstance(name, str) or not name:
