@@ -15,8 +15,9 @@ recompile the kernel.
 
 from __future__ import annotations
 
-import itertools
 from typing import Any
+
+from .handoff import Handoff
 
 PLUGIN = "tactip_caps"
 NO_SHAPE = 2**32 - 1
@@ -39,21 +40,17 @@ class LayerState:
         self.pins_index = NO_SHAPE
 
 
-_STATES: dict[int, LayerState] = {}
-_IDS = itertools.count(1)
-_REGISTERED: set[str] = set()
+_STATES: Handoff[LayerState] = Handoff()
 
 
 def add_state(state: LayerState) -> int:
     """Store a layer state; returns its ``state_id`` for the scene dictionary."""
-    key = next(_IDS)
-    _STATES[key] = state
-    return key
+    return _STATES.put(state)
 
 
 def register(mi: Any) -> None:
     """Register ``tactip_caps`` for Mitsuba's current variant (idempotent)."""
-    if mi.variant() in _REGISTERED:
+    if mi.variant() in _STATES.registered:
         return
     import drjit as dr
 
@@ -62,7 +59,7 @@ def register(mi: Any) -> None:
 
         def __init__(self, props: Any) -> None:
             super().__init__(props)
-            self.state = _STATES.pop(int(props["state_id"]))  # shared with the renderer
+            self.state = _STATES.take(props["state_id"])  # shared with the renderer
 
         def sample(self, scene, sampler, ray, medium=None, active=True):  # noqa: ARG002
             st = self.state
@@ -82,4 +79,4 @@ def register(mi: Any) -> None:
             return "CapLayerIntegrator[]"
 
     mi.register_integrator(PLUGIN, lambda props: CapLayerIntegrator(props))
-    _REGISTERED.add(mi.variant())
+    _STATES.registered.add(mi.variant())

@@ -17,7 +17,6 @@ settings out of the table when Mitsuba builds it.
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any
@@ -26,6 +25,7 @@ import numpy as np
 
 from ..optics.lens import NUMPY, Lens
 from ..optics.refraction import Layers, bend_up
+from .handoff import Handoff
 
 PLUGIN = "tactip_fisheye"
 
@@ -57,16 +57,12 @@ class SensorConfig:
     crop_size: tuple[int, int]
 
 
-_CONFIGS: dict[int, SensorConfig] = {}
-_IDS = itertools.count(1)
-_REGISTERED: set[str] = set()
+_CONFIGS: Handoff[SensorConfig] = Handoff()
 
 
 def add_config(config: SensorConfig) -> int:
     """Store a sensor configuration; returns its ``config_id`` for the scene dictionary."""
-    key = next(_IDS)
-    _CONFIGS[key] = config
-    return key
+    return _CONFIGS.put(config)
 
 
 def sensor_dict(config: SensorConfig, spp: int, *, rgb: bool = False) -> dict:
@@ -141,7 +137,7 @@ def register(mi: Any) -> None:
 
     Call after ``mi.set_variant`` (:func:`tactip_sim.llvm.import_mitsuba`); idempotent.
     """
-    if mi.variant() in _REGISTERED:
+    if mi.variant() in _CONFIGS.registered:
         return
     import drjit as dr
 
@@ -152,7 +148,7 @@ def register(mi: Any) -> None:
 
         def __init__(self, props: Any) -> None:
             super().__init__(props)
-            self.cfg = _CONFIGS.pop(int(props["config_id"]))  # the sensor keeps it now
+            self.cfg = _CONFIGS.take(props["config_id"])  # the sensor keeps it now
 
         def _ray(self, time: Any, sample2: Any) -> tuple[Any, Any]:
             cfg = self.cfg
@@ -181,4 +177,4 @@ def register(mi: Any) -> None:
             return f"FisheyeSensor[{self.cfg.lens.model}, refraction={self.cfg.refraction}]"
 
     mi.register_sensor(PLUGIN, lambda props: FisheyeSensor(props))
-    _REGISTERED.add(mi.variant())
+    _CONFIGS.registered.add(mi.variant())
