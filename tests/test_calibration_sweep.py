@@ -120,4 +120,29 @@ def test_dask_cluster_by_address_is_byte_identical_to_serial(spec, serial, tmp_p
                       dashboard_address=":0") as cluster:
         out = tmp_path / "cluster"
         run_sweep(spec, out, scheduler=cluster.scheduler_address, progress=False, chunk=3)
+        # the sweep's worker settings reach a cluster it did not start (one OpenCV thread per
+        # worker; a worker that joins later gets them too)
+        from calibration.sweep import close_client, open_client
+
+        client = open_client(1, cluster.scheduler_address)
+        try:
+            cluster.scale(3)
+            client.wait_for_workers(3, timeout=60)
+            assert set(client.run(_opencv_threads).values()) == {1}
+        finally:
+            close_client(client)
     assert _files(out) == _files(serial)
+
+
+def _opencv_threads() -> int:
+    import cv2
+
+    return cv2.getNumThreads()
+
+
+def test_steady_allocator_applies_on_glibc():
+    import platform
+
+    from calibration.sweep import steady_allocator
+
+    assert steady_allocator() == (platform.libc_ver()[0] == "glibc")

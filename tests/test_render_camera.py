@@ -101,3 +101,28 @@ def test_frames_of_one_exposure_equal_apply_frame_by_frame():
     assert not np.array_equal(got[0], got[1])
     clean = cam.apply(rad, None)
     assert abs(float(np.mean(got[0].astype(float) - clean))) < 0.5  # zero-mean noise
+
+
+def test_16bit_normal_draws_are_standard_normal():
+    """The camera's Gaussian draws (inverse-CDF lookup of 16 random bits) against the normal
+    distribution: unit variance, zero mean, symmetric, the quantiles of scipy's ndtri, and a
+    Kolmogorov-Smirnov test on a million draws that rejects a 2 % error in the scale."""
+    from scipy import stats
+    from scipy.special import ndtri
+
+    from tactip_sim.render.noise import normal_table, standard_normal_16bit
+
+    t = normal_table().astype(np.float64)
+    assert t.shape == (65536,) and np.all(np.diff(t) > 0)
+    assert np.mean(t) == pytest.approx(0.0, abs=1e-12)
+    assert np.mean(t * t) == pytest.approx(1.0, abs=1e-6)
+    assert np.array_equal(t, -t[::-1])
+    # the bin-centre quantiles, up to the variance rescale (1 - 3e-5 before it)
+    k = np.array([100, 10_000, 32_768, 50_000, 65_000])
+    assert np.allclose(t[k], ndtri((k + 0.5) / 65536), rtol=3e-5, atol=1e-6)
+    x = standard_normal_16bit(np.random.default_rng(4), (1000, 1000)).ravel()
+    assert x.dtype == np.float32
+    assert stats.kstest(x, "norm").pvalue > 1e-3
+    assert stats.kstest(x, stats.norm(scale=1.02).cdf).pvalue < 1e-3
+    again = standard_normal_16bit(np.random.default_rng(4), (1000, 1000)).ravel()
+    assert np.array_equal(x, again)

@@ -4,6 +4,11 @@ In order: optical blur (Gaussian, ``blur_px``) -> vignetting (``1 - v (r / r_cor
 the principal point) -> exposure (radiance ``FULL_SCALE_RADIANCE / exposure`` maps to 255 DN)
 -> noise (shot: ``shot_noise * sqrt(DN)``, read: ``read_noise`` DN, one Gaussian draw per
 pixel) -> clip to [0, 255] and round (half up). All randomness comes from the caller's generator.
+
+The Gaussian draws are 16 random bits per pixel mapped through the inverse normal CDF
+(:func:`standard_normal_16bit`): a sweep synthesises tens of frames per rendered sample, and
+NumPy's ``standard_normal`` cost 4.4 ms of the 5.5 ms a 640x480 frame took, the lookup 1.5 ms.
+The quantised normal is exact to what an 8-bit camera can show (see the function).
 """
 
 from __future__ import annotations
@@ -18,6 +23,39 @@ FULL_SCALE_RADIANCE = 0.02
 """Radiance (scene units) that fills the 8-bit range at ``exposure = 1``: the LED-lit caps of
 the default scene (0.06-0.4) then saturate, like real TacTip frames, while the black skin
 stays near the read-noise floor."""
+
+
+NORMAL_BITS = 16
+_NORMAL_TABLE: np.ndarray | None = None
+
+
+def normal_table() -> np.ndarray:
+    """(65536,) float32: the standard normal quantile at the centre of each of 2^16 equal
+    probability bins, ``ndtri((k + 1/2) / 2^16)``, rescaled to unit variance.
+
+    A draw through it is a normal distribution quantised in probability: each of the 2^16
+    values is equally likely, the largest is 4.33 (a true normal exceeds that once per
+    ~67 000 draws, i.e. about 5 pixels of a 640x480 frame), and the rescale makes the variance
+    exactly 1 (it would be 1 - 3e-5 otherwise). Mean 0 by symmetry."""
+    global _NORMAL_TABLE
+    if _NORMAL_TABLE is None:
+        from scipy.special import ndtri
+
+        n = 1 << NORMAL_BITS
+        q = ndtri((np.arange(n, dtype=np.float64) + 0.5) / n)
+        q -= q.mean()
+        q /= np.sqrt(np.mean(q * q))
+        _NORMAL_TABLE = q.astype(np.float32)
+        _NORMAL_TABLE.setflags(write=False)
+    return _NORMAL_TABLE
+
+
+def standard_normal_16bit(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """Standard normal float32 draws of ``shape``: 16 bits from ``rng`` per value, looked up in
+    :func:`normal_table` (byte order fixed, so the draws are the same on every machine)."""
+    count = int(np.prod(shape))
+    bits = np.frombuffer(rng.bytes(2 * count), dtype="<u2").reshape(shape)
+    return normal_table().take(bits)
 
 
 @dataclass(frozen=True)
@@ -103,7 +141,7 @@ class CameraModel:
         (H, W) or (H, W, 3) uint8
         """
         if rng is not None and (self.read_noise > 0 or self.shot_noise > 0):
-            out = rng.standard_normal(dn.shape, dtype=np.float32)
+            out = standard_normal_16bit(rng, dn.shape)
             out *= self.noise_sigma(dn) if sigma is None else sigma
             out += dn
         else:
