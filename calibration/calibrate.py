@@ -14,6 +14,7 @@ from tactip_sim.scene import preset_of, scene_hash, scene_to_dict
 from .dataset import _json, atomic_write_text
 from .fit import ScoreRow, features, fit_model, r2_table_csv, r2_table_markdown, score
 from .protocol import evaluation_sets, make_tip, training_set
+from .runlog import RunLog
 from .sweep import SweepSpec, _versions, close_client, open_client, run_sweep
 
 ORDERS = (1, 2, 3)
@@ -74,6 +75,8 @@ def calibrate(
     models_dir.mkdir(exist_ok=True)
     tip_info = {}
     sets = [training_set(scene), *evaluation_sets(scene)]
+    log = RunLog(out / "runs.json", frames, workers=workers, scheduler=scheduler,
+                 tips=tips, scene_hash=scene_hash(scene))
     client = open_client(workers, scheduler)  # one cluster for every sweep of the run
     try:
         for tip in tips:
@@ -82,7 +85,7 @@ def calibrate(
             for pose_set in sets:
                 spec = SweepSpec(scene, tip, pose_set, frames=frames)
                 res = run_sweep(spec, out / f"tip_{tip}" / pose_set.name, client=client,
-                                progress=progress)
+                                progress=progress, on_sample=log.tick)
                 results[pose_set.name] = res
                 samples += res.computed
                 sample_seconds += res.sample_seconds
@@ -112,6 +115,7 @@ def calibrate(
     atomic_write_text(out / f"{alt}.csv", r2_table_csv(rows[other]))
     atomic_write_text(out / f"{alt}.md", r2_table_markdown(rows[other], feature=other))
     seconds = time.perf_counter() - t_start
+    log.finish()
     timings["total_s"] = seconds
     timings["compute_s"] = sample_seconds  # per-sample compute summed over workers
     if samples:
@@ -131,7 +135,8 @@ def calibrate(
         "workers": workers,
         "scheduler": scheduler,
         "versions": _versions(),
-        "timings": timings,
+        "timings": timings,  # this invocation
+        "timings_all_invocations": log.summary(),  # every invocation in runs.json, summed
         "samples_computed": samples,
     }
     atomic_write_text(out / "manifest.json", json.dumps(manifest, indent=2, default=_json))
