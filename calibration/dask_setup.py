@@ -18,12 +18,12 @@ class SweepWorkerSetup(WorkerPlugin):
 
     A worker's parallelism is its task slots (one per process in ``--workers N``). OpenCV's
     own thread pool on top of that puts two threads per core on this 2-core machine; with one
-    OpenCV thread per worker, 2 workers perceived 6 % more frames per second
+    OpenCV thread per worker, 2 workers perceived 6-10 % more frames per second
     (benchmarks/bench_calibration.py, BENCHMARKS.md). Serial runs keep OpenCV's default.
     """
 
     name = "tactip-sweep-setup"
-    idempotent = True  # registering it again (a second client) changes nothing
+    idempotent = True  # a second client registering it again does not re-run setup()
 
     def setup(self, worker: Any) -> None:
         import cv2

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +39,7 @@ class RunLog:
         self._t0 = time.perf_counter()
         self._flushed = self._t0
         self.entry: dict[str, Any] = {
-            "started_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "started_utc": datetime.now(UTC).isoformat(timespec="seconds"),
             "seconds": 0.0, "samples_computed": 0, "frames_per_sample": int(frames),
             "finished": False, **info,
         }

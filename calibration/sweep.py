@@ -193,7 +193,7 @@ def steady_allocator() -> bool:
     every worker with ``MALLOC_TRIM_THRESHOLD_=65536``, which also freezes glibc's adaptive
     ``mmap`` threshold at 128 kB: each of those arrays then costs an ``mmap``, page faults on
     fresh zeroed pages, and a ``munmap``, and a worker ran a sample 1.3-1.6x slower than the
-    same code in a plain process (benchmarks/bench_calibration.py measures both). Setting both
+    same code in a plain process (BENCHMARKS.md, "End to end"). Setting both
     thresholds here restores heap reuse in any worker, local or on a remote cluster, whatever
     its environment. Memory stays flat: the sizes repeat from sample to sample.
 

@@ -8,7 +8,7 @@ pixel) -> clip to [0, 255] and round (half up). All randomness comes from the ca
 The Gaussian draws are 16 random bits per pixel mapped through the inverse normal CDF
 (:func:`standard_normal_16bit`): a sweep synthesises tens of frames per rendered sample, and
 NumPy's ``standard_normal`` cost 4.4 ms of the 5.5 ms a 640x480 frame took, the lookup 1.5 ms.
-The quantised normal is exact to what an 8-bit camera can show (see the function).
+The quantised normal differs from a true one only in its far tails (see :func:`normal_table`).
 """
 
 from __future__ import annotations
