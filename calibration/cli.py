@@ -151,7 +151,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "calibrate", help="run the paper's roll/pitch calibration protocol in simulation",
         description="Training sweep (255 poses) and three 200-pose test sets at -0.5/0/+0.5 mm "
         "for each tip; 1st-3rd order regressors from perceived CoP to roll/pitch; R² table, "
-        "models, charts and manifest in --out. Rerunning the same command resumes.")
+        "models, charts, manifest and runs.json (wall time of every invocation) in --out. "
+        "Rerunning the same command resumes.")
     add_scene_argument(p, optional=True, auto=True)
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--tips", help="comma-separated tips (default: protocol.tips, e.g. A,B,C)")
