@@ -108,6 +108,7 @@ def calibrate(
                 tip_charts(out, tip, {k: r.dataset for k, r in results.items()},
                            features(results["train"].dataset, variant=feature), feature=feature)
     finally:
+        log.flush()  # an interrupted invocation keeps its time and samples in runs.json
         close_client(client)
     atomic_write_text(out / "r2_table.csv", r2_table_csv(rows[feature]))
     atomic_write_text(out / "r2_table.md", r2_table_markdown(rows[feature], feature=feature))

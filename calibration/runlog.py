@@ -3,8 +3,9 @@
 A calibration that is killed and rerun continues where it stopped, so one invocation's clock
 says little about what the whole protocol cost. :class:`RunLog` keeps one entry per invocation
 in ``runs.json`` beside the datasets, rewritten (atomically) at most every ``flush_s`` seconds
-while samples are being written and once at the end: a killed invocation loses at most that
-much of its record. :meth:`RunLog.summary` sums the entries for the manifest.
+while samples are being written, when the invocation ends (also by an exception or Ctrl-C) and
+once more when it finishes: only a killed process (SIGKILL, power loss) loses up to
+``flush_s`` of its record. :meth:`RunLog.summary` sums the entries for the manifest.
 """
 
 from __future__ import annotations
@@ -53,6 +54,10 @@ class RunLog:
         except (OSError, ValueError):  # a damaged log only loses the history of timings
             return []
         return [r for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
+
+    def flush(self) -> None:
+        """Write this invocation's entry as it stands (e.g. on the way out of an error)."""
+        self._write()
 
     def _write(self) -> None:
         self.entry["seconds"] = round(time.perf_counter() - self._t0, 3)

@@ -197,6 +197,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, RuntimeError, OSError) as exc:
         print(f"tactip {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        # every finished sample and file is already on disk (written atomically)
+        print(f"\ntactip {args.command}: interrupted; what was finished is kept, and running "
+              "the same command again continues from there", file=sys.stderr)
+        return 130  # 128 + SIGINT, as a shell reports it
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -41,3 +41,12 @@ def test_damaged_log_starts_a_new_history(tmp_path):
     log.finish()
     assert log.summary()["invocations"] == 1
     assert len(json.loads(path.read_text())) == 1
+
+
+def test_flush_records_an_interrupted_invocation(tmp_path):
+    path = tmp_path / "runs.json"
+    log = RunLog(path, frames=60, flush_s=1e9)
+    log.tick()
+    log.flush()  # what calibrate does on its way out of an exception
+    runs = json.loads(path.read_text())
+    assert runs[-1]["samples_computed"] == 1 and runs[-1]["finished"] is False

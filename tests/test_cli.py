@@ -57,3 +57,16 @@ def test_console_script_runs():
     res = subprocess.run([sys.executable, "-m", "tactip_sim.cli", "--help"], capture_output=True,
                          text=True, check=False)
     assert res.returncode == 0 and "mesh" in res.stdout
+
+
+def test_ctrl_c_gives_a_message_and_exit_code_130(monkeypatch, capsys):
+    """Ctrl-C in any command: no traceback, the shell's 130, and how to continue."""
+    import tactip_sim.cli as cli
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "_cmd_scene", interrupted)
+    assert main(["scene", str(SCENES / "shadow_fingertip.toml")]) == 130
+    err = capsys.readouterr().err
+    assert "interrupted" in err and "same command again" in err and "Traceback" not in err
