@@ -82,7 +82,6 @@ class TipWorker:
         import perception as pc
         from tactip_sim.render import Renderer
 
-        steady_allocator()
         tip = make_tip(spec.scene, spec.tip, nominal=spec.nominal)
         scene = tip.scene
         if spec.indenter:
@@ -178,38 +177,6 @@ def render_frames(renderer: Any, state: Any, frames: int, rng: np.random.Generat
     radiance = renderer.render_radiance(markers, directions, seed=seed)
     px, visible, _ = renderer.ground_truth(markers, directions)
     return px, visible, renderer.camera.frames(radiance, rng, frames)
-
-
-MMAP_THRESHOLD_BYTES = 32 << 20
-"""Blocks below this come from the heap, not fresh ``mmap`` pages (glibc's largest setting)."""
-TRIM_THRESHOLD_BYTES = 128 << 20
-"""Free heap kept by the process before it is returned to the system."""
-
-
-def steady_allocator() -> bool:
-    """Let this process reuse freed heap memory for its per-frame arrays (glibc only).
-
-    A sample allocates a few hundred frame-sized arrays (1-2 MB each). Dask's nanny starts
-    every worker with ``MALLOC_TRIM_THRESHOLD_=65536``, which also freezes glibc's adaptive
-    ``mmap`` threshold at 128 kB: each of those arrays then costs an ``mmap``, page faults on
-    fresh zeroed pages, and a ``munmap``, and a worker ran a sample 1.3-1.6x slower than the
-    same code in a plain process (BENCHMARKS.md, "End to end"). Setting both
-    thresholds here restores heap reuse in any worker, local or on a remote cluster, whatever
-    its environment. Memory stays flat: the sizes repeat from sample to sample.
-
-    Returns whether the settings were applied (False off glibc)."""
-    import ctypes
-    import platform
-
-    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
-        return False
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:  # pragma: no cover - glibc without the usual soname
-        return False
-    m_trim_threshold, m_mmap_threshold = -1, -3  # <malloc.h>
-    return bool(libc.mallopt(m_mmap_threshold, MMAP_THRESHOLD_BYTES)
-                and libc.mallopt(m_trim_threshold, TRIM_THRESHOLD_BYTES))
 
 
 _WORKERS: dict[str, TipWorker] = {}

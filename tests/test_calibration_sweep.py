@@ -143,6 +143,6 @@ def _opencv_threads() -> int:
 def test_steady_allocator_applies_on_glibc():
     import platform
 
-    from calibration.sweep import steady_allocator
+    from calibration.dask_setup import steady_allocator
 
     assert steady_allocator() == (platform.libc_ver()[0] == "glibc")
