@@ -1,6 +1,6 @@
 """End-to-end sweep speed (physics + render + perception), serial against 2 workers.
 
-Run:  python benchmarks/bench_calibration.py [--poses 48] [--frames 8]
+Run:  python benchmarks/bench_calibration.py [--poses 48] [--frames 60]
 Sweeps the same random poses of the nominal tip into temporary folders, once in-process and once
 on a 2-process Dask LocalCluster, and prints the per-stage split of one sample, each run's
 start-up (cluster, and in every process the tip's set-up: simulator, renderer compile, rest
@@ -24,12 +24,19 @@ ROOT = Path(__file__).resolve().parents[1]
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--poses", type=int, default=48)
-    ap.add_argument("--frames", type=int, default=8)
+    ap.add_argument("--frames", type=int, default=60)
     args = ap.parse_args()
 
     import tactip_sim as ts
     from calibration.protocol import PoseSet
-    from calibration.sweep import SweepSpec, TipWorker, run_sweep
+    from calibration.sweep import (
+        SweepSpec,
+        TipWorker,
+        close_client,
+        open_client,
+        run_sweep,
+        warm_up,
+    )
 
     scene = ts.load_scene(ROOT / "scenes" / "shadow_fingertip.toml")
     p = scene.protocol
@@ -63,8 +70,6 @@ def main() -> None:
     for k, v in stages.items():
         print(f"  {k:<13} {1e3 * np.median(v):7.1f} ms per sample (median of {len(v)})")
 
-    from calibration.sweep import close_client, open_client, warm_up
-
     steady, total = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         for label, workers in (("serial", 1), ("2 workers", 2)):
@@ -85,6 +90,7 @@ def main() -> None:
                   f"{1e3 * res.sample_seconds / res.computed:.0f} ms per sample")
     print(f"speed-up 1 -> 2 workers: {steady['2 workers'] / steady['serial']:.2f}x steady, "
           f"{total['2 workers'] / total['serial']:.2f}x including start-up")
+
 
 if __name__ == "__main__":
     main()
