@@ -154,9 +154,12 @@ class Dataset:
                         if old.get("identity", {}).get(k) != v}
             if mismatch:
                 k, (was, now) = next(iter(mismatch.items()))
+                why = ("; the tip's tet mesh differs from the one that computed it (pytetwild "
+                       "builds a different mesh on each machine: resume where that mesh is "
+                       "cached, or ship it in scenes/meshes/)") if k == "mesh_digest" else ""
                 raise DatasetError(
                     f"{self.root} already holds a different sweep ({k}: {was!r} there, "
-                    f"{now!r} now); refusing to mix them: choose a new --out folder"
+                    f"{now!r} now{why}); refusing to mix them: choose a new --out folder"
                 )
             return
         if self.root.exists() and any(self.root.iterdir()):

@@ -41,6 +41,10 @@ class SweepSpec:
     frames : noisy frames averaged per sample
     nominal : use the unperturbed design instead of a manufactured tip
     indenter : optional indenter override (``[indenter]`` keys), e.g. ``{"kind": "sphere"}``
+    mesh : the tip's tet mesh; :meth:`with_mesh` resolves it once, in the process that starts
+        the sweep, and it travels with the spec to every worker. pytetwild does not give the
+        same mesh twice, so workers that each built their own would compute one tip with
+        different meshes (and pay for the build and its compliance once per worker).
     """
 
     scene: ts.Scene
@@ -49,10 +53,23 @@ class SweepSpec:
     frames: int = 8
     nominal: bool = False
     indenter: dict[str, Any] = field(default_factory=dict)
+    mesh: Any = field(default=None, repr=False, compare=False)
+
+    def with_mesh(self) -> SweepSpec:
+        """This spec with its tip's mesh (from the cache, ``scenes/meshes/`` or built once)."""
+        if self.mesh is not None:
+            return self
+        from dataclasses import replace
+
+        from tactip_sim.mesh import tetrahedralise
+
+        tip = make_tip(self.scene, self.tip, nominal=self.nominal)
+        return replace(self, mesh=tetrahedralise(tip.scene))
 
     def identity(self) -> dict[str, Any]:
         return {
             "scene_hash": scene_hash(self.scene),
+            "mesh_digest": None if self.mesh is None else mesh_digest(self.mesh),
             "tip": self.tip,
             "nominal": self.nominal,
             "pose_set": self.poses.name,
@@ -75,6 +92,14 @@ class SweepSpec:
         return zlib.crc32(self.poses.name.encode())
 
 
+def mesh_digest(mesh: Any) -> str:
+    """Content hash of a tet mesh (nodes, tets, regions): two meshes of one scene differ."""
+    h = hashlib.sha256()
+    for a in (mesh.nodes, mesh.tets, mesh.regions):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:16]
+
+
 class TipWorker:
     """Simulator, renderer and perception for one tip, built once per process."""
 
@@ -89,7 +114,7 @@ class TipWorker:
         self.tip = tip
         self.scene = scene
         self.pad = ts.build_pad(scene, pin_perturbation_mm=tip.pin_offsets_mm)
-        self.sim = ts.Simulator(scene, pad=self.pad)
+        self.sim = ts.Simulator(scene, pad=self.pad, mesh=spec.mesh)
         self.renderer = Renderer(scene, self.pad)
         self.frames = spec.frames
         self.seed_base = [scene.protocol.seed, scene.protocol.tips.index(spec.tip)]
@@ -255,6 +280,7 @@ def run_sweep(
     """
     import platform
 
+    spec = spec.with_mesh()
     ds = Dataset(out)
     ds.open_for_sweep(spec.identity(), {
         "scene": scene_to_dict(spec.scene),

@@ -146,3 +146,38 @@ def test_steady_allocator_applies_on_glibc():
     from calibration.dask_setup import steady_allocator
 
     assert steady_allocator() == (platform.libc_ver()[0] == "glibc")
+
+
+def test_every_worker_computes_with_the_mesh_of_the_spec(small_scene, tmp_path):
+    """The tip's mesh is resolved once and travels with the spec: pytetwild gives a different
+    mesh on every build, and workers that each built (or loaded) their own would compute one
+    tip with different meshes. A mesh that no cache holds (the bundled one with its interior
+    nodes moved) must give 2 workers the serial run's bytes, differ from the bundled mesh's
+    results, and be refused when a resume brings another mesh."""
+    from dataclasses import replace
+
+    from tactip_sim.mesh import TetMesh
+
+    scene = ts.replace_in(small_scene, fidelity={"element_order": 1})  # cheap compliance
+    base = SweepSpec(scene, "A", PoseSet("mesh", TINY[:4]), frames=1, nominal=True).with_mesh()
+    m = base.mesh
+    interior = np.ones(len(m.nodes), bool)
+    interior[np.unique(_boundary_nodes(m.tets))] = False
+    nodes = m.nodes.copy()
+    nodes[interior] += np.random.default_rng(0).normal(0, 0.05, (interior.sum(), 3))
+    odd = replace(base, mesh=TetMesh(nodes, m.tets, m.regions, m.key, 0.0))
+    run_sweep(odd, tmp_path / "serial", progress=False, chunk=1)
+    run_sweep(odd, tmp_path / "workers", workers=2, progress=False, chunk=1)
+    run_sweep(base, tmp_path / "bundled", progress=False, chunk=2)
+    assert _files(tmp_path / "workers") == _files(tmp_path / "serial")
+    assert _files(tmp_path / "bundled") != _files(tmp_path / "serial")
+    with pytest.raises(DatasetError, match="mesh_digest.*tet mesh differs"):
+        run_sweep(base, tmp_path / "serial", progress=False)
+
+
+def _boundary_nodes(tets):
+    """Nodes on faces that belong to one tet only."""
+    faces = np.sort(np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]],
+                                    tets[:, [1, 2, 3]]]), axis=1)
+    uniq, count = np.unique(faces, axis=0, return_counts=True)
+    return uniq[count == 1].ravel()
