@@ -69,7 +69,7 @@ class SweepSpec:
     def identity(self) -> dict[str, Any]:
         return {
             "scene_hash": scene_hash(self.scene),
-            "mesh_digest": None if self.mesh is None else mesh_digest(self.mesh),
+            "mesh_digest": None if self.mesh is None else self.mesh.digest,
             "tip": self.tip,
             "nominal": self.nominal,
             "pose_set": self.poses.name,
@@ -90,14 +90,6 @@ class SweepSpec:
     def set_tag(self) -> int:
         """Seeds the pose set's noise apart from the other sets of the same tip."""
         return zlib.crc32(self.poses.name.encode())
-
-
-def mesh_digest(mesh: Any) -> str:
-    """Content hash of a tet mesh (nodes, tets, regions): two meshes of one scene differ."""
-    h = hashlib.sha256()
-    for a in (mesh.nodes, mesh.tets, mesh.regions):
-        h.update(np.ascontiguousarray(a).tobytes())
-    return h.hexdigest()[:16]
 
 
 class TipWorker:
@@ -224,7 +216,11 @@ def _set_up(spec: SweepSpec) -> float:
 
 def warm_up(spec: SweepSpec, client: Any = None) -> list[float]:
     """Build the worker of ``spec`` in this process (``client`` None) or in every process of
-    ``client``'s cluster, before a sweep is timed. Returns each process's set-up seconds."""
+    ``client``'s cluster, before a sweep is timed. Returns each process's set-up seconds.
+
+    The spec's mesh is resolved first, as :func:`run_sweep` does: the worker built here is
+    then the one the sweep finds (its key includes the mesh)."""
+    spec = spec.with_mesh()
     if client is None:
         return [_set_up(spec)]
     return list(client.run(_set_up, spec).values())

@@ -181,3 +181,14 @@ def _boundary_nodes(tets):
                                     tets[:, [1, 2, 3]]]), axis=1)
     uniq, count = np.unique(faces, axis=0, return_counts=True)
     return uniq[count == 1].ravel()
+
+
+def test_warm_up_builds_the_worker_the_sweep_uses(spec, tmp_path):
+    """A benchmark warms the worker up before timing the sweep; the sweep must find that very
+    worker (same key, mesh included), not build a second one inside the timed part."""
+    from calibration import sweep
+
+    sweep.warm_up(spec)
+    (warm,) = sweep._WORKERS.values()
+    run_sweep(spec, tmp_path / "ds", progress=False, limit=1)
+    assert list(sweep._WORKERS.values()) == [warm]

@@ -8,6 +8,7 @@ import os
 import tempfile
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 from importlib.metadata import version
 from pathlib import Path
 
@@ -62,6 +63,15 @@ class TetMesh:
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "quality", mesh_quality(self.nodes, self.tets))
+
+    @cached_property
+    def digest(self) -> str:
+        """Content hash of nodes, tets and regions. ``key`` names the scene a mesh was built
+        for; pytetwild gives a different mesh on every build, and this tells them apart."""
+        h = hashlib.sha256()
+        for a in (self.nodes, self.tets, self.regions):
+            h.update(np.ascontiguousarray(a).tobytes())
+        return h.hexdigest()[:16]
 
     @property
     def volumes(self) -> np.ndarray:
