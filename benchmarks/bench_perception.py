@@ -7,8 +7,8 @@
 For each frame pair (rest frame, frame) it prints the median (and 10th/90th percentile)
 milliseconds per frame of
 
-* ``detect``: ``detect_markers_detailed`` with the sensor region and the marker size measured on
-  the rest frame, as ``FeaturePipeline`` runs it;
+* ``detect``: ``detect_markers_detailed`` with the sensor region, the marker size and the pixel
+  noise measured on the rest frame, as ``FeaturePipeline`` runs it;
 * ``track``: ``MarkerTracker.update`` from a reset tracker;
 * ``voronoi``: the clipped cell areas of the tracked markers in the pipeline's region, as the
   pipeline computes them (``FeaturePipeline.voronoi``, which reuses the last triangulation while
@@ -87,8 +87,12 @@ def _stages(lib, rest_image: np.ndarray, image: np.ndarray, expected: int) -> di
     pipe = lib.FeaturePipeline(rest_image, expected_count=expected)
     region, diameter = pipe.region, pipe.expected_diameter_px
     tracker = lib.MarkerTracker(pipe.rest_points, rest_areas=pipe.rest.areas_px)
-    det = lib.detect_markers_detailed(image, mask=region, expected_count=expected,
-                                      expected_diameter_px=diameter)
+    # as the pipeline detects: with the rest frame's pixel noise where it has one (not the
+    # revisions before 2026-11-22, which measure it on every frame)
+    opts = dict(mask=region, expected_count=expected, expected_diameter_px=diameter)
+    if getattr(pipe, "noise_sigma", None) is not None:
+        opts["noise_sigma"] = pipe.noise_sigma
+    det = lib.detect_markers_detailed(image, **opts)
     tracked = tracker.update(det.points, areas=det.areas_px)
     seeds = np.where(np.isnan(tracked), tracker.last_known, tracked)
     voronoi = getattr(pipe, "voronoi", None)  # the baseline has no stateful Voronoi
@@ -97,8 +101,7 @@ def _stages(lib, rest_image: np.ndarray, image: np.ndarray, expected: int) -> di
     areas = areas_of(seeds)
 
     def detect():
-        return lib.detect_markers_detailed(image, mask=region, expected_count=expected,
-                                           expected_diameter_px=diameter)
+        return lib.detect_markers_detailed(image, **opts)
 
     def track():
         tracker.reset()

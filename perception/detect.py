@@ -92,6 +92,10 @@ class MarkerDetection:
         Centroids of candidate blobs that were rejected.
     rejected_reasons : tuple of str, length k
         One of ``"small"``, ``"shape"``, ``"size"``, ``"glint"``, ``"rim"``, ``"outside"``.
+    noise_sigma : float
+        Pixel-noise standard deviation used for the noise floor, in the units of the analysed
+        grey image (grey levels for 8-bit frames, fraction of full scale otherwise): measured
+        on the frame, or the caller's ``noise_sigma``. NaN when the image was rejected before.
     """
 
     points: np.ndarray
@@ -103,6 +107,7 @@ class MarkerDetection:
     reason: str
     rejected_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     rejected_reasons: tuple[str, ...] = ()
+    noise_sigma: float = float("nan")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "points", _frozen(self.points, (2,)))
@@ -112,6 +117,7 @@ class MarkerDetection:
         object.__setattr__(self, "rejected_reasons", tuple(self.rejected_reasons))
         object.__setattr__(self, "image_shape", tuple(int(v) for v in self.image_shape[:2]))
         object.__setattr__(self, "marker_diameter_px", float(self.marker_diameter_px))
+        object.__setattr__(self, "noise_sigma", float(self.noise_sigma))
         n = len(self.points)
         if len(self.areas_px) != n or len(self.peaks) != n:
             raise PerceptionError("points, areas_px and peaks must have the same length")
@@ -130,7 +136,8 @@ class MarkerDetection:
 
 
 def _check_options(shape: tuple[int, int], expected_count: int | None,
-                   expected_diameter_px: float | None) -> None:
+                   expected_diameter_px: float | None, noise_sigma: float | None,
+                   full_scale: float) -> None:
     h, w = shape
     if expected_count is not None:
         if isinstance(expected_count, bool) or not isinstance(expected_count, int | np.integer):
@@ -146,15 +153,22 @@ def _check_options(shape: tuple[int, int], expected_count: int | None,
                 f"expected_diameter_px={expected_diameter_px} is outside the allowed range "
                 f"[1, {min(h, w) / 2.0:g}] px for a {w}x{h} image"
             )
+    if noise_sigma is not None:
+        s = float(noise_sigma)
+        if not (np.isfinite(s) and 0.0 <= s <= full_scale):
+            raise PerceptionError(
+                f"noise_sigma={noise_sigma} is outside the allowed range [0, {full_scale:g}] "
+                f"(units of the grey image: grey levels for 8-bit frames, else full scale 1)"
+            )
 
 
-def _empty(shape: tuple[int, int], reason: str, rejected: np.ndarray | None = None,
-           reasons: tuple[str, ...] = ()) -> MarkerDetection:
+def _empty(shape: tuple[int, int], reason: str, noise_sigma: float,
+           rejected: np.ndarray | None = None, reasons: tuple[str, ...] = ()) -> MarkerDetection:
     return MarkerDetection(
         points=np.zeros((0, 2)), areas_px=np.zeros(0), peaks=np.zeros(0),
         marker_diameter_px=np.nan, image_shape=shape, reliable=False, reason=reason,
         rejected_points=np.zeros((0, 2)) if rejected is None else rejected,
-        rejected_reasons=reasons,
+        rejected_reasons=reasons, noise_sigma=noise_sigma,
     )
 
 
@@ -164,6 +178,7 @@ def detect_markers_detailed(
     mask: RegionLike | None = None,
     expected_count: int | None = None,
     expected_diameter_px: float | None = None,
+    noise_sigma: float | None = None,
     params: DetectionParams | None = None,
 ) -> MarkerDetection:
     """Detect bright markers on a dark skin and report how far to trust the result.
@@ -181,6 +196,11 @@ def detect_markers_detailed(
     expected_diameter_px : float, optional
         Marker diameter, px. Sets the background and segmentation scales and the reference
         area; estimated from the blob-size distribution when omitted.
+    noise_sigma : float, optional
+        Pixel-noise standard deviation of the camera, in the units of the grey image (grey
+        levels for 8-bit frames, fraction of full scale otherwise); measured on the frame when
+        omitted. Frames of one camera share it: :class:`~perception.FeaturePipeline` measures
+        it once, on the rest frame (``MarkerDetection.noise_sigma``).
     params : DetectionParams, optional
         Tolerances; the defaults are not tuned to any image.
 
@@ -195,14 +215,14 @@ def detect_markers_detailed(
     RegionError
         Unusable mask.
     PerceptionError
-        ``expected_count`` or ``expected_diameter_px`` out of range.
+        ``expected_count``, ``expected_diameter_px`` or ``noise_sigma`` out of range.
     """
     p = params if params is not None else DetectionParams()
     grey = as_grey(image)
     shape = (grey.shape[0], grey.shape[1])
-    _check_options(shape, expected_count, expected_diameter_px)
-    region = as_polygon(mask, image_shape=shape) if mask is not None else None
     full_scale = 255.0 if grey.dtype == np.uint8 else 1.0
+    _check_options(shape, expected_count, expected_diameter_px, noise_sigma, full_scale)
+    region = as_polygon(mask, image_shape=shape) if mask is not None else None
 
     # 1-2. background, noise floor ---------------------------------------------------------
     d_known = float(expected_diameter_px) if expected_diameter_px is not None else None
@@ -211,16 +231,19 @@ def detect_markers_detailed(
     th_level = median(th[::8, ::8])
     otsu = otsu_level(th, full_scale)
     lsb = 1.0 if grey.dtype == np.uint8 else 1e-4
-    floor = th_level + max(p.noise_sigmas * pixel_noise_sigma(grey), 0.5 * otsu, lsb)
+    sigma = float(noise_sigma) if noise_sigma is not None else pixel_noise_sigma(grey)
+    floor = th_level + max(p.noise_sigmas * sigma, 0.5 * otsu, lsb)
     rows_above, cols_above = _above_floor(th, floor)
     if not rows_above.size:
-        return _empty(shape, "no blobs above the noise floor (blank, saturated or pure noise)")
+        return _empty(shape, "no blobs above the noise floor (blank, saturated or pure noise)",
+                      sigma)
 
     # 3. marker scale ----------------------------------------------------------------------
     if d_known is None:
         d_scale = blob_scale(th, max(otsu, floor), p.min_area_px)
         if d_scale is None:
-            return _empty(shape, "no blob of at least min_area_px above the noise floor")
+            return _empty(shape, "no blob of at least min_area_px above the noise floor",
+                          sigma)
         if 2.0 * d_scale + 1.0 > k_bg:  # markers too large for the default background kernel
             k_bg = odd(2.0 * d_scale + 1.0)
             th, bg = top_hat(grey, k_bg)
@@ -241,7 +264,7 @@ def detect_markers_detailed(
     ltype = cv2.CV_16U if cv2.countNonZero(fg) < 65535 else cv2.CV_32S
     n_labels, labels = cv2.connectedComponents(fg, connectivity=8, ltype=ltype)
     if n_labels <= 1:
-        return _empty(shape, "no blobs above the noise floor")
+        return _empty(shape, "no blobs above the noise floor", sigma)
 
     # 5. centroids and shape -----------------------------------------------------------------
     mom, pts = blob_measures(labels, n_labels, th_box, th_level, grow)
@@ -264,13 +287,13 @@ def detect_markers_detailed(
     code[(code == 0) & ((mom.elongation > p.max_elongation) | (mom.fill < p.min_fill))] = _SHAPE
     ok = code == 0
     if not ok.any():
-        return _reject_all(shape, pts, finite, code, "no marker-shaped blobs")
+        return _reject_all(shape, pts, finite, code, "no marker-shaped blobs", sigma)
     area_ref = np.pi * d_known**2 / 4.0 if d_known else float(median(mom.area[ok]))
     ratio = mom.area / area_ref
     code[ok & ((ratio < p.area_ratio_min) | (ratio > p.area_ratio_max))] = _SIZE
     ok = code == 0
     if not ok.any():
-        return _reject_all(shape, pts, finite, code, "no blobs of marker size")
+        return _reject_all(shape, pts, finite, code, "no blobs of marker size", sigma)
     peak_med, peak_sd = robust_spread(peaks[ok])
     glint = (peaks > p.glint_peak_ratio * peak_med) & (peaks > peak_med + p.glint_peak_mads
                                                        * peak_sd)
@@ -286,7 +309,7 @@ def detect_markers_detailed(
         code[ok[~shapely.intersects_xy(region, pts[ok, 0], pts[ok, 1])]] = _OUTSIDE
     ok = code == 0
     if not ok.any():
-        return _reject_all(shape, pts, finite, code, "every blob was rejected")
+        return _reject_all(shape, pts, finite, code, "every blob was rejected", sigma)
 
     # 7. reliability -------------------------------------------------------------------------
     acc_area = mom.area[ok]
@@ -297,6 +320,7 @@ def detect_markers_detailed(
         points=pts[ok], areas_px=acc_area, peaks=peaks[ok], marker_diameter_px=d_final,
         image_shape=shape, reliable=reliable, reason=why,
         rejected_points=pts[rej], rejected_reasons=tuple(_REASONS[c] for c in code[rej]),
+        noise_sigma=sigma,
     )
 
 
@@ -317,8 +341,9 @@ def _foreground_window(rows: np.ndarray, cols: np.ndarray, grow: int,
 
 
 def _reject_all(shape: tuple[int, int], pts: np.ndarray, finite: np.ndarray, code: np.ndarray,
-                why: str) -> MarkerDetection:
-    return _empty(shape, why, pts[finite], tuple(_REASONS[c] for c in code[finite]))
+                why: str, noise_sigma: float) -> MarkerDetection:
+    return _empty(shape, why, noise_sigma, pts[finite],
+                  tuple(_REASONS[c] for c in code[finite]))
 
 
 def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
@@ -354,6 +379,7 @@ def detect_markers(
     mask: RegionLike | None = None,
     expected_count: int | None = None,
     expected_diameter_px: float | None = None,
+    noise_sigma: float | None = None,
     params: DetectionParams | None = None,
 ) -> np.ndarray:
     """Marker centroids of one frame (see :func:`detect_markers_detailed` for the method).
@@ -368,6 +394,8 @@ def detect_markers(
         Expected number of markers (used for the reliability verdict).
     expected_diameter_px : float, optional
         Marker diameter, px.
+    noise_sigma : float, optional
+        Pixel-noise standard deviation (grey levels for 8-bit frames, else full scale 1).
     params : DetectionParams, optional
         Tolerances.
 
@@ -378,5 +406,5 @@ def detect_markers(
     """
     return np.array(detect_markers_detailed(
         image, mask=mask, expected_count=expected_count,
-        expected_diameter_px=expected_diameter_px, params=params,
+        expected_diameter_px=expected_diameter_px, noise_sigma=noise_sigma, params=params,
     ).points)

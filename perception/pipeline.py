@@ -99,7 +99,8 @@ class FeaturePipeline:
     expected_diameter_px : float, optional
         Marker diameter, px. When omitted it is measured on the rest frame, and the rest frame
         and every later frame are then detected with that value, so the whole sequence uses
-        the same kernels and size reference.
+        the same kernels and size reference. The camera's pixel noise is likewise measured
+        once, on the rest frame, and used for every frame's noise floor.
     contact_on_px, contact_off_px : float, px, optional
         Contact thresholds on the mean marker displacement. Default: the
         :class:`~perception.params.ContactParams` fractions of the rest marker spacing.
@@ -110,6 +111,8 @@ class FeaturePipeline:
     ----------
     rest : MarkerDetection
         The rest-frame detection.
+    noise_sigma : float or None
+        Pixel-noise sigma measured on the rest frame (grey levels for 8-bit frames).
     region : Polygon
     voronoi : ClippedVoronoi
         Cell areas in ``region`` (reuses the triangulation from frame to frame).
@@ -145,7 +148,10 @@ class FeaturePipeline:
         self.tracking_params = tracking if tracking is not None else TrackingParams()
         contact_params = contact if contact is not None else ContactParams()
         user_region = None if region is None else as_polygon(region, image_shape=grey.shape)
+        self.noise_sigma: float | None = None
         rest = self._detect(grey, user_region)
+        # the camera's pixel noise, measured once: every frame of the sequence then uses it
+        self.noise_sigma = rest.noise_sigma if np.isfinite(rest.noise_sigma) else None
         if expected_diameter_px is None and rest.reliable:
             # fix the scale once: every frame of the sequence then uses the same kernels
             self.expected_diameter_px = rest.marker_diameter_px
@@ -174,7 +180,8 @@ class FeaturePipeline:
     def _detect(self, image: np.ndarray, region) -> MarkerDetection:
         return detect_markers_detailed(
             image, mask=region, expected_count=self.expected_count,
-            expected_diameter_px=self.expected_diameter_px, params=self.detection_params)
+            expected_diameter_px=self.expected_diameter_px, noise_sigma=self.noise_sigma,
+            params=self.detection_params)
 
     def reset(self) -> None:
         """Restart the sequence (tracks back at rest, no contact, the rest frame's Voronoi

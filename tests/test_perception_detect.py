@@ -211,6 +211,9 @@ def test_errors_are_value_errors():
         (dict(expected_count=2.5), "expected_count"),
         (dict(expected_diameter_px=0.2), "expected_diameter_px"),
         (dict(expected_diameter_px=1e4), "expected_diameter_px"),
+        (dict(noise_sigma=-1.0), "noise_sigma"),
+        (dict(noise_sigma=float("nan")), "noise_sigma"),
+        (dict(noise_sigma=256.0), "noise_sigma"),
     ],
 )
 def test_option_validation(kwargs, match):
@@ -235,6 +238,20 @@ def test_params_validation_names_parameter():
         pc.DetectionParams(half_max_fraction=1.5)
     with pytest.raises(pc.PerceptionError, match="max_elongation"):
         pc.DetectionParams(max_elongation=0.5)
+
+
+def test_noise_sigma_is_measured_and_can_be_given():
+    frame = _frame(seed=23)  # pixel noise 0.02 of full scale, added after the blur
+    det = pc.detect_markers_detailed(frame.image)
+    assert det.noise_sigma == pytest.approx(0.02 * 255, rel=0.1)
+    # given back, the same noise floor and so the same answer
+    again = pc.detect_markers_detailed(frame.image, noise_sigma=det.noise_sigma)
+    assert again.noise_sigma == det.noise_sigma
+    assert np.array_equal(again.points, det.points)
+    # it sets the floor: noise as large as the markers' contrast leaves nothing above it
+    loud = pc.detect_markers_detailed(frame.image, noise_sigma=60.0)
+    assert loud.count == 0 and not loud.reliable and "noise floor" in loud.reason
+    assert loud.noise_sigma == 60.0
 
 
 def test_result_is_frozen():

@@ -55,6 +55,21 @@ def test_rest_setup(pipe):
     assert np.nansum(pipe.rest_areas) == pytest.approx(pipe.region.area, rel=1e-9)
 
 
+def test_noise_is_measured_once_on_the_rest_frame(monkeypatch):
+    import perception.detect as detect_module
+
+    pipe = pc.FeaturePipeline(_image(_rest(), seed=0), expected_count=97)
+    assert pipe.noise_sigma == pipe.rest.noise_sigma
+    assert pipe.noise_sigma == pytest.approx(RENDER["noise_sigma"] * 255, rel=0.1)
+
+    def no_measuring(*args, **kwargs):
+        raise AssertionError("the pixel noise was measured again on a frame of the sequence")
+
+    monkeypatch.setattr(detect_module, "pixel_noise_sigma", no_measuring)
+    feats = pipe.process(_image(_pressed(0.5), seed=3))
+    assert feats.reliable and feats.n_detected == 97
+
+
 def test_press_and_release_sequence():
     loads = [0.0, 0.1, 0.3, 0.6, 1.0, 0.6, 0.3, 0.1, 0.0]
     # mean true displacement is proportional to the load: thresholds at loads 0.5 and 0.2
