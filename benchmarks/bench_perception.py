@@ -90,8 +90,8 @@ def _stages(lib, rest_image: np.ndarray, image: np.ndarray, expected: int) -> di
     # as the pipeline detects: with the rest frame's pixel noise where it has one (not the
     # revisions before 2026-11-22, which measure it on every frame)
     opts = dict(mask=region, expected_count=expected, expected_diameter_px=diameter)
-    if getattr(pipe, "noise_sigma", None) is not None:
-        opts["noise_sigma"] = pipe.noise_sigma
+    if getattr(pipe.rest, "noise_sigma", None) is not None:  # (same bit depth as the frame)
+        opts["noise_sigma"] = pipe.rest.noise_sigma
     det = lib.detect_markers_detailed(image, **opts)
     tracked = tracker.update(det.points, areas=det.areas_px)
     seeds = np.where(np.isnan(tracked), tracker.last_known, tracked)

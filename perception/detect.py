@@ -95,7 +95,8 @@ class MarkerDetection:
     noise_sigma : float
         Pixel-noise standard deviation used for the noise floor, in the units of the analysed
         grey image (grey levels for 8-bit frames, fraction of full scale otherwise): measured
-        on the frame, or the caller's ``noise_sigma``. NaN when the image was rejected before.
+        on the frame, or the caller's ``noise_sigma`` (NaN only if not given when building
+        a MarkerDetection by hand).
     """
 
     points: np.ndarray

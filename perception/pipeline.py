@@ -84,6 +84,11 @@ class FrameFeatures:
             object.__setattr__(self, name, _ro(getattr(self, name)))
 
 
+def _full_scale(grey: np.ndarray) -> float:
+    """Full scale of a grey image from :func:`as_grey` (uint8 or float in [0, 1])."""
+    return 255.0 if grey.dtype == np.uint8 else 1.0
+
+
 class FeaturePipeline:
     """Turn frames into tracked markers, cell areas, centres of pressure and contact.
 
@@ -112,7 +117,8 @@ class FeaturePipeline:
     rest : MarkerDetection
         The rest-frame detection.
     noise_sigma : float or None
-        Pixel-noise sigma measured on the rest frame (grey levels for 8-bit frames).
+        Pixel-noise sigma measured on the rest frame, as a fraction of full scale (frames of
+        another bit depth get it in their own units).
     region : Polygon
     voronoi : ClippedVoronoi
         Cell areas in ``region`` (reuses the triangulation from frame to frame).
@@ -151,7 +157,8 @@ class FeaturePipeline:
         self.noise_sigma: float | None = None
         rest = self._detect(grey, user_region)
         # the camera's pixel noise, measured once: every frame of the sequence then uses it
-        self.noise_sigma = rest.noise_sigma if np.isfinite(rest.noise_sigma) else None
+        if np.isfinite(rest.noise_sigma):
+            self.noise_sigma = rest.noise_sigma / _full_scale(grey)
         if expected_diameter_px is None and rest.reliable:
             # fix the scale once: every frame of the sequence then uses the same kernels
             self.expected_diameter_px = rest.marker_diameter_px
@@ -177,10 +184,11 @@ class FeaturePipeline:
         """(m, 2) float64, px: rest marker positions (track order)."""
         return self.tracker.rest_points
 
-    def _detect(self, image: np.ndarray, region) -> MarkerDetection:
+    def _detect(self, grey: np.ndarray, region) -> MarkerDetection:
+        sigma = None if self.noise_sigma is None else self.noise_sigma * _full_scale(grey)
         return detect_markers_detailed(
-            image, mask=region, expected_count=self.expected_count,
-            expected_diameter_px=self.expected_diameter_px, noise_sigma=self.noise_sigma,
+            grey, mask=region, expected_count=self.expected_count,
+            expected_diameter_px=self.expected_diameter_px, noise_sigma=sigma,
             params=self.detection_params)
 
     def reset(self) -> None:

@@ -59,15 +59,20 @@ def test_noise_is_measured_once_on_the_rest_frame(monkeypatch):
     import perception.detect as detect_module
 
     pipe = pc.FeaturePipeline(_image(_rest(), seed=0), expected_count=97)
-    assert pipe.noise_sigma == pipe.rest.noise_sigma
-    assert pipe.noise_sigma == pytest.approx(RENDER["noise_sigma"] * 255, rel=0.1)
+    assert pipe.noise_sigma == pytest.approx(pipe.rest.noise_sigma / 255.0, rel=1e-12)
+    assert pipe.noise_sigma == pytest.approx(RENDER["noise_sigma"], rel=0.1)
 
     def no_measuring(*args, **kwargs):
         raise AssertionError("the pixel noise was measured again on a frame of the sequence")
 
     monkeypatch.setattr(detect_module, "pixel_noise_sigma", no_measuring)
-    feats = pipe.process(_image(_pressed(0.5), seed=3))
+    frame = _image(_pressed(0.5), seed=3)
+    feats = pipe.process(frame)
     assert feats.reliable and feats.n_detected == 97
+    # a frame of another bit depth gets the noise in its own units (fraction of full scale)
+    as_float = pipe.process(frame.astype(np.float32) / 255.0)
+    assert as_float.reliable and as_float.n_detected == 97
+    assert np.allclose(as_float.points, feats.points, atol=0.05, equal_nan=True)
 
 
 def test_press_and_release_sequence():
