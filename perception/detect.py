@@ -49,7 +49,7 @@ from .blobs import (
     top_hat,
 )
 from .errors import PerceptionError
-from .image import as_grey
+from .image import as_grey, full_scale
 from .params import DetectionParams
 from .region import RegionLike, as_polygon
 
@@ -138,7 +138,7 @@ class MarkerDetection:
 
 def _check_options(shape: tuple[int, int], expected_count: int | None,
                    expected_diameter_px: float | None, noise_sigma: float | None,
-                   full_scale: float) -> None:
+                   scale: float) -> None:
     h, w = shape
     if expected_count is not None:
         if isinstance(expected_count, bool) or not isinstance(expected_count, int | np.integer):
@@ -156,9 +156,9 @@ def _check_options(shape: tuple[int, int], expected_count: int | None,
             )
     if noise_sigma is not None:
         s = float(noise_sigma)
-        if not (np.isfinite(s) and 0.0 <= s <= full_scale):
+        if not (np.isfinite(s) and 0.0 <= s <= scale):
             raise PerceptionError(
-                f"noise_sigma={noise_sigma} is outside the allowed range [0, {full_scale:g}] "
+                f"noise_sigma={noise_sigma} is outside the allowed range [0, {scale:g}] "
                 f"(units of the grey image: grey levels for 8-bit frames, else full scale 1)"
             )
 
@@ -221,8 +221,8 @@ def detect_markers_detailed(
     p = params if params is not None else DetectionParams()
     grey = as_grey(image)
     shape = (grey.shape[0], grey.shape[1])
-    full_scale = 255.0 if grey.dtype == np.uint8 else 1.0
-    _check_options(shape, expected_count, expected_diameter_px, noise_sigma, full_scale)
+    scale = full_scale(grey)
+    _check_options(shape, expected_count, expected_diameter_px, noise_sigma, scale)
     region = as_polygon(mask, image_shape=shape) if mask is not None else None
 
     # 1-2. background, noise floor ---------------------------------------------------------
@@ -230,7 +230,7 @@ def detect_markers_detailed(
     k_bg = odd(2.0 * d_known + 1.0) if d_known else odd(min(shape) * _DEFAULT_BG_FRACTION)
     th, bg = top_hat(grey, k_bg)
     th_level = median(th[::8, ::8])
-    otsu = otsu_level(th, full_scale)
+    otsu = otsu_level(th, scale)
     lsb = 1.0 if grey.dtype == np.uint8 else 1e-4
     sigma = float(noise_sigma) if noise_sigma is not None else pixel_noise_sigma(grey)
     floor = th_level + max(p.noise_sigmas * sigma, 0.5 * otsu, lsb)
@@ -280,7 +280,7 @@ def detect_markers_detailed(
     pix = np.rint(np.where(finite[:, None], pts, 0.0)).astype(np.intp)
     ix = np.minimum(np.maximum(pix[:, 0], x0), x1 - 1)
     iy = np.minimum(np.maximum(pix[:, 1], y0), y1 - 1)
-    peaks = local_max[iy - y0, ix - x0].astype(np.float64) / full_scale
+    peaks = local_max[iy - y0, ix - x0].astype(np.float64) / scale
 
     # 6. filters (reason codes index _REASONS; 0 = accepted so far) -------------------------
     code = np.zeros(len(pts), dtype=np.int8)
@@ -302,7 +302,7 @@ def detect_markers_detailed(
     ok = code == 0
     d_ref = 2.0 * np.sqrt(float(median(mom.area[ok])) / np.pi)
     skin = float(median(bg[iy[ok], ix[ok]]))
-    near = near_bright(bg, skin + p.skin_contrast_fraction * peak_med * full_scale,
+    near = near_bright(bg, skin + p.skin_contrast_fraction * peak_med * scale,
                         max(int(round(d_ref)), 1), ix[ok], iy[ok])
     code[np.flatnonzero(ok)[near]] = _RIM
     if region is not None:  # (the points still accepted are finite)

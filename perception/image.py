@@ -15,7 +15,7 @@ import numpy as np
 
 from .errors import ImageError
 
-__all__ = ["MIN_IMAGE_SIDE_PX", "as_grey", "read_image"]
+__all__ = ["MIN_IMAGE_SIDE_PX", "as_grey", "full_scale", "read_image"]
 
 #: Smallest accepted image side, px: below this there is no room for a marker array.
 MIN_IMAGE_SIDE_PX = 16
@@ -48,6 +48,11 @@ def read_image(path: str | PathLike[str]) -> np.ndarray:
     if image is None:
         raise ImageError(f"cannot decode image file {str(p)!r} (not an image OpenCV can read)")
     return image
+
+
+def full_scale(grey: np.ndarray) -> float:
+    """Full scale of a grey image from :func:`as_grey`: 255 for uint8, 1 for float."""
+    return 255.0 if grey.dtype == np.uint8 else 1.0
 
 
 def as_grey(image: np.ndarray | str | PathLike[str]) -> np.ndarray:

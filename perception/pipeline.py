@@ -16,7 +16,7 @@ from .contact import ContactDetector, surface_deformation
 from .cop import centre_of_pressure
 from .detect import MarkerDetection, detect_markers_detailed
 from .errors import ImageError, PerceptionError
-from .image import as_grey
+from .image import as_grey, full_scale
 from .params import ContactParams, DetectionParams, TrackingParams
 from .region import RegionLike, as_polygon, fit_region
 from .track import MarkerTracker
@@ -82,11 +82,6 @@ class FrameFeatures:
     def __post_init__(self) -> None:
         for name in ("points", "areas", "area_change", "cop", "cop_area_change"):
             object.__setattr__(self, name, _ro(getattr(self, name)))
-
-
-def _full_scale(grey: np.ndarray) -> float:
-    """Full scale of a grey image from :func:`as_grey` (uint8 or float in [0, 1])."""
-    return 255.0 if grey.dtype == np.uint8 else 1.0
 
 
 class FeaturePipeline:
@@ -158,7 +153,7 @@ class FeaturePipeline:
         rest = self._detect(grey, user_region)
         # the camera's pixel noise, measured once: every frame of the sequence then uses it
         if np.isfinite(rest.noise_sigma):
-            self.noise_sigma = rest.noise_sigma / _full_scale(grey)
+            self.noise_sigma = rest.noise_sigma / full_scale(grey)
         if expected_diameter_px is None and rest.reliable:
             # fix the scale once: every frame of the sequence then uses the same kernels
             self.expected_diameter_px = rest.marker_diameter_px
@@ -185,7 +180,7 @@ class FeaturePipeline:
         return self.tracker.rest_points
 
     def _detect(self, grey: np.ndarray, region) -> MarkerDetection:
-        sigma = None if self.noise_sigma is None else self.noise_sigma * _full_scale(grey)
+        sigma = None if self.noise_sigma is None else self.noise_sigma * full_scale(grey)
         return detect_markers_detailed(
             grey, mask=region, expected_count=self.expected_count,
             expected_diameter_px=self.expected_diameter_px, noise_sigma=sigma,

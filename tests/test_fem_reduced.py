@@ -117,22 +117,25 @@ def test_plate_bound_bounds_the_motion_towards_any_plate(sim):
         assert np.all(bound <= model.far_bound(nodes, p) + 1e-15)
 
 
-@pytest.mark.parametrize("pose", POSES, ids=str)
-def test_plate_path_matches_the_general_path(sim, pose):
-    model = sim.reduced
+@pytest.fixture(params=POSES, ids=str)
+def plate_contact(request, sim):
+    """(reduced model, candidate rest positions, a plate placed at one of POSES)."""
     rest = sim._cand_rest
-    placement = place(ts.Plate(), pose, rest, skin_thickness_mm=sim.body.skin_thickness_mm)
+    placement = place(ts.Plate(), request.param, rest,
+                      skin_thickness_mm=sim.body.skin_thickness_mm)
+    return sim.reduced, rest, placement
+
+
+def test_plate_path_matches_the_general_path(plate_contact):
+    model, rest, placement = plate_contact
     plate = solve_contact(placement, rest, model)
     general = solve_contact(placement, rest, GeneralPath(model))
     assert len(plate.active) > 0
     assert_same_solution(plate, general, model)
 
 
-@pytest.mark.parametrize("pose", POSES, ids=str)
-def test_pruning_matches_checking_every_candidate(sim, pose):
-    model = sim.reduced
-    rest = sim._cand_rest
-    placement = place(ts.Plate(), pose, rest, skin_thickness_mm=sim.body.skin_thickness_mm)
+def test_pruning_matches_checking_every_candidate(plate_contact):
+    model, rest, placement = plate_contact
     pruned = solve_contact(placement, rest, model)
     every = solve_contact(placement, rest, NoPruning(model))
     assert_same_solution(pruned, every, model)
