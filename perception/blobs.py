@@ -1,7 +1,7 @@
 """Low-level image and blob operations of the detector.
 
 Background (top-hat), noise and threshold estimates, half-maximum segmentation and blob
-measurements vectorised over blobs with ``bincount``. Kept apart from
+measurements (one compiled raster scan, :mod:`perception._kernels`). Kept apart from
 :mod:`perception.detect` so the detector reads as a sequence of decisions.
 """
 
@@ -64,13 +64,8 @@ def blob_measures(labels: np.ndarray, n_labels: int, intensity: np.ndarray, leve
     half-maximum segmentation cuts off; with the background subtracted from the weights, the
     centroid of a symmetric spot is then unbiased to well below 0.1 px.
 
-    One image scan lists the pixels of the grown footprints (row-major flat indices ``idx``);
-    everything else works on that list, split into row runs (stretches of one label on one
-    row). Per run, the weights are summed with ``np.add.reduceat`` - sum w and sum w idx, and
-    sum w y = y sum w since a run lies on one row, so that sum w x = sum w idx - width sum w y
-    needs no per-pixel coordinates. The shape moments of each blob come from its runs in
-    closed form and exact integer arithmetic (a run of n pixels from x0 to x1 has
-    sum x = n (x0 + x1) / 2 and sum x² = S(x1) - S(x0 - 1), S(m) = m (m + 1) (2m + 1) / 6):
+    The sums come from one compiled raster scan (:func:`perception._kernels.blob_sums`): the
+    weighted ones in float64, the unweighted shape moments in exact integer arithmetic -
     small blobs sit exactly on the elongation and fill thresholds (a 1 x 3 line has
     elongation 3), so the decisions must not depend on rounding.
 
@@ -95,61 +90,24 @@ def blob_measures(labels: np.ndarray, n_labels: int, intensity: np.ndarray, leve
     centroids : (n_labels - 1, 2) float64, px, OpenCV (x, y)
         NaN where a blob's weights sum to zero.
     """
+    from ._kernels import blob_sums  # compiled on first use (Numba)
+
     h, w = labels.shape[:2]
     grown = labels
     if grow_px > 0:
-        if labels.dtype != np.uint16:  # dilate needs 8U/16U/32F
-            labels = labels.astype(np.uint16) if n_labels < 65536 else labels.astype(np.float32)
         kernel = np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8)
-        grown = cv2.dilate(labels, kernel)
-    idx = np.flatnonzero(grown != 0)  # the one image scan (on bool: fastest)
-    # where a run cannot continue from the previous listed pixel: a gap, or a new row
-    row_start = np.searchsorted(idx, np.arange(0, h * w, w))
-    gap = np.empty(len(idx), dtype=bool)
-    gap[:1] = True
-    np.not_equal(np.diff(idx), 1, out=gap[1:])
-    gap[row_start[row_start < len(idx)]] = True
-
-    def row_runs(lab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """First listed pixel and label of every run of ``lab`` (labels of the listed pixels)."""
-        new = gap.copy()
-        new[1:] |= lab[1:] != lab[:-1]
-        first = np.flatnonzero(new)
-        return first, lab[first]
-
-    # weighted centroid over the grown footprint, from per-run sums
-    wt = intensity.ravel().take(idx).astype(np.float64)
-    wt -= level
-    np.maximum(wt, 0.0, out=wt)
-    first, run_lab = row_runs(grown.ravel().take(idx))
-    run_w = np.add.reduceat(wt, first)
-    run_wi = np.add.reduceat(wt * idx, first)
-    run_lab = run_lab.astype(np.intp)
-    total = np.bincount(run_lab, run_w, n_labels)
-    sum_y = np.bincount(run_lab, run_w * (idx[first] // w), n_labels)
-    sum_x = np.bincount(run_lab, run_wi, n_labels) - w * sum_y
+        if labels.dtype == np.uint16 or n_labels < 65536:  # dilate needs 8U/16U/32F
+            labels = labels.astype(np.uint16, copy=False)
+            grown = cv2.dilate(labels, kernel)
+        else:  # labels are exact in float32 below 2^24 (more than 4096 x 4096 pixels)
+            grown = cv2.dilate(labels.astype(np.float32), kernel).astype(labels.dtype)
+    weighted, mom = blob_sums(labels, grown, intensity, float(level), int(n_labels))
+    total = weighted[:, 0]
     with np.errstate(invalid="ignore", divide="ignore"):
-        centroids = np.stack([sum_x / total, sum_y / total], axis=1)[1:]
+        centroids = weighted[1:, 1:] / total[1:, None]
     centroids[~(total[1:] > 0)] = np.nan
 
-    # unweighted shape moments of the blobs themselves, from their runs (int64 from here on)
-    first, run_lab = row_runs(labels.ravel().take(idx))
-    last = np.append(first[1:], len(idx)) - 1
-    blob = run_lab != 0
-    first, last, run_lab = first[blob], last[blob], run_lab[blob].astype(np.intp)
-    ry = idx[first] // w
-    x0 = idx[first] - ry * w
-    x1 = x0 + (last - first)
-    n = x1 - x0 + 1
-    sx = n * (x0 + x1) // 2
-    sxx = (x1 * (x1 + 1) * (2 * x1 + 1) - (x0 - 1) * x0 * (2 * x0 - 1)) // 6
-
-    def per_blob(values: np.ndarray) -> np.ndarray:  # integer sums, exact in float64 (< 2^53)
-        return np.bincount(run_lab, values, n_labels).astype(np.int64)
-
-    area_i = per_blob(n)
-    s_x, s_y = per_blob(sx), per_blob(n * ry)
-    s_xx, s_yy, s_xy = per_blob(sxx), per_blob(n * ry * ry), per_blob(sx * ry)
+    area_i, s_x, s_y, s_xx, s_yy, s_xy = mom.T
     area = area_i.astype(np.float64)
     if float(area.max()) * max(h, w) >= 2.0**31:  # n² x² could overflow int64: use floats
         area_i, s_x, s_y, s_xx, s_yy, s_xy = (v.astype(np.float64) for v in
