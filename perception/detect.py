@@ -46,6 +46,7 @@ from .blobs import (
     otsu_level,
     pixel_noise_sigma,
     robust_spread,
+    square_extreme,
     top_hat,
 )
 from .errors import PerceptionError
@@ -259,7 +260,7 @@ def detect_markers_detailed(
     y0, y1, x0, x1 = _foreground_window(rows_above, cols_above, grow, shape)
     th_box = np.ascontiguousarray(th[y0:y1, x0:x1])
     k_loc = odd(d_scale)
-    local_max = cv2.dilate(th_box, cv2.getStructuringElement(cv2.MORPH_RECT, (k_loc, k_loc)))
+    local_max = square_extreme(th_box, k_loc, take_min=False)
     fg = half_max_mask(th_box, local_max, p.half_max_fraction, floor)
     # 16-bit labels when they surely fit (fewer foreground pixels than 65536): no conversion
     ltype = cv2.CV_16U if cv2.countNonZero(fg) < 65535 else cv2.CV_32S

@@ -314,6 +314,31 @@ def test_blob_measures_equal_a_plain_per_pixel_reference(seed):
         assert np.allclose(pts, ref, rtol=0, atol=1e-9, equal_nan=True)
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
+def test_square_extreme_and_top_hat_equal_opencv(dtype):
+    import cv2
+
+    from perception.blobs import COMPILED_MORPHOLOGY_MIN_KERNEL, square_extreme, top_hat
+
+    rng = np.random.default_rng(5)
+    # shapes smaller than, equal to and larger than the kernels, odd and even, one row/column
+    for shape in [(480, 640), (37, 23), (1, 50), (50, 1), (17, 17), (5, 8)]:
+        full = 255 if dtype == np.uint8 else (65535 if dtype == np.uint16 else 1.0)
+        img = (rng.random(shape) * full).astype(dtype)
+        img[: shape[0] // 3] //= 4 if dtype != np.float32 else 1  # structure as well as noise
+        for k in (3, COMPILED_MORPHOLOGY_MIN_KERNEL - 2, COMPILED_MORPHOLOGY_MIN_KERNEL, 21, 43):
+            rect = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
+            assert np.array_equal(square_extreme(img, k, take_min=True), cv2.erode(img, rect))
+            assert np.array_equal(square_extreme(img, k, take_min=False), cv2.dilate(img, rect))
+            th, bg = top_hat(img, k)
+            assert np.array_equal(bg, cv2.morphologyEx(img, cv2.MORPH_OPEN, rect))
+            assert np.array_equal(th, cv2.subtract(img, bg))
+    if dtype == np.uint8:  # the compiled passes did run (the others are OpenCV's own)
+        from perception._kernels import column_extreme_u8
+
+        assert column_extreme_u8.signatures
+
+
 @pytest.mark.parametrize("seed, inset", [(19, None), (97, 10.0)])
 def test_foreground_window_gives_the_whole_frame_answer(monkeypatch, seed, inset):
     import perception.detect as detect_module
