@@ -231,7 +231,9 @@ def column_extreme_u8(f, k, take_min):  # pragma: no cover - compiled
     end, are cut into blocks of ``k``; a window of ``k`` rows spans at most two blocks, so its
     extreme is that of a suffix extreme of one block and a prefix extreme of the next -
     three comparisons per pixel whatever ``k``, each over a whole row at once (vectorised).
-    Rows outside the image are ignored, as OpenCV's morphology does by default.
+    Streamed block by block (a ``k``-row suffix buffer and a one-row running prefix), so the
+    working set stays in cache. Rows outside the image are ignored, as OpenCV's morphology
+    does by default.
 
     Parameters
     ----------
@@ -247,45 +249,54 @@ def column_extreme_u8(f, k, take_min):  # pragma: no cover - compiled
     h, w = f.shape
     r = k // 2
     pad = np.uint8(255) if take_min else np.uint8(0)
-    n = ((h + 2 * r + k - 1) // k) * k  # padded rows, whole blocks
-    pre = np.empty((n, w), np.uint8)  # extreme from the block start to the row
-    suf = np.empty((n, w), np.uint8)  # extreme from the row to the block end
-    for i in range(n):
-        y = i - r
-        inside = 0 <= y < h
-        if i % k == 0:
-            for x in range(w):
-                pre[i, x] = f[y, x] if inside else pad
-        elif not inside:
-            for x in range(w):
-                pre[i, x] = pre[i - 1, x]
-        elif take_min:
-            for x in range(w):
-                pre[i, x] = min(pre[i - 1, x], f[y, x])
-        else:
-            for x in range(w):
-                pre[i, x] = max(pre[i - 1, x], f[y, x])
-    for i in range(n - 1, -1, -1):
-        y = i - r
-        inside = 0 <= y < h
-        if i % k == k - 1:
-            for x in range(w):
-                suf[i, x] = f[y, x] if inside else pad
-        elif not inside:
-            for x in range(w):
-                suf[i, x] = suf[i + 1, x]
-        elif take_min:
-            for x in range(w):
-                suf[i, x] = min(suf[i + 1, x], f[y, x])
-        else:
-            for x in range(w):
-                suf[i, x] = max(suf[i + 1, x], f[y, x])
+    suf = np.empty((k, w), np.uint8)  # suffix extremes of the current block
+    run = np.empty(w, np.uint8)  # prefix extreme of the next block
     out = np.empty_like(f)
-    for y in range(h):  # window of output row y: padded rows y .. y + k - 1
-        if take_min:
-            for x in range(w):
-                out[y, x] = min(suf[y, x], pre[y + k - 1, x])
-        else:
-            for x in range(w):
-                out[y, x] = max(suf[y, x], pre[y + k - 1, x])
+    # output row y covers padded rows y .. y + k - 1 (image rows y - r .. y + r)
+    for b0 in range(0, h, k):
+        for j in range(k - 1, -1, -1):  # block: padded rows b0 .. b0 + k - 1
+            y = b0 + j - r
+            if j == k - 1:
+                if 0 <= y < h:
+                    for x in range(w):
+                        suf[j, x] = f[y, x]
+                else:
+                    for x in range(w):
+                        suf[j, x] = pad
+            elif not 0 <= y < h:
+                for x in range(w):
+                    suf[j, x] = suf[j + 1, x]
+            elif take_min:
+                for x in range(w):
+                    suf[j, x] = min(suf[j + 1, x], f[y, x])
+            else:
+                for x in range(w):
+                    suf[j, x] = max(suf[j + 1, x], f[y, x])
+        for x in range(w):  # the window of row b0 is exactly the block
+            out[b0, x] = suf[0, x]
+        for j in range(k - 1):  # next block: padded rows b0 + k .. b0 + 2k - 2
+            yo = b0 + j + 1
+            if yo >= h:
+                break
+            y = b0 + k + j - r
+            if j == 0:
+                if 0 <= y < h:
+                    for x in range(w):
+                        run[x] = f[y, x]
+                else:
+                    for x in range(w):
+                        run[x] = pad
+            elif 0 <= y < h:
+                if take_min:
+                    for x in range(w):
+                        run[x] = min(run[x], f[y, x])
+                else:
+                    for x in range(w):
+                        run[x] = max(run[x], f[y, x])
+            if take_min:
+                for x in range(w):
+                    out[yo, x] = min(suf[j + 1, x], run[x])
+            else:
+                for x in range(w):
+                    out[yo, x] = max(suf[j + 1, x], run[x])
     return out
