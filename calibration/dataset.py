@@ -154,9 +154,13 @@ class Dataset:
                         if old.get("identity", {}).get(k) != v}
             if mismatch:
                 k, (was, now) = next(iter(mismatch.items()))
-                why = ("; the tip's tet mesh differs from the one that computed it (pytetwild "
-                       "builds a different mesh on each machine: resume where that mesh is "
-                       "cached, or ship it in scenes/meshes/)") if k == "mesh_digest" else ""
+                why = {
+                    "mesh_digest": "; the tip's tet mesh differs from the one that computed it "
+                                   "(pytetwild builds a different mesh on each machine: resume "
+                                   "where that mesh is cached, or ship it in scenes/meshes/)",
+                    "perception_results": "; it was perceived by another perception version, "
+                                          "whose features would not match this one's",
+                }.get(k, "")
                 raise DatasetError(
                     f"{self.root} already holds a different sweep ({k}: {was!r} there, "
                     f"{now!r} now{why}); refusing to mix them: choose a new --out folder"

@@ -77,6 +77,8 @@ class SweepSpec:
             "frames": self.frames,
             "seed": self.scene.protocol.seed,
             "indenter": dict(sorted(self.indenter.items())),
+            # features computed by another perception version must not be mixed in
+            "perception_results": _perception_results_version(),
         }
 
     def worker_key(self) -> str:
@@ -370,12 +372,18 @@ def _progress(total: int, initial: int, enabled: bool, desc: str):
                 dynamic_ncols=True, smoothing=0.1)
 
 
+def _perception_results_version() -> int:
+    import perception
+
+    return perception.RESULTS_VERSION
+
+
 def _versions() -> dict[str, str]:
     from importlib.metadata import PackageNotFoundError, version
 
     out = {}
     for pkg in ("tactip-sim", "numpy", "scipy", "mitsuba", "drjit", "scikit-fem", "pytetwild",
-                "opencv-contrib-python-headless", "scikit-learn", "shapely", "dask"):
+                "opencv-contrib-python-headless", "numba", "scikit-learn", "shapely", "dask"):
         try:
             out[pkg] = version(pkg)
         except PackageNotFoundError:

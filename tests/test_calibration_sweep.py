@@ -107,6 +107,16 @@ def test_changed_scene_in_existing_folder_is_refused(spec, serial):
         run_sweep(other, serial, progress=False)
 
 
+def test_dataset_of_another_perception_version_is_refused(spec, serial, monkeypatch):
+    import perception
+
+    assert Dataset(serial).manifest()["identity"]["perception_results"] == \
+        perception.RESULTS_VERSION
+    monkeypatch.setattr(perception, "RESULTS_VERSION", perception.RESULTS_VERSION + 1)
+    with pytest.raises(DatasetError, match=r"\(perception_results: .*another perception"):
+        run_sweep(spec, serial, progress=False)
+
+
 def test_workers_are_byte_identical_to_serial(spec, serial, tmp_path):
     out = tmp_path / "workers"
     run_sweep(spec, out, workers=2, progress=False, chunk=2)
