@@ -15,12 +15,6 @@ coordinates); areas are px²; angles are degrees.
 
 from importlib import import_module
 
-#: Version of the numbers perception produces from a frame (marker positions, cell areas,
-#: centres of pressure). Raised whenever they change, even in the last bits: calibration
-#: datasets record it, and a sweep refuses to resume on features of another version.
-#: 2 (2026-11-22): Voronoi clipping compiled (areas change at the 1e-16 relative level).
-RESULTS_VERSION = 2
-
 from .contact import ContactDetector, surface_deformation
 from .cop import COP_WEIGHTINGS, centre_of_pressure
 from .detect import MarkerDetection, detect_markers, detect_markers_detailed
@@ -33,6 +27,12 @@ from .region import as_polygon, fit_region, mask_to_polygon, points_inside
 from .regression import PoseRegressor, RegressionScore, average_frames
 from .track import LOST, MERGED, TRACKED, MarkerTracker
 from .voronoi import ClippedVoronoi, area_change, voronoi_areas, voronoi_cells
+
+#: Version of the numbers perception produces from a frame (marker positions, cell areas,
+#: centres of pressure). Raised whenever they change, even in the last bits: calibration
+#: datasets record it, and a sweep refuses to resume on features of another version.
+#: 2 (2026-11-22): Voronoi clipping compiled (areas change at the 1e-16 relative level).
+RESULTS_VERSION = 2
 
 __all__ = [
     "COP_WEIGHTINGS",

@@ -59,3 +59,22 @@ def test_cache_hit_returns_identical_mesh(tmp_path, monkeypatch, scene):
 
     d, n = cache.clear()
     assert n >= 1 and not d.exists()
+
+
+def test_bundled_mesh_wins_over_a_cache_entry_of_the_same_key(tmp_path, monkeypatch, scene):
+    # another build of a bundled key, left in this machine's cache, must not shadow the
+    # bundled mesh (pytetwild builds a different mesh every time: results would differ from
+    # every other machine's)
+    from tactip_sim import cache
+    from tactip_sim.mesh import mesh_key
+    from tactip_sim.mesh.tetra import bundled_path
+
+    monkeypatch.setenv("TACTIP_CACHE_DIR", str(tmp_path / "cache"))
+    key = mesh_key(scene)
+    assert bundled_path(key).is_file()
+    with np.load(bundled_path(key)) as data:
+        nodes, tets, regions = data["nodes"], data["tets"], data["regions"]
+    cache.save_npz(cache.path_for("mesh", key, ".npz"), nodes=nodes + 0.01, tets=tets,
+                   regions=regions)
+    mesh = ts.tetrahedralise(scene)
+    assert mesh.from_cache and np.array_equal(mesh.nodes, nodes)

@@ -202,12 +202,14 @@ def tetrahedralise(scene: Scene, *, use_cache: bool = True) -> TetMesh:
 
     pytetwild is not deterministic (the same input gives slightly different meshes from run to
     run), so meshes are cached, and the bundled scenes' meshes ship in ``scenes/meshes/``: a
-    fresh machine then computes with the very same mesh. Lookup: cache, bundled, build.
+    fresh machine then computes with the very same mesh. Lookup: bundled, cache, build - a
+    bundled mesh is the project's mesh for its key, and wins over a cache entry that a build
+    on this machine left under the same key (which would otherwise shadow it, silently).
     """
     key = mesh_key(scene)
-    path = cache.path_for("mesh", key, ".npz")
-    if use_cache and not path.is_file() and bundled_path(key).is_file():
-        path = bundled_path(key)
+    path = bundled_path(key)
+    if not path.is_file():
+        path = cache.path_for("mesh", key, ".npz")
     if use_cache and path.is_file():
         t0 = time.perf_counter()
         with np.load(path) as data:
