@@ -4,7 +4,8 @@ Imported on first use, so ``import perception`` does not pay for loading Numba. 
 is compiled once per argument-type combination and cached on disk (``cache=True``: in the
 package's ``__pycache__``, or Numba's per-user cache when that is not writable), so a new
 process loads it instead of compiling again. ``nogil=True``: Dask worker threads run the
-detection of several frames at once.
+detection of several frames at once. ``error_model="numpy"``: a division by zero gives inf or
+NaN, as in numpy (the callers check for it), instead of raising.
 """
 
 from __future__ import annotations
@@ -14,10 +15,13 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["blob_sums", "clip_cells", "column_extreme_u8"]
+__all__ = [
+    "blob_sums", "circumcentres", "clip_cells", "column_extreme_u8", "gated_counts",
+    "still_delaunay",
+]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def blob_sums(labels, grown, intensity, level, n_labels):  # pragma: no cover - compiled
     """Per-label sums of one raster scan over a labelled window.
 
@@ -68,7 +72,7 @@ def _cross(a, b):  # pragma: no cover - compiled
     return a.real * b.imag - a.imag * b.real
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def clip_cells(pts, n, verts, own, nbr, t_from, t_to, starts, ring, edge, edge_len, phi,
                nxt, inner, tol):  # pragma: no cover - compiled
     """Steps 3-4 of :mod:`perception.voronoi_convex` (cell areas clipped to a convex region).
@@ -223,7 +227,7 @@ def clip_cells(pts, n, verts, own, nbr, t_from, t_to, starts, ring, edge, edge_l
     return areas, True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def column_extreme_u8(f, k, take_min):  # pragma: no cover - compiled
     """Minimum (``take_min``) or maximum of every centred run of ``k`` rows, per column.
 
@@ -300,3 +304,80 @@ def column_extreme_u8(f, k, take_min):  # pragma: no cover - compiled
                 for x in range(w):
                     out[yo, x] = max(suf[j + 1, x], run[x])
     return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def gated_counts(pred, alt, use_alt, det, gate):  # pragma: no cover - compiled
+    """Which track-detection pairs are within the gate, counted without a cost matrix.
+
+    The distance of track i to detection j is ``|pred[i] - det[j]|``, or for a track with
+    ``use_alt[i]`` the smaller of that and ``|alt[i] - det[j]|`` - computed as
+    ``sqrt(dx * dx + dy * dy)``, as ``scipy.spatial.distance.cdist`` does, so the gate
+    decisions are the same as on its matrix.
+
+    Returns
+    -------
+    row_n : (m,) int64
+        Detections within the gate of each track.
+    col_n : (n,) int64
+        Tracks within the gate of each detection.
+    first : (m,) int64
+        Lowest-index detection within the gate of each track (0 if none).
+    """
+    m, n = len(pred), len(det)
+    row_n = np.zeros(m, np.int64)
+    col_n = np.zeros(n, np.int64)
+    first = np.zeros(m, np.int64)
+    for i in range(m):
+        px, py = pred[i, 0], pred[i, 1]
+        ax, ay = alt[i, 0], alt[i, 1]
+        found = False
+        for j in range(n):
+            dx, dy = px - det[j, 0], py - det[j, 1]
+            d = math.sqrt(dx * dx + dy * dy)
+            if use_alt[i]:
+                ex, ey = ax - det[j, 0], ay - det[j, 1]
+                d = min(d, math.sqrt(ex * ex + ey * ey))
+            if d <= gate:
+                row_n[i] += 1
+                col_n[j] += 1
+                if not found:
+                    first[i] = j
+                    found = True
+    return row_n, col_n, first
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def circumcentres(pts, simplices):  # pragma: no cover - compiled
+    """Circumcentres (t,) complex of the triangles ``pts[simplices]`` and twice their signed
+    areas (t,) - :func:`perception.voronoi_convex._circumcentres` as one loop."""
+    t = len(simplices)
+    verts = np.empty(t, np.complex128)
+    twice_area = np.empty(t)
+    for k in range(t):
+        a = pts[simplices[k, 0]]
+        b = pts[simplices[k, 1]] - a
+        c = pts[simplices[k, 2]] - a
+        ta = b.real * c.imag - b.imag * c.real
+        bb = b.real * b.real + b.imag * b.imag
+        cc = c.real * c.real + c.imag * c.imag
+        qr, qi = bb * c.real - cc * b.real, bb * c.imag - cc * b.imag
+        # a + q (-i/2) / ta
+        verts[k] = complex(a.real + 0.5 * qi / ta, a.imag - 0.5 * qr / ta)
+        twice_area[k] = ta
+    return verts, twice_area
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def still_delaunay(pts, simplices, verts, twice_area, far_t, far_v, tol):  # pragma: no cover
+    """Whether every triangle is counter-clockwise and no far vertex of a neighbouring
+    triangle lies inside its circumcircle (by more than ``tol`` of the squared radius)."""
+    for k in range(len(twice_area)):
+        if not twice_area[k] > 0.0:
+            return False
+    for f in range(len(far_t)):
+        t = far_t[f]
+        radius = abs(verts[t] - pts[simplices[t, 0]])
+        if not abs(pts[far_v[f]] - verts[t]) >= radius * (1.0 - 0.5 * tol):
+            return False
+    return True

@@ -190,18 +190,16 @@ class MarkerTracker:
         """Gated optimal one-to-one assignment: (track indices, detection indices)."""
         if len(det) == 0:
             return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
-        cost = cdist(self.predicted(), det)
-        lost = ~self._seen
-        if lost.any():  # a lost track may also come back at its rest position
-            cost[lost] = np.minimum(cost[lost], cdist(self.rest_points[lost], det))
+        from ._kernels import gated_counts  # compiled on first use (Numba)
+
+        pred = self.predicted()
+        lost = ~self._seen  # a lost track may also come back at its rest position
         gate = self.gate_px
-        feasible = cost <= gate
         # The optimum decomposes over the connected parts of the gated pairs: a track and a
         # detection that are each other's only candidate (the usual case between frames) are
-        # matched directly, and only the tangled rest goes to the assignment solver.
-        row_n = np.count_nonzero(feasible, axis=1)
-        col_n = np.count_nonzero(feasible, axis=0)
-        only = feasible.argmax(axis=1)  # a row's first (for row_n == 1: only) candidate
+        # matched directly, and only the tangled rest goes to the assignment solver. The
+        # pairs are counted in one compiled pass; cost matrices are built for the rest only.
+        row_n, col_n, only = gated_counts(pred, self.rest_points, lost, det, gate)
         r1 = np.flatnonzero((row_n == 1) & (col_n[only] == 1))
         c1 = only[r1]
         rest_r = np.flatnonzero(row_n > 0)
@@ -213,8 +211,11 @@ class MarkerTracker:
         taken_c[c1] = True
         rest_r = rest_r[~taken_r[rest_r]]
         rest_c = np.flatnonzero((col_n > 0) & ~taken_c)
-        sub = cost[np.ix_(rest_r, rest_c)]
-        sub_ok = feasible[np.ix_(rest_r, rest_c)]
+        sub = cdist(pred[rest_r], det[rest_c])
+        back = lost[rest_r]
+        if back.any():
+            sub[back] = np.minimum(sub[back], cdist(self.rest_points[rest_r[back]], det[rest_c]))
+        sub_ok = sub <= gate
         # an infeasible pair costs more than any set of feasible pairs: maximum number of
         # gated matches first, then minimum total distance among those
         big = gate * (min(sub.shape) + 1.0) + 1.0

@@ -252,25 +252,18 @@ class ConvexVoronoi:
 
 def _circumcentres(pts: np.ndarray, simplices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Circumcentres (t,) complex of the triangles and twice their signed areas (t,)."""
-    tri = pts[simplices]
-    a = tri[:, 0]
-    b = tri[:, 1] - a
-    c = tri[:, 2] - a
-    cb = np.conj(b)
-    twice_area = (cb * c).imag
-    q = (cb * b).real * c - (np.conj(c) * c).real * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return a + q * (-0.5j) / twice_area, twice_area
+    from ._kernels import circumcentres  # compiled on first use (Numba)
+
+    return circumcentres(pts, simplices)
 
 
 def _still_delaunay(topo: _Topology, pts: np.ndarray, verts: np.ndarray,
                     twice_area: np.ndarray) -> bool:
     """Whether a triangulation is (to rounding) the Delaunay triangulation of ``pts``."""
-    if not (twice_area > 0.0).all():
-        return False
-    radius = np.abs(verts - pts[topo.simplices[:, 0]])
-    far = np.abs(pts[topo.far_v] - verts[topo.far_t])
-    return bool((far >= radius[topo.far_t] * (1.0 - 0.5 * _INCIRCLE_TOL)).all())
+    from ._kernels import still_delaunay
+
+    return bool(still_delaunay(pts, topo.simplices, verts, twice_area, topo.far_t, topo.far_v,
+                               _INCIRCLE_TOL))
 
 
 def convex_clipped_areas(seeds: np.ndarray, ring: np.ndarray) -> np.ndarray | None:

@@ -200,3 +200,28 @@ def test_assignment_shortcut_equals_the_full_assignment():
         assert np.array_equal(rows, r_ref[keep]) and np.array_equal(cols, c_ref[keep])
         tangled += int((feasible.sum(axis=1) > 1).any())
     assert tangled > 20  # the solver path was exercised, not only the shortcut
+
+
+def test_gated_counts_equal_the_cost_matrix_decisions():
+    """The compiled pair count makes the gate decisions of the cdist matrix it replaced, with
+    the rest position as a second chance for lost tracks, pairs exactly at the gate included."""
+    from scipy.spatial.distance import cdist
+
+    from perception._kernels import gated_counts
+
+    rng = np.random.default_rng(11)
+    for _ in range(30):
+        m, n = int(rng.integers(1, 120)), int(rng.integers(1, 120))
+        pred = rng.uniform(0.0, 200.0, (m, 2))
+        alt = pred + rng.normal(0.0, 10.0, (m, 2))
+        lost = rng.random(m) < 0.3
+        det = rng.uniform(0.0, 200.0, (n, 2))
+        gate = float(rng.uniform(5.0, 40.0))
+        det[: min(m, n) // 3] = pred[: min(m, n) // 3] + (gate, 0.0)  # exactly on the gate
+        cost = cdist(pred, det)
+        cost[lost] = np.minimum(cost[lost], cdist(alt[lost], det))
+        feasible = cost <= gate
+        row_n, col_n, first = gated_counts(pred, alt, lost, det, gate)
+        assert np.array_equal(row_n, feasible.sum(axis=1))
+        assert np.array_equal(col_n, feasible.sum(axis=0))
+        assert np.array_equal(first, feasible.argmax(axis=1))
