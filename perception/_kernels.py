@@ -1,4 +1,9 @@
-"""Compiled per-pixel loops (Numba) for the blob measurements of :mod:`perception.blobs`.
+"""Compiled loops (Numba) over pixels, Voronoi cells and track-detection pairs.
+
+Callers: :mod:`perception.blobs` (blob sums, large square erosions and dilations),
+:mod:`perception.voronoi_convex` (circumcentres, Delaunay check, clipping) and
+:mod:`perception.track` (gated pair counts). Each replaced a chain of small numpy operations
+and is tested against it or against an independent reference.
 
 Imported on first use, so ``import perception`` does not pay for loading Numba. Each function
 is compiled once per argument-type combination and cached on disk (``cache=True``: in the
