@@ -31,14 +31,15 @@ from .voronoi import ClippedVoronoi, area_change, voronoi_areas, voronoi_cells
 #: Version of the numbers perception produces from a frame (marker positions, cell areas,
 #: centres of pressure). Raised whenever they change, even in the last bits: calibration
 #: datasets record it, and a sweep refuses to resume on features of another version.
-#: 2 (2026-11-22): Voronoi clipping compiled (areas change at the 1e-16 relative level).
+#: 2 (2026-11-22): the Voronoi circumcentres and clipping compiled (cell areas change at the
+#: 1e-15 relative level; marker positions are unchanged).
 RESULTS_VERSION = 2
 
 __all__ = [
     "COP_WEIGHTINGS",
-    "RESULTS_VERSION",
     "LOST",
     "MERGED",
+    "RESULTS_VERSION",
     "TRACKED",
     "ClippedVoronoi",
     "ContactDetector",

@@ -46,9 +46,10 @@ circumcircle), which characterises the Delaunay triangulation - so Qhull only ru
 markers have moved enough to flip an edge.
 
 Points are handled as complex numbers x + iy (a × b = Im(conj(a) b)). The triangulation
-bookkeeping is vectorised; steps 3 and 4 are one compiled pass of loops over cells, cell edges
-and region edges (:func:`perception._kernels.clip_cells`, Numba), which replaced some seventy
-small numpy operations per frame (2.9x faster on a 97-marker frame, BENCHMARKS.md).
+bookkeeping is vectorised; the circumcentres, the Delaunay check and steps 3 and 4 are compiled
+loops over triangles, cells, cell edges and region edges (:mod:`perception._kernels`, Numba),
+which replaced some seventy small numpy operations per frame (the Voronoi stage 2.9-3.2x faster,
+BENCHMARKS.md).
 """
 
 from __future__ import annotations
