@@ -7,6 +7,7 @@ opens, and Dask applies it to every worker, including those that join or restart
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from distributed import WorkerPlugin
@@ -43,9 +44,43 @@ def steady_allocator() -> bool:
                 and libc.mallopt(m_trim_threshold, TRIM_THRESHOLD_BYTES))
 
 
+#: Dask warnings that an interrupted sweep triggers and that say nothing the user needs:
+#: logger name -> the message fragment that identifies them.
+EXPECTED_ON_INTERRUPT = {
+    # a worker, for each task running when the client cancelled the sweep
+    "distributed.worker.state_machine": "ended with CancelledError",
+    # the nanny (in the client's process), for a worker still in the middle of a sample
+    "distributed.nanny": "Worker process still alive after",
+}
+
+
+class QuietInterrupt(logging.Filter):
+    """Drops one logger's warnings listed in :data:`EXPECTED_ON_INTERRUPT`.
+
+    An interrupted ``calibrate`` cancels the running tasks and closes the cluster while workers
+    are mid-sample; Dask logs that, and printed before the one-line "interrupted; what was
+    finished is kept" message those lines read like a failure."""
+
+    def __init__(self, fragment: str) -> None:
+        super().__init__()
+        self.fragment = fragment
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return self.fragment not in record.getMessage()
+
+
+def quiet_interrupt(logger_name: str) -> None:
+    """Install :class:`QuietInterrupt` on one of the loggers of :data:`EXPECTED_ON_INTERRUPT`
+    (once per process)."""
+    log = logging.getLogger(logger_name)
+    if not any(isinstance(f, QuietInterrupt) for f in log.filters):
+        log.addFilter(QuietInterrupt(EXPECTED_ON_INTERRUPT[logger_name]))
+
+
 class SweepWorkerSetup(WorkerPlugin):
     """On each worker: heap reuse for the per-frame arrays
-    (:func:`steady_allocator`) and one OpenCV thread.
+    (:func:`steady_allocator`), one OpenCV thread, and no warnings for tasks an interrupt
+    cancelled (:class:`QuietInterrupt`).
 
     A worker's parallelism is its task slots (one per process in ``--workers N``). OpenCV's
     own thread pool on top of that puts two threads per core on this 2-core machine; with one
@@ -61,3 +96,4 @@ class SweepWorkerSetup(WorkerPlugin):
 
         steady_allocator()
         cv2.setNumThreads(1)
+        quiet_interrupt("distributed.worker.state_machine")

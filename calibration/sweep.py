@@ -321,11 +321,12 @@ def open_client(workers: int, scheduler: str | None):
         return None
     from dask.distributed import Client, LocalCluster
 
-    from .dask_setup import SweepWorkerSetup
+    from .dask_setup import SweepWorkerSetup, quiet_interrupt
 
     if scheduler is not None:
         client = Client(scheduler)
     else:
+        quiet_interrupt("distributed.nanny")  # the local nannies run in this process
         client = Client(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                      dashboard_address=":0"))  # any free port: no clash
     client.register_plugin(SweepWorkerSetup())  # also on workers that join or restart later

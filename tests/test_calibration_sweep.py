@@ -158,6 +158,24 @@ def test_steady_allocator_applies_on_glibc():
     assert steady_allocator() == (platform.libc_ver()[0] == "glibc")
 
 
+def test_interrupt_warnings_are_dropped_and_nothing_else():
+    import logging
+
+    from calibration.dask_setup import EXPECTED_ON_INTERRUPT, QuietInterrupt, quiet_interrupt
+
+    for name, fragment in EXPECTED_ON_INTERRUPT.items():
+        quiet_interrupt(name)
+        quiet_interrupt(name)  # once per process
+        log = logging.getLogger(name)
+        assert sum(isinstance(f, QuietInterrupt) for f in log.filters) == 1
+
+        def record(msg, log=log):
+            return log.makeRecord(log.name, logging.WARNING, __file__, 1, msg, (), None)
+
+        assert not log.filter(record(f"Async instruction for <Task> {fragment} x"))
+        assert log.filter(record("Worker exceeded 95% memory budget"))
+
+
 def test_every_worker_computes_with_the_mesh_of_the_spec(small_scene, tmp_path):
     """The tip's mesh is resolved once and travels with the spec: pytetwild gives a different
     mesh on every build, and workers that each built (or loaded) their own would compute one
