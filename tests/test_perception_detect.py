@@ -265,17 +265,20 @@ def test_result_is_frozen():
 
 def _reference_blob_measures(labels, n_labels, intensity, level, grow_px):
     """Straightforward per-pixel version: bincount over the whole image, centred moments."""
-    import cv2
-
     h, w = labels.shape
-    lab16 = labels.astype(np.uint16)
-    grown = cv2.dilate(lab16, np.ones((2 * grow_px + 1,) * 2, np.uint8)) if grow_px else lab16
+    # grown footprints: the largest label within the square, from shifted copies (any dtype)
+    padded = np.pad(labels.astype(np.int64), grow_px)
+    grown = np.zeros((h, w), np.int64)
+    for dy in range(2 * grow_px + 1):
+        for dx in range(2 * grow_px + 1):
+            np.maximum(grown, padded[dy:dy + h, dx:dx + w], out=grown)
     y, x = np.mgrid[0:h, 0:w]
     wt = np.maximum(intensity.astype(np.float64) - level, 0.0).ravel()
     g = grown.ravel().astype(np.intp)
     total = np.bincount(g, wt, n_labels)
-    cx = np.bincount(g, wt * x.ravel(), n_labels) / total
-    cy = np.bincount(g, wt * y.ravel(), n_labels) / total
+    with np.errstate(invalid="ignore", divide="ignore"):  # no positive weight: NaN
+        cx = np.bincount(g, wt * x.ravel(), n_labels) / total
+        cy = np.bincount(g, wt * y.ravel(), n_labels) / total
     b = labels.ravel().astype(np.intp)
     area = np.bincount(b, minlength=n_labels).astype(float)
     mx = np.bincount(b, x.ravel(), n_labels) / area
@@ -312,6 +315,28 @@ def test_blob_measures_equal_a_plain_per_pixel_reference(seed):
         assert np.allclose(mom.elongation, elong, rtol=1e-9)
         assert np.allclose(mom.fill, fill, rtol=1e-9)
         assert np.allclose(pts, ref, rtol=0, atol=1e-9, equal_nan=True)
+
+
+def test_blob_measures_with_more_labels_than_16_bits_hold():
+    import cv2
+
+    from perception.blobs import blob_measures
+
+    # isolated pixels and small blobs: more than 65535 labels (int32 labels, the float32
+    # dilation path) with float intensities
+    rng = np.random.default_rng(4)
+    fg = np.zeros((620, 620), np.uint8)
+    fg[::2, ::2] = rng.random((310, 310)) < 0.8
+    fg[300:320, 300:330] = 1
+    intensity = rng.random(fg.shape).astype(np.float32)
+    n, labels = cv2.connectedComponents(fg, connectivity=4, ltype=cv2.CV_32S)
+    assert n > 65536
+    mom, pts = blob_measures(labels, n, intensity, 0.25, 1)
+    area, elong, fill, ref = _reference_blob_measures(labels, n, intensity, 0.25, 1)
+    assert np.array_equal(mom.area, area)
+    assert np.allclose(mom.elongation, elong, rtol=1e-9)
+    assert np.allclose(mom.fill, fill, rtol=1e-9)
+    assert np.allclose(pts, ref, rtol=0, atol=1e-9, equal_nan=True)
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
