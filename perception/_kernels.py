@@ -94,9 +94,9 @@ def clip_cells(pts, n, verts, own, nbr, t_from, t_to, starts, ring, edge, edge_l
     verts : (t,) complex
         Circumcentres (the Voronoi vertices).
     own, nbr, t_from, t_to : (m,) int
-        Directed Delaunay edges own -> nbr of the real seeds, grouped by ``own`` in
-        counter-clockwise order, and the triangles whose circumcentres start and end the
-        dual cell edge.
+        Directed Delaunay edges own -> nbr of the real seeds, grouped by ``own``, and the
+        triangles whose circumcentres start and end the dual cell edge (which runs
+        counter-clockwise around the cell of ``own``; the edges of a cell are not sorted).
     starts : (n,) int
         First edge of each cell.
     ring, edge : (k,) complex
