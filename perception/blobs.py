@@ -154,6 +154,11 @@ def robust_spread(values: np.ndarray) -> tuple[float, float]:
 COMPILED_MORPHOLOGY_MIN_KERNEL = 17
 
 
+def _compiled_morphology(img: np.ndarray, kernel: int) -> bool:
+    """Whether a square erosion/dilation of ``img`` goes to the compiled passes."""
+    return img.dtype == np.uint8 and kernel >= COMPILED_MORPHOLOGY_MIN_KERNEL
+
+
 def square_extreme(img: np.ndarray, kernel: int, *, take_min: bool) -> np.ndarray:
     """Erosion (``take_min``) or dilation of an image by an odd ``kernel`` x ``kernel`` square.
 
@@ -162,7 +167,7 @@ def square_extreme(img: np.ndarray, kernel: int, *, take_min: bool) -> np.ndarra
     column passes (:func:`perception._kernels.column_extreme_u8`) with a transpose between,
     so the cost does not grow with the kernel; everything else goes to OpenCV.
     """
-    if img.dtype != np.uint8 or kernel < COMPILED_MORPHOLOGY_MIN_KERNEL:
+    if not _compiled_morphology(img, kernel):
         op = cv2.erode if take_min else cv2.dilate
         return op(img, cv2.getStructuringElement(cv2.MORPH_RECT, (kernel, kernel)))
     from ._kernels import column_extreme_u8  # compiled on first use (Numba)
@@ -177,7 +182,7 @@ def top_hat(grey: np.ndarray, kernel: int) -> tuple[np.ndarray, np.ndarray]:
     The opening removes every bright structure that cannot contain the kernel (the markers)
     and keeps larger ones (illumination gradients, the lit exterior).
     """
-    if grey.dtype == np.uint8 and kernel >= COMPILED_MORPHOLOGY_MIN_KERNEL:
+    if _compiled_morphology(grey, kernel):
         # erode columns, rows, then dilate rows, columns: two transposes instead of four
         from ._kernels import column_extreme_u8
 
