@@ -28,15 +28,9 @@ def main() -> None:
     args = ap.parse_args()
 
     import tactip_sim as ts
+    from calibration.executor import close_client, open_client
     from calibration.protocol import PoseSet
-    from calibration.sweep import (
-        SweepSpec,
-        TipWorker,
-        close_client,
-        open_client,
-        run_sweep,
-        warm_up,
-    )
+    from calibration.sweep import SweepSpec, run_sweep, warm_up
 
     scene = ts.load_scene(ROOT / "scenes" / "shadow_fingertip.toml")
     p = scene.protocol
@@ -48,21 +42,20 @@ def main() -> None:
 
     # warm caches and time the stages of one sample in this process
     t0 = time.perf_counter()
-    w = TipWorker(spec)
+    w = spec.with_mesh().chain()
+    w.sim  # noqa: B018 - the simulator and its compliance, part of the set-up
     setup = time.perf_counter() - t0
     stages = {"press": [], "render+truth": [], "noise": [], "perception": []}
     for pose in poses[:8]:
         a = time.perf_counter()
-        st = w.sim.press(ts.Pose(*pose))
+        st, _ = w.press(pose)
         b = time.perf_counter()
-        rad = w.renderer.render_radiance(st.markers_mm, st.marker_directions, seed=1)
-        w.renderer.ground_truth(st.markers_mm, st.marker_directions)
+        rad = w.radiance(st, rng)
+        w.truth(st)
         c = time.perf_counter()
         imgs = w.renderer.camera.frames(rad, rng, args.frames)
         d = time.perf_counter()
-        w.pipeline.reset()
-        for im in imgs:
-            w.pipeline.process(im)
+        w.perceive(imgs)
         e = time.perf_counter()
         for k, v in zip(stages, (b - a, c - b, d - c, e - d), strict=True):
             stages[k].append(v)

@@ -11,11 +11,13 @@ from pathlib import Path
 import tactip_sim as ts
 from tactip_sim.scene import preset_of, scene_hash, scene_to_dict
 
-from .dataset import _json, atomic_write_text
+from .dataset import atomic_write_text, json_default
+from .executor import close_client, open_client
 from .fit import ScoreRow, features, fit_model, r2_table_csv, r2_table_markdown, score
 from .protocol import evaluation_sets, make_tip, training_set
 from .runlog import RunLog
-from .sweep import SweepSpec, _versions, close_client, open_client, run_sweep
+from .sweep import SweepSpec, run_sweep
+from .versions import package_versions
 
 ORDERS = (1, 2, 3)
 # The CoP feature the regressors use. "area_change" (cells weighted by their growth against the
@@ -135,12 +137,12 @@ def calibrate(
         "pose_sets": {s.name: len(s) for s in sets},
         "workers": workers,
         "scheduler": scheduler,
-        "versions": _versions(),
+        "versions": package_versions(),
         "timings": timings,  # this invocation
         "timings_all_invocations": log.summary(),  # every invocation in runs.json, summed
         "samples_computed": samples,
     }
-    atomic_write_text(out / "manifest.json", json.dumps(manifest, indent=2, default=_json))
+    atomic_write_text(out / "manifest.json", json.dumps(manifest, indent=2, default=json_default))
     if charts:
         from .report import summary_charts
 

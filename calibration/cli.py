@@ -41,7 +41,7 @@ def _scene_and_fidelity(args: argparse.Namespace):
     tolerances (``--set`` overrides win either way)."""
     if args.fidelity != "auto":
         return load_scene_args(args), ({"requested": args.fidelity} if args.fidelity else {})
-    from .studies.fidelity import resolve_auto
+    from .fidelity_auto import resolve_auto
 
     args.fidelity = None
     scene, record = resolve_auto(load_scene_args(args), args)
@@ -145,7 +145,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from .studies.fidelity import add_tolerance_arguments
+    from .fidelity_auto import add_tolerance_arguments
 
     p = sub.add_parser(
         "calibrate", help="run the paper's roll/pitch calibration protocol in simulation",

@@ -1,7 +1,7 @@
 """Process settings for the Dask workers that run sweeps (local or on a remote cluster).
 
 Kept apart from :mod:`calibration.sweep` so that importing the sweep code does not import
-``distributed``; :func:`calibration.sweep.open_client` registers the plugin on every client it
+``distributed``; :func:`calibration.executor.open_client` registers the plugin on every client it
 opens, and Dask applies it to every worker, including those that join or restart later.
 """
 

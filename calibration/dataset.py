@@ -173,12 +173,12 @@ class Dataset:
         (self.root / "records").mkdir(parents=True, exist_ok=True)
         manifest = {"kind": DATASET_KIND, "format_version": FORMAT_VERSION,
                     "identity": identity, **extra}
-        atomic_write_text(self.manifest_path, json.dumps(manifest, indent=2, default=_json))
+        atomic_write_text(self.manifest_path, json.dumps(manifest, indent=2, default=json_default))
 
     def update_manifest(self, **fields: Any) -> None:
         data = self.manifest()
         data.update(fields)
-        atomic_write_text(self.manifest_path, json.dumps(data, indent=2, default=_json))
+        atomic_write_text(self.manifest_path, json.dumps(data, indent=2, default=json_default))
 
     # -- records ------------------------------------------------------------------------------
     def record_path(self, index: int) -> Path:
@@ -252,7 +252,8 @@ def _f(x: float) -> str:
     return repr(float(x))
 
 
-def _json(obj: Any) -> Any:
+def json_default(obj: Any) -> Any:
+    """``json.dumps(default=...)`` for arrays, NumPy scalars and paths."""
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, np.generic):

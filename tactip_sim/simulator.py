@@ -92,7 +92,10 @@ class Simulator:
     def reduced(self) -> ReducedModel:
         """The reduced model (compliance built or loaded on first use)."""
         if self._reduced is None:
-            self._reduced = ReducedModel(self.body, use_cache=self.use_cache)
+            # one BLAS thread, as in every press: the compliance's last bits depend on the
+            # thread count, and the cache must hold the same matrix whoever builds it first
+            with single_threaded_blas():
+                self._reduced = ReducedModel(self.body, use_cache=self.use_cache)
         return self._reduced
 
     def precompute(self) -> dict[str, float]:
@@ -101,7 +104,8 @@ class Simulator:
         if self.solver == "reduced":
             self.reduced  # noqa: B018
         else:
-            self.body.factor  # noqa: B018
+            with single_threaded_blas():  # as press builds it: the same factor bits
+                self.body.factor  # noqa: B018
         return {**self.body.timings, "total_s": time.perf_counter() - t0}
 
     # --- pressing --------------------------------------------------------------------------

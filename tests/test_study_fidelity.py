@@ -14,14 +14,16 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
+from calibration.fidelity_auto import choose_level
 from calibration.studies.fidelity import (
     Level,
-    choose_level,
     compare_levels,
     pareto_front,
     run_fidelity_study,
     study_levels,
 )
+from tactip_sim.scene import apply_preset
+from tactip_sim.scene.schema import SECTIONS
 
 SMALL = {"camera": {"resolution": [320, 240], "pixel_pitch_um": 16.8}}
 STAND_IN = Level("reference (stand-in)", "preset",
@@ -60,8 +62,20 @@ def test_levels_cover_every_stage(scene):
     levels = study_levels(scene)
     assert {"fast", "balanced", "reference"} <= {lv.name for lv in levels}
     assert {lv.stage for lv in levels} == {"preset", "physics", "render", "perception"}
-    for lv in levels:  # every level is a valid scene
-        lv.scene(scene)
+    balanced = apply_preset(scene, "balanced")
+    for lv in levels:
+        s = lv.scene(scene)
+        if lv.base != "balanced" or not lv.settings:
+            continue
+        # a one-knob variant differs from `balanced` in its knob's section(s) and nowhere else
+        changed = {sec for sec in SECTIONS if getattr(s, sec) != getattr(balanced, sec)}
+        assert changed == set(lv.settings), lv.name
+    by = {lv.name: lv.scene(scene) for lv in levels}
+    assert by["1 spp"].imaging.spp == 1 and by["16 spp"].imaging.spp == 16
+    w, h = scene.camera.resolution
+    assert tuple(by["half resolution"].camera.resolution) == (w // 2, h // 2)
+    assert by["P1 elements"].fidelity.element_order == 1
+    assert by["8 frames"].protocol.frames_per_sample == 8
 
 
 @pytest.fixture(scope="module")

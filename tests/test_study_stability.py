@@ -56,16 +56,26 @@ def test_every_map_has_a_valid_png_a_boundary_and_a_report_entry(quick):
     assert on_disk["thresholds"]["lost_fraction"] == stab.LOST_FAIL_FRACTION
 
 
-def test_failure_masks_follow_their_thresholds(quick):
-    _, summary = quick
-    p, r2, fail = _panel(summary, "order_depth")
-    np.testing.assert_array_equal(fail, ~(r2 >= stab.R2_FAIL))
-    p, err, fail = _panel(summary, "noise_blur")
-    recall = np.array(p["recall"], dtype=float)
-    np.testing.assert_array_equal(fail, ~(err <= stab.POSITION_FAIL_PX)
-                                  | (recall < stab.RECALL_FAIL))
-    p, lost, fail = _panel(summary, "depth")
-    np.testing.assert_array_equal(fail, lost > stab.LOST_FAIL_FRACTION)
+def test_failure_boundary_known_answer():
+    """The boundary read off a hand-made failure mask: the passing run around the nominal x
+    and the first failing x on each side (None where the grid never fails on that side)."""
+    xs = [0.5, 1.0, 2.0, 4.0, 8.0, 16.0]
+    fail = np.array([[True, False, False, False, True, True],     # fails on both sides
+                     [False, False, False, False, False, False],  # never fails
+                     [False, True, False, False, False, True],    # a failing hole left of x_ref
+                     [True, True, True, True, True, True]])       # fails at x_ref itself
+    panel = stab.Panel("t", "x", xs, "row", ["a", "b", "c", "d"], "m", "1",
+                       np.zeros(fail.shape), fail, 1.0, "f", x_ref=2.0)
+    rows = {b["y"]: b for b in panel.boundary()}
+    assert (rows["a"]["passes_from"], rows["a"]["passes_to"]) == (1.0, 4.0)
+    assert (rows["a"]["first_fail_below"], rows["a"]["first_fail_above"]) == (0.5, 8.0)
+    assert (rows["b"]["passes_from"], rows["b"]["passes_to"]) == (0.5, 16.0)
+    assert (rows["b"]["first_fail_below"], rows["b"]["first_fail_above"]) == (None, None)
+    assert (rows["c"]["passes_from"], rows["c"]["passes_to"]) == (2.0, 8.0)
+    assert (rows["c"]["first_fail_below"], rows["c"]["first_fail_above"]) == (1.0, 16.0)
+    assert rows["c"]["passing_runs"] == [[0.5, 0.5], [2.0, 8.0]]
+    assert rows["d"]["passes_from"] is None and rows["d"]["passes_to"] is None
+    assert rows["d"]["fails_at_reference"] and rows["d"]["passing_runs"] == []
 
 
 def test_markers_lost_grow_with_depth(quick):

@@ -20,7 +20,8 @@ render (radiance, camera model, noise) and perception (all frames). The referenc
 measured cost would make the R² sweep exceed the budget are reported without R², saying so.
 Physics results are shared between levels with the same physics settings.
 
-``choose_level`` picks the cheapest level that meets tolerances (``--fidelity auto``).
+``--fidelity auto`` reads the study's summary and picks the cheapest level that meets the given
+tolerances (:mod:`calibration.fidelity_auto`).
 """
 
 from __future__ import annotations
@@ -38,23 +39,10 @@ import numpy as np
 import tactip_sim as ts
 from tactip_sim.scene import apply_preset, replace_in, scene_hash
 
+from ..chain import Chain, set_tag
+
 REFERENCE = "reference"
 BASE = "balanced"
-PHYSICS_SECTIONS = ("pad", "skin", "gel", "pins", "fidelity", "indenter")
-"""Sections a press depends on: levels equal on these share their physics results."""
-
-TOLERANCE_METRICS = {
-    "max_marker_error_px": ("marker_px_p95", "le"),
-    "max_marker_error_mm": ("marker_mm_max", "le"),
-    "max_cop_error_px": ("cop_px_max", "le"),
-    "min_r2": ("r2", "ge"),
-}
-"""Command-line tolerance -> (summary metric, sense). Bounds, not means: the FEM marker and
-CoP errors are maxima over the accuracy poses; the perceived-marker error is the 95th
-percentile over markers and poses, because the few markers that merge at the pad's ends are
-tracked in some frames and not others, which shifts their frame-averaged position by pixels
-whatever the level (they are counted by ``markers_lost`` instead)."""
-
 
 @dataclass(frozen=True)
 class Level:
@@ -174,7 +162,7 @@ class LevelResult:
 
 
 @dataclass
-class _Run:
+class LevelRun:
     """What a level produced on one pose set."""
 
     markers_mm: list[np.ndarray] = field(default_factory=list)
@@ -184,94 +172,52 @@ class _Run:
     n: int = 0
 
 
-class _LevelRunner:
-    """Simulator, renderer and perception of one level (nominal tip)."""
+class LevelRunner:
+    """One level's chain (nominal tip: :class:`calibration.chain.Chain`), with pixels converted
+    to the reference's resolution."""
 
-    def __init__(self, scene: ts.Scene, ref_size: tuple[int, int], physics_cache: dict,
+    def __init__(self, scene: ts.Scene, ref_size: tuple[int, int], press_cache: dict,
                  frames_cap: int | None) -> None:
-        import perception as pc
-        from tactip_sim.render import Renderer
-
-        from ..sweep import render_frames
-
-        t0 = time.perf_counter()
-        self.setup_s = 0.0
-        self.scene = scene
-        self.pad = ts.build_pad(scene)
-        self._physics_key = scene_hash(scene, PHYSICS_SECTIONS)
-        self._cache = physics_cache
-        self._sim: ts.Simulator | None = None
-        self.renderer = Renderer(scene, self.pad)
         frames = scene.protocol.frames_per_sample
-        self.frames = frames if frames_cap is None else min(frames, frames_cap)
+        frames = frames if frames_cap is None else min(frames, frames_cap)
+        self.chain = Chain.for_tip(scene, scene.protocol.tips[0], nominal=True, frames=frames,
+                                   press_cache=press_cache)
+        self.scene = self.chain.scene
+        self.frames = frames
         w, h = scene.camera.resolution
         self.to_ref = np.array([ref_size[0] / w, ref_size[1] / h])
-        rest = render_frames(self.renderer, None, 1, np.random.default_rng([0, 2**31 - 1]))[2][0]
-        self.pipeline = pc.FeaturePipeline(rest, expected_count=scene.pins.count)
-        # rest-frame marker i -> pin id, by the nearest analytic blob centroid at rest
-        _, _, blobs = self.renderer.ground_truth()
-        rest_pts = self.pipeline.rest_points
-        dist = np.linalg.norm(rest_pts[:, None, :] - blobs[None, :, :], axis=2)
-        self.pin_of = np.argmin(dist, axis=1)
-        spacing = np.median(np.sort(np.linalg.norm(blobs[:, None] - blobs[None], axis=2),
-                                    axis=1)[:, 1])
-        self.pin_of[np.min(dist, axis=1) > 0.5 * spacing] = -1
-        self.n_pins = len(blobs)
-        self.setup_s += time.perf_counter() - t0
 
     @property
-    def sim(self) -> ts.Simulator:
-        """The level's simulator, its factorisation or compliance built (or loaded) up front so
-        that per-pose times are solve times; the set-up time goes to ``setup_s``."""
-        if self._sim is None:
-            t0 = time.perf_counter()
-            self._sim = ts.Simulator(self.scene, pad=self.pad)
-            self._sim.precompute()
-            self.setup_s += time.perf_counter() - t0
-        return self._sim
+    def setup_s(self) -> float:
+        return self.chain.setup_s
 
     def ref_px(self, px: np.ndarray) -> np.ndarray:
         """Pixel coordinates (OpenCV, centre of the top-left pixel = 0) in reference pixels."""
-        return (np.asarray(px) + 0.5) * self.to_ref - 0.5
+        px = np.asarray(px, float)
+        if np.all(self.to_ref == 1.0):
+            return px
+        return (px + 0.5) * self.to_ref - 0.5
 
-    def run(self, poses: np.ndarray, set_tag: int, bar: Any = None) -> _Run:
-        from ..sweep import perceive, render_frames
-
-        out = _Run()
+    def run(self, poses: np.ndarray, set_name: str, bar: Any = None) -> LevelRun:
+        """Every pose of ``poses`` (n, 3) through the chain, seeded as a sweep's pose set
+        called ``set_name``."""
+        out = LevelRun()
         t = out.timings
+        tag = set_tag(set_name)
         for i, pose in enumerate(poses):
-            roll, pitch, depth = (float(v) for v in pose)
-            key = (self._physics_key, roll, pitch, depth)
-            t0 = time.perf_counter()
-            if key in self._cache:
-                state, physics_s = self._cache[key]
-            else:
-                sim = self.sim
-                t0 = time.perf_counter()
-                state = sim.press(ts.Pose(roll_deg=roll, pitch_deg=pitch, depth_mm=depth))
-                physics_s = time.perf_counter() - t0
-                self._cache[key] = (state, physics_s)
-            t1 = time.perf_counter()
-            rng = np.random.default_rng([self.scene.protocol.seed, set_tag, i])
-            _, _, images = render_frames(self.renderer, state, self.frames, rng)
-            t2 = time.perf_counter()
-            p = perceive(self.pipeline, images)
-            t3 = time.perf_counter()
-            for k, v in (("physics", physics_s), ("render", t2 - t1), ("perception", t3 - t2)):
+            s = self.chain.sample(pose, tag, i)
+            for k, v in s.seconds.items():
                 t[k] = t.get(k, 0.0) + v
-            pins = np.full((self.n_pins, 2), np.nan)
-            ok = self.pin_of >= 0
-            pins[self.pin_of[ok]] = self.ref_px(p.points[ok])
-            out.markers_mm.append(np.asarray(state.markers_mm, float))
-            out.pins_px.append(pins)
-            out.cop_px.append(self.ref_px(p.cop_ac))
+            out.markers_mm.append(np.asarray(s.state.markers_mm, float))
+            out.pins_px.append(self.ref_px(s.pins_px))
+            out.cop_px.append(self.ref_px(s.perceived.cop_growth))
             out.n += 1
             if bar is not None:
                 bar.update(1)
         return out
 
 
-def _errors(run: _Run, ref: _Run) -> dict[str, float]:
+def _errors(run: LevelRun, ref: LevelRun) -> dict[str, float]:
     mm = np.linalg.norm(np.stack(run.markers_mm) - np.stack(ref.markers_mm), axis=2)
     px = np.linalg.norm(np.stack(run.pins_px) - np.stack(ref.pins_px), axis=2)
     both = np.isfinite(px)
@@ -289,7 +235,7 @@ def _errors(run: _Run, ref: _Run) -> dict[str, float]:
     }
 
 
-def _r2(train: _Run, test: _Run, grid: StudyGrid, image_size: tuple[int, int]
+def _r2(train: LevelRun, test: LevelRun, grid: StudyGrid, image_size: tuple[int, int]
         ) -> tuple[float, float, float, str]:
     import perception as pc
 
@@ -353,7 +299,7 @@ def run_fidelity_study(scene: ts.Scene, out: str | Path, *, quick: bool = False,
     ref_size = tuple(scene.camera.resolution)
     physics_cache: dict = {}
     results: list[LevelResult] = []
-    ref_run: _Run | None = None
+    ref_run: LevelRun | None = None
     t_start = time.perf_counter()
     n_acc = len(grid.accuracy)
     bar = tqdm(total=len(all_levels) * n_acc, disable=not progress, desc="fidelity study",
@@ -371,9 +317,9 @@ def run_fidelity_study(scene: ts.Scene, out: str | Path, *, quick: bool = False,
                 bar.update(n_acc)
                 continue
             try:
-                runner = _LevelRunner(lscene, ref_size, physics_cache, grid.frames_cap)
+                runner = LevelRunner(lscene, ref_size, physics_cache, grid.frames_cap)
                 res.frames = runner.frames
-                acc = runner.run(grid.accuracy, 1, bar)
+                acc = runner.run(grid.accuracy, "accuracy", bar)
             except Exception as exc:  # a level that cannot run is a result, not a crash
                 res.error = f"{type(exc).__name__}: {exc}"
                 results.append(res)
@@ -394,8 +340,8 @@ def run_fidelity_study(scene: ts.Scene, out: str | Path, *, quick: bool = False,
                 res.r2_note = (f"not measured: {n_r2} samples at {res.sample_s:.2f} s would take "
                                f"{projected:.0f} s (budget {grid.r2_budget_s:.0f} s)")
             else:
-                tr = runner.run(grid.train, 2)
-                te = runner.run(grid.test, 3)
+                tr = runner.run(grid.train, "train")
+                te = runner.run(grid.test, "test")
                 res.r2, res.r2_roll, res.r2_pitch, res.r2_note = _r2(
                     tr, te, grid, tuple(lscene.camera.resolution))
             results.append(res)
@@ -548,98 +494,19 @@ def report_markdown(summary: dict[str, Any], *, charts: bool = True) -> str:
     return "\n".join(lines)
 
 
-# --------------------------------------------------------------------------- auto choice
-def choose_level(summary: dict[str, Any], **tolerances: float | None) -> dict[str, Any]:
-    """The cheapest measured level meeting every given tolerance (keys of
-    :data:`TOLERANCE_METRICS`, e.g. ``max_marker_error_px=0.2``).
-
-    Returns the level's summary entry (``name``, ``settings``, ``sample_s``...).
-
-    Raises
-    ------
-    ValueError
-        No tolerance given, an unknown tolerance, or no level meets them (the message gives
-        the best value measured).
-    """
-    given = {k: v for k, v in tolerances.items() if v is not None}
-    if not given:
-        raise ValueError("--fidelity auto needs a tolerance: one of "
-                         + ", ".join("--" + k.replace("_", "-") for k in TOLERANCE_METRICS))
-    for k in given:
-        if k not in TOLERANCE_METRICS:
-            raise ValueError(f"unknown tolerance {k!r}; allowed: {', '.join(TOLERANCE_METRICS)}")
-    levels = [lv for lv in summary["levels"] if not lv["error"] and lv["sample_s"] is not None]
-
-    def meets(lv: dict[str, Any]) -> bool:
-        for k, bound in given.items():
-            metric, sense = TOLERANCE_METRICS[k]
-            v = lv.get(metric)
-            if v is None or not (v <= bound if sense == "le" else v >= bound):
-                return False
-        return True
-
-    ok = [lv for lv in levels if meets(lv)]
-    if not ok:
-        best = {k: (min if TOLERANCE_METRICS[k][1] == "le" else max)(
-            (lv[TOLERANCE_METRICS[k][0]] for lv in levels
-             if lv.get(TOLERANCE_METRICS[k][0]) is not None), default=None) for k in given}
-        raise ValueError(f"no level of the fidelity study meets {given}; best measured: {best}")
-    return min(ok, key=lambda lv: lv["sample_s"])
-
-
 def compare_levels(scene: ts.Scene, level: Level, reference: Level, poses: np.ndarray, *,
-                   set_tag: int = 4, frames_cap: int | None = None) -> dict[str, float]:
-    """Run ``level`` and ``reference`` on ``poses`` (n, 3) and return ``level``'s errors
-    against the reference (the metrics of :data:`TOLERANCE_METRICS`): e.g. to check an auto
-    choice on poses the study never saw."""
+                   set_name: str = "check", frames_cap: int | None = None
+                   ) -> dict[str, float]:
+    """Run ``level`` and ``reference`` on ``poses`` (n, 3), seeded as pose set ``set_name``,
+    and return ``level``'s errors against the reference (the metrics of
+    :data:`calibration.fidelity_auto.TOLERANCE_METRICS`): e.g. to check an auto choice on
+    poses the study never saw."""
     cache: dict = {}
     ref_size = tuple(scene.camera.resolution)
     poses = np.atleast_2d(np.asarray(poses, float))
-    ref = _LevelRunner(reference.scene(scene), ref_size, cache, frames_cap).run(poses, set_tag)
-    run = _LevelRunner(level.scene(scene), ref_size, cache, frames_cap).run(poses, set_tag)
+    ref = LevelRunner(reference.scene(scene), ref_size, cache, frames_cap).run(poses, set_name)
+    run = LevelRunner(level.scene(scene), ref_size, cache, frames_cap).run(poses, set_name)
     return _errors(run, ref)
-
-
-def scene_for_level(scene: ts.Scene, level: dict[str, Any]) -> ts.Scene:
-    """Apply a chosen level's settings (``level['settings']``) to ``scene``."""
-    return replace_in(scene, **level["settings"]) if level["settings"] else scene
-
-
-def add_tolerance_arguments(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("--fidelity auto: tolerances (from a fidelity study's summary)")
-    g.add_argument("--study", metavar="DIR",
-                   help="fidelity study folder (its summary.json) for --fidelity auto")
-    g.add_argument("--max-marker-error-px", type=float, metavar="PX",
-                   help="perceived-marker error against the reference, 95th percentile (px)")
-    g.add_argument("--max-marker-error-mm", type=float, metavar="MM",
-                   help="largest FEM marker-position error against the reference (mm)")
-    g.add_argument("--max-cop-error-px", type=float, metavar="PX",
-                   help="largest centre-of-pressure error against the reference (px)")
-    g.add_argument("--min-r2", type=float, metavar="R2", help="least downstream roll/pitch R²")
-
-
-def resolve_auto(scene: ts.Scene, args: argparse.Namespace) -> tuple[ts.Scene, dict[str, Any]]:
-    """``--fidelity auto``: the scene at the cheapest level of ``--study`` meeting the given
-    tolerances, and a record of the choice for the manifest."""
-    if not args.study:
-        raise ValueError("--fidelity auto needs --study DIR (run `tactip study fidelity` first)")
-    path = Path(args.study) / "summary.json"
-    if not path.is_file():
-        raise ValueError(f"--study {args.study!r}: no summary.json there (run `tactip study "
-                         "fidelity SCENE --out DIR` first)")
-    summary = json.loads(path.read_text())
-    if summary.get("scene_hash") != scene_hash(scene):
-        raise ValueError(f"--study {args.study!r} was measured on a different scene (hash "
-                         f"{summary.get('scene_hash')} vs {scene_hash(scene)}); rerun the study")
-    tol = {k: getattr(args, k, None) for k in TOLERANCE_METRICS}
-    level = choose_level(summary, **tol)
-    ref = summary["levels"][0]
-    record = {"level": level["name"], "settings": level["settings"],
-              "tolerances": {k: v for k, v in tol.items() if v is not None},
-              "measured": {m: level[m] for m, _ in TOLERANCE_METRICS.values()},
-              "sample_s": level["sample_s"], "reference_sample_s": ref["sample_s"],
-              "speedup_vs_reference": level["speedup_vs_reference"], "study": str(path)}
-    return scene_for_level(scene, level), record
 
 
 # --------------------------------------------------------------------------- CLI
@@ -679,5 +546,5 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["Level", "LevelResult", "StudyGrid", "choose_level", "compare_levels", "pareto_front",
-           "resolve_auto", "run_fidelity_study", "scene_for_level", "study_levels"]
+__all__ = ["Level", "LevelResult", "LevelRun", "LevelRunner", "StudyGrid", "compare_levels",
+           "pareto_front", "run_fidelity_study", "study_levels"]

@@ -35,6 +35,7 @@ and the command's :func:`configure_parser` / :func:`main`).
 
 from __future__ import annotations
 
+from ...chain import MATCH_FRACTION
 from .config import (
     ANGLE_FAIL_DEG,
     FULL,
@@ -43,7 +44,6 @@ from .config import (
     LINEAR_VS_NH_FAIL_PX,
     LOST_FAIL_FRACTION,
     MAPS,
-    MATCH_FRACTION,
     MESH_FAIL_PX,
     MISSING_PATTERNS,
     NH_MAX_LOAD_STEPS,
@@ -60,7 +60,7 @@ from .maps_imaging import map_lighting, map_missing_markers, map_noise_blur
 from .maps_pose import map_depth, map_order_depth, map_pose_range
 from .report import plot_map, write_report
 from .results import MapResult, Panel
-from .rig import perceive_scored
+from .rig import Rig, perceive_scored, score_tracks
 from .run import configure_parser, main, run_stability
 
 __all__ = [
@@ -70,5 +70,6 @@ __all__ = [
     "RECALL_FAIL", "WINDOW_Z_MM", "Grids", "MapResult", "Panel", "configure_parser", "main",
     "map_depth", "map_large_depth", "map_lighting", "map_missing_markers", "map_mesh",
     "map_noise_blur", "map_order_depth", "map_pose_range", "perceive_scored", "plot_map",
+    "Rig", "score_tracks",
     "run_stability", "write_report",
 ]

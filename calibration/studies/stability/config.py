@@ -18,10 +18,8 @@ or tracked onto the wrong marker. One or two isolated losses are absorbed by the
 (a lost marker keeps its cell); three or more are a systematic effect. The pipeline's own
 reliability flag trips only at 10 % (``TrackingParams.max_lost_fraction``)."""
 
-MATCH_FRACTION = 0.25
-"""A tracked marker is correct when it lies within 0.25 x the rest marker spacing (about 7 px)
-of its own ground-truth marker: a swap onto a neighbour is a whole spacing off, a merged pair's
-centroid half of one."""
+# A tracked marker is correct when it lies within calibration.chain.MATCH_FRACTION (0.25) x the
+# rest spacing of its own marker: the chain's one marker-identity rule, not a study threshold.
 
 POSITION_FAIL_PX = 0.5
 """noise_blur, lighting: the 95th percentile of the marker-position error (tracked marker vs the

@@ -21,12 +21,12 @@ from .config import (
     RECALL_FAIL,
 )
 from .results import MapResult, Panel
-from .rig import _Rig, _rng, _Study, perceive_scored
+from .rig import Rig, _rng, _Study, perceive_scored
 
 # ---------------------------------------------------------------------------------------------
 # Maps 3-4: imaging (camera noise, blur, exposure, LEDs)
 
-def _imaging_cell(rig: _Rig, camera: Any, radiances: list[np.ndarray], blobs: list[np.ndarray],
+def _imaging_cell(rig: Rig, camera: Any, radiances: list[np.ndarray], blobs: list[np.ndarray],
                   visible: list[np.ndarray], rng: np.random.Generator, *,
                   edit: Callable[[int, np.ndarray], np.ndarray] | None = None
                   ) -> dict[str, Any]:
@@ -157,7 +157,7 @@ def map_lighting(st: _Study) -> MapResult:
 # ---------------------------------------------------------------------------------------------
 # Map 5: missing / occluded markers
 
-def _missing_order(rig: _Rig, pattern: str, seed: int) -> np.ndarray:
+def _missing_order(rig: Rig, pattern: str, seed: int) -> np.ndarray:
     """Ground-truth marker indices in the order they go missing (nested sets)."""
     rest_mm = rig.pad.markers_mm
     if pattern == "random":

@@ -8,9 +8,10 @@ import numpy as np
 
 import tactip_sim as ts
 
-from .config import ANGLE_FAIL_DEG, LOST_FAIL_FRACTION, MATCH_FRACTION, R2_FAIL, WINDOW_Z_MM
+from ...chain import MATCH_FRACTION
+from .config import ANGLE_FAIL_DEG, LOST_FAIL_FRACTION, R2_FAIL, WINDOW_Z_MM
 from .results import MapResult, Panel
-from .rig import _rng, _Study
+from .rig import _Study
 
 # ---------------------------------------------------------------------------------------------
 # Map 1: depth
@@ -44,7 +45,7 @@ def map_depth(st: _Study) -> MapResult:
                         lost[i, j] = 1.0
                         bar.update()
                         continue
-                    obs, _ = rig.sample(state, _rng(st.seed, "depth", p_i, i, j))
+                    obs, _ = rig.sample(state, "depth", p_i, i, j)
                     lost[i, j] = obs.failed / rig.n
                     invisible[i, j] = rig.n - obs.visible
                     min_z[i, j] = float(state.markers_mm[:, 2].min())
@@ -101,7 +102,7 @@ def map_pose_range(st: _Study) -> MapResult:
                     notes[i, j] = "FEM"
                     bar.update()
                     continue
-                obs, _ = rig.sample(state, _rng(st.seed, "pose_range", i, j))
+                obs, _ = rig.sample(state, "pose_range", i, j)
                 lost[i, j] = obs.failed / rig.n
                 if np.all(np.isfinite(obs.cop)):
                     pred[i, j] = model.predict(obs.cop[None])[0]

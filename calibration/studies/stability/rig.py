@@ -1,6 +1,6 @@
-"""The nominal tip's simulator, renderer and perception with ground-truth marker identities
-(:class:`_Rig`), scoring of perceived tracks against that truth (:func:`perceive_scored`),
-the seeded generators and the state shared by the maps (:class:`_Study`).
+"""The nominal tip's chain with ground-truth marker identities (:class:`Rig`), scoring of
+perceived tracks against that truth (:func:`score_tracks`), the seeded generators and the state
+shared by the maps (:class:`_Study`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ import numpy as np
 
 import tactip_sim as ts
 
-from .config import MATCH_FRACTION, Grids
+from ...chain import MATCH_FRACTION, Chain, Perceived, identify_markers, perceive, set_tag
+from .config import Grids
 
 # ---------------------------------------------------------------------------------------------
 # The rig: the nominal tip's simulator, renderer and perception, with ground-truth identities
@@ -39,105 +40,87 @@ class _Obs:
     frames: int
 
 
-class _Rig:
-    """The nominal tip (the bundled mesh) from :class:`calibration.sweep.TipWorker`: simulator,
-    renderer, rest frame and feature pipeline, built once for the whole study."""
+class Rig:
+    """The nominal tip's chain (:class:`calibration.chain.Chain`, the bundled mesh), built
+    once for the whole study, with its ground-truth marker identities."""
 
     def __init__(self, scene: ts.Scene, frames: int) -> None:
-        from ...protocol import PoseSet
-        from ...sweep import SweepSpec, TipWorker
-
-        spec = SweepSpec(scene, scene.protocol.tips[0], PoseSet("stability", np.zeros((0, 3))),
-                         frames=frames, nominal=True)
-        worker = TipWorker(spec)
-        self.scene = worker.scene
-        self.pad = worker.pad
-        self.sim = worker.sim
-        self.renderer = worker.renderer
-        self.pipeline = worker.pipeline
+        self.chain = Chain.for_tip(scene, scene.protocol.tips[0], nominal=True, frames=frames)
+        self.scene = self.chain.scene
+        self.pad = self.chain.pad
+        self.renderer = self.chain.renderer
+        self.pipeline = self.chain.pipeline
         self.frames = frames
         self.n = self.scene.pins.count
-        _, _, self.rest_blobs = self.truth(None)
-        self.track_gt = self.identities(self.pipeline, self.rest_blobs)
+        self.rest_blobs = self.chain.rest_truth_px
+        self.track_gt = self.chain.pin_of
         self.radius_px = MATCH_FRACTION * self.pipeline.spacing_px
         self.diameter_px = float(self.pipeline.expected_diameter_px)
 
+    @property
+    def sim(self) -> ts.Simulator:
+        return self.chain.sim
+
     def truth(self, state: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Analytic marker pixels, visibility and cap-image centroids (OpenCV px)."""
-        m = None if state is None else state.markers_mm
-        d = None if state is None else state.marker_directions
-        with np.errstate(invalid="ignore"):  # caps pushed through the window: NaN sightlines
-            return self.renderer.ground_truth(m, d)
+        return self.chain.truth(state)
 
-    def identities(self, pipeline: Any, rest_blobs: np.ndarray) -> np.ndarray:
-        """(m,) ground-truth marker of each of ``pipeline``'s rest tracks (-1: spurious)."""
-        from scipy.spatial import cKDTree
-
-        dist, idx = cKDTree(rest_blobs).query(pipeline.rest_points)
-        idx = np.where(dist < MATCH_FRACTION * pipeline.spacing_px, idx, -1)
-        # one-to-one: a second track on the same marker is spurious
-        seen: set[int] = set()
-        for k in np.argsort(dist):
-            if idx[k] >= 0:
-                if int(idx[k]) in seen:
-                    idx[k] = -1
-                seen.add(int(idx[k]))
-        return idx
+    @staticmethod
+    def identities(pipeline: Any, rest_blobs: np.ndarray) -> np.ndarray:
+        """(m,) ground-truth marker of each of ``pipeline``'s rest tracks (-1: spurious), by
+        the project's one rule (:func:`calibration.chain.identify_markers`)."""
+        return identify_markers(pipeline.rest_points, rest_blobs, pipeline.spacing_px)
 
     def press(self, pose: Sequence[float]) -> Any:
-        roll, pitch, depth = (float(v) for v in pose)
-        return self.sim.press(ts.Pose(roll_deg=roll, pitch_deg=pitch, depth_mm=depth))
+        return self.chain.press(pose)[0]
 
     def radiance(self, renderer: Any, state: Any, rng: np.random.Generator) -> np.ndarray:
-        m = None if state is None else state.markers_mm
-        d = None if state is None else state.marker_directions
-        return renderer.render_radiance(m, d, seed=int(rng.integers(0, 2**31 - 1)))
+        return self.chain.radiance(state, rng, renderer=renderer)
 
-    def sample(self, state: Any, rng: np.random.Generator) -> tuple[_Obs, np.ndarray]:
-        """Render ``state`` once, synthesise the noisy frames (:func:`render_frames`) and
-        perceive them with the rig's pipeline. Returns the observation and the frames' first."""
-        from ...sweep import render_frames
-
-        with np.errstate(invalid="ignore"):
-            _, visible, images = render_frames(self.renderer, state, self.frames, rng)
-        blobs = self.truth(state)[2]
-        obs = perceive_scored(self.pipeline, self.track_gt, images, blobs, visible, self.n,
-                       self.radius_px)
-        return obs, images[0]
+    def sample(self, state: Any, name: str, *index: int) -> tuple[_Obs, np.ndarray]:
+        """Render ``state`` and perceive its frames through the chain, seeded like a sweep's
+        sample of pose set ``name`` (:meth:`Chain.observe`), and score the tracks against the
+        ground truth. Returns the observation and the frames' first."""
+        s = self.chain.observe(state, set_tag(name), *index)
+        r = s.rendered
+        obs = score_tracks(s.perceived, self.track_gt, r.blobs_px, r.visible, self.n,
+                           self.radius_px)
+        return obs, r.images[0]
 
 
 def perceive_scored(pipeline: Any, track_gt: np.ndarray, images: Sequence[np.ndarray],
-             blobs: np.ndarray, visible: np.ndarray, n: int, radius_px: float) -> _Obs:
-    """Run the feature pipeline on a sample's frames (from rest, as a calibration sweep does)
-    and score every track against the ground truth.
+                    blobs: np.ndarray, visible: np.ndarray, n: int, radius_px: float) -> _Obs:
+    """Run ``pipeline`` on a sample's frames (from rest, as the chain does:
+    :func:`calibration.chain.perceive`) and score every track against the ground truth
+    (:func:`score_tracks`)."""
+    return score_tracks(perceive(pipeline, images), track_gt, blobs, visible, n, radius_px)
+
+
+def score_tracks(p: Perceived, track_gt: np.ndarray, blobs: np.ndarray, visible: np.ndarray,
+                 n: int, radius_px: float) -> _Obs:
+    """Score a sample's perceived tracks, frame by frame, against the ground truth.
 
     Parameters
     ----------
-    pipeline : perception.FeaturePipeline (reset here)
+    p : the perceived sample (its per-frame tracked points)
     track_gt : (m,) ground-truth marker of each track (-1: a spurious rest detection)
-    images : the sample's noisy frames
     blobs : (n, 2) analytic cap-image centroids, px
     visible : (n,) bool ground-truth visibility
+    n : markers of the tip
+    radius_px : a track within this distance of its own marker is correct
     """
-    pipeline.reset()
-    failed, errors, cops, reliable = [], [], [], 0
     valid = track_gt >= 0
-    for image in images:
-        f = pipeline.process(image)
-        reliable += int(f.reliable)
+    gt = blobs[track_gt[valid]]
+    failed, errors = [], []
+    for points in p.frame_points:
         err = np.full(len(track_gt), np.inf)
-        gt = blobs[track_gt[valid]]
         with np.errstate(invalid="ignore"):
-            err[valid] = np.linalg.norm(f.points[valid] - gt, axis=1)
+            err[valid] = np.linalg.norm(points[valid] - gt, axis=1)
         ok = np.isfinite(err) & (err < radius_px)
         failed.append(n - int(ok.sum()))
         errors.append(err[ok])
-        # as calibration.sweep.TipWorker.sample: frames with some markers lost still give a CoP
-        if np.all(np.isfinite(f.cop_area_change)):
-            cops.append(f.cop_area_change)
-    cop = np.mean(cops, axis=0) if cops else np.full(2, np.nan)
-    return _Obs(float(np.mean(failed)), np.concatenate(errors), cop, int(np.sum(visible)),
-                reliable, len(images))
+    return _Obs(float(np.mean(failed)), np.concatenate(errors), p.cop_growth,
+                int(np.sum(visible)), p.reliable, len(p.frame_points))
 
 
 def _rng(seed: int, name: str, *index: int) -> np.random.Generator:
@@ -156,14 +139,14 @@ class _Study:
         self.quick = quick
         self.progress = progress
         self.seed = scene.protocol.seed
-        self._rig: _Rig | None = None
+        self._rig: Rig | None = None
         self._models: dict[int, Any] | None = None
         self.training_info: dict[str, Any] = {}
 
     @property
-    def rig(self) -> _Rig:
+    def rig(self) -> Rig:
         if self._rig is None:
-            self._rig = _Rig(self.scene, self.grids.frames)
+            self._rig = Rig(self.scene, self.grids.frames)
         return self._rig
 
     def bar(self, total: int, desc: str):
@@ -211,7 +194,7 @@ class _Study:
         cops = np.full((len(poses), 2), np.nan)
         with self.bar(len(poses), name) as bar:
             for i, pose in enumerate(poses):
-                obs, _ = rig.sample(rig.press(pose), _rng(self.seed, name, i))
+                obs, _ = rig.sample(rig.press(pose), name, i)
                 cops[i] = obs.cop
                 bar.update()
         ok = np.all(np.isfinite(cops), axis=1)

@@ -15,6 +15,7 @@ from typing import Any
 
 import tactip_sim as ts
 
+from ...chain import MATCH_FRACTION
 from .config import (
     ANGLE_FAIL_DEG,
     FULL,
@@ -22,7 +23,6 @@ from .config import (
     LINEAR_VS_NH_FAIL_PX,
     LOST_FAIL_FRACTION,
     MAPS,
-    MATCH_FRACTION,
     MESH_FAIL_PX,
     NH_MAX_LOAD_STEPS,
     POSITION_FAIL_PX,
@@ -58,8 +58,8 @@ def run_stability(scene: ts.Scene, out: str | Path, *, quick: bool = False,
     """
     from tactip_sim.scene import scene_hash, scene_to_dict
 
-    from ...dataset import _json, atomic_write_text
-    from ...sweep import _versions
+    from ...dataset import atomic_write_text, json_default
+    from ...versions import package_versions
 
     names = list(MAPS) if maps is None else list(maps)
     unknown = [m for m in names if m not in MAP_FUNCS]
@@ -105,10 +105,10 @@ def run_stability(scene: ts.Scene, out: str | Path, *, quick: bool = False,
                     **{r.name: round(r.seconds, 2) for r in results},
                     "total_s": round(seconds, 2)},
         "seconds": seconds,
-        "versions": _versions(),
+        "versions": package_versions(),
     }
     atomic_write_text(out / "summary.json", json.dumps(_plain(summary), indent=1,
-                                                       default=_json))
+                                                       default=json_default))
     write_report(out, results, summary)
     return summary
 

@@ -1,0 +1,85 @@
+"""Where samples are computed: in this process, on local worker processes or on a Dask cluster.
+
+The executor knows nothing of what a sample is: it sends ``fn(spec, chunk)`` tasks out and
+yields their results as they complete. ``--workers N`` starts a Dask ``LocalCluster`` of N
+single-threaded processes; ``--scheduler ADDRESS`` uses any running Dask scheduler (other
+machines included). Results come back to the client, so workers need no shared filesystem.
+Every worker, local or remote, gets :class:`~calibration.dask_setup.SweepWorkerSetup` (one
+OpenCV thread, glibc heap reuse).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+
+def open_client(workers: int, scheduler: str | None):
+    """A Dask client: on ``scheduler`` if given, else on a LocalCluster of ``workers``
+    single-threaded processes; None for in-process work (``workers <= 1``, no scheduler).
+    Close it with :func:`close_client`."""
+    if scheduler is None and workers <= 1:
+        return None
+    from dask.distributed import Client, LocalCluster
+
+    from .dask_setup import SweepWorkerSetup, quiet_interrupt
+
+    if scheduler is not None:
+        client = Client(scheduler)
+    else:
+        quiet_interrupt("distributed.nanny")  # the local nannies run in this process
+        client = Client(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                     dashboard_address=":0"))  # any free port: no clash
+    client.register_plugin(SweepWorkerSetup())  # also on workers that join or restart later
+    return client
+
+
+def close_client(client: Any) -> None:
+    """Close a client of :func:`open_client` and the local cluster it started (if any)."""
+    if client is None:
+        return
+    cluster = client.cluster
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+def execute(fn: Callable[[Any, list[int]], Any], spec: Any, chunks: Sequence[list[int]], *,
+            workers: int = 1, scheduler: str | None = None, client: Any = None
+            ) -> Iterator[Any]:
+    """Yield ``fn(spec, chunk)`` for every chunk as it completes: in order in this process
+    (``workers <= 1``, no scheduler, no client), else from Dask.
+
+    client : an open client to use and leave open (e.g. one shared by all the sweeps of a
+        calibration); without one, a client is opened for these chunks and closed after.
+    """
+    if not chunks:
+        return
+    own = client is None
+    if own:
+        client = open_client(workers, scheduler)
+    if client is None:
+        for c in chunks:
+            yield fn(spec, c)
+        return
+    from dask.distributed import as_completed
+
+    try:
+        spec_f = client.scatter(spec, broadcast=True)
+        futures = [client.submit(fn, spec_f, c, pure=False) for c in chunks]
+        for fut in as_completed(futures):
+            yield fut.result()
+    finally:
+        if own:
+            close_client(client)
+
+
+def progress(total: int, initial: int, enabled: bool, desc: str):
+    """A tqdm progress bar of samples (rate and ETA)."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=initial, disable=not enabled, desc=desc, unit="sample",
+                dynamic_ncols=True, smoothing=0.1)
+
+
+__all__ = ["close_client", "execute", "open_client", "progress"]
