@@ -13,19 +13,28 @@ from tactip_sim.scene import preset_of, scene_hash, scene_to_dict
 
 from .dataset import atomic_write_text, json_default
 from .executor import close_client, open_client
-from .fit import ScoreRow, features, fit_model, r2_table_csv, r2_table_markdown, score
+from .fit import (
+    DEFAULT_FEATURE,
+    FEATURES,
+    ScoreRow,
+    check_feature,
+    features,
+    fit_model,
+    r2_table_csv,
+    r2_table_markdown,
+    score,
+)
 from .protocol import evaluation_sets, make_tip, training_set
 from .runlog import RunLog
 from .sweep import SweepSpec, run_sweep
 from .versions import package_versions
 
 ORDERS = (1, 2, 3)
-# The CoP feature the regressors use. "area_change" (cells weighted by their growth against the
+# The CoP feature the regressors use. "growth" (cells weighted by their growth against the
 # rest frame) is the default: with Voronoi cells clipped to the sensor region, as they must be
 # so the outer ring is not inflated, the paper's "area" weighting is pinned near the region's
 # centroid (clipped areas sum to the region's area) and moves a few pixels over the whole
-# protocol. Both are fitted and reported; ``r2_table_paper_cop.*`` holds the paper's variant.
-FEATURES = ("area_change", "area")
+# protocol. Both are fitted and reported; ``r2_table_<other>.*`` holds the other feature.
 
 
 @dataclass(frozen=True)
@@ -48,21 +57,21 @@ def calibrate(
     scheduler: str | None = None,
     progress: bool = True,
     charts: bool = True,
-    feature: str = "area_change",
+    feature: str = DEFAULT_FEATURE,
     fidelity: dict | None = None,
 ) -> CalibrationResult:
     """Run the reference paper's calibration protocol in simulation (resumable).
 
     For each tip: the training sweep and the test sweeps (datasets under ``out/tip_X/``),
     polynomial regressors of order 1, 2 and 3 fitted on the training CoPs and scored on each
-    test set, for both CoP features (``feature`` is the headline one, see :data:`FEATURES`).
-    Writes ``r2_table.csv``, ``r2_table.md`` (headline feature), ``r2_table_paper_cop.*`` or
-    ``r2_table_area_change_cop.*`` (the other), ``models/*.json``, charts and ``manifest.json``.
+    test set, for every CoP feature (``feature`` is the headline one, see
+    :data:`calibration.fit.FEATURES`). Writes ``r2_table.csv``, ``r2_table.md`` (headline
+    feature), ``r2_table_<other>.*`` for each other feature, ``models/*.json`` (headline) and
+    ``models/<other>/*.json``, charts and ``manifest.json``.
     ``fidelity`` records how the scene's fidelity was chosen (``--fidelity``, or the
     ``--fidelity auto`` choice) in the manifest.
     """
-    if feature not in FEATURES:
-        raise ValueError(f"feature={feature!r} must be one of {FEATURES}")
+    check_feature(feature)
     other = next(f for f in FEATURES if f != feature)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -92,14 +101,14 @@ def calibrate(
                 samples += res.computed
                 sample_seconds += res.sample_seconds
             for feat in (feature, other):
-                train = features(results["train"].dataset, variant=feat)
-                folder = models_dir if feat == feature else models_dir / f"{feat}_cop"
+                train = features(results["train"].dataset, feature=feat)
+                folder = models_dir if feat == feature else models_dir / feat
                 folder.mkdir(exist_ok=True)
                 for order in ORDERS:
                     model = fit_model(train, order)
                     model.to_json(folder / f"tip_{tip}_order{order}.json")
                     for pose_set in sets[1:]:
-                        test = features(results[pose_set.name].dataset, variant=feat)
+                        test = features(results[pose_set.name].dataset, feature=feat)
                         rows[feat].append(score(model, test, tip=tip,
                                                 depth_offset_mm=pose_set.depth_offset_mm))
             timings[f"tip_{tip}_s"] = time.perf_counter() - t_tip
@@ -108,13 +117,13 @@ def calibrate(
                 from .report import tip_charts
 
                 tip_charts(out, tip, {k: r.dataset for k, r in results.items()},
-                           features(results["train"].dataset, variant=feature), feature=feature)
+                           features(results["train"].dataset, feature=feature), feature=feature)
     finally:
         log.flush()  # an interrupted invocation keeps its time and samples in runs.json
         close_client(client)
     atomic_write_text(out / "r2_table.csv", r2_table_csv(rows[feature]))
     atomic_write_text(out / "r2_table.md", r2_table_markdown(rows[feature], feature=feature))
-    alt = "r2_table_paper_cop" if other == "area" else f"r2_table_{other}_cop"
+    alt = f"r2_table_{other}"
     atomic_write_text(out / f"{alt}.csv", r2_table_csv(rows[other]))
     atomic_write_text(out / f"{alt}.md", r2_table_markdown(rows[other], feature=other))
     seconds = time.perf_counter() - t_start

@@ -28,6 +28,14 @@ def _scale_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _feature_argument(p: argparse.ArgumentParser, what: str) -> None:
+    from .fit import DEFAULT_FEATURE, FEATURES
+
+    p.add_argument("--feature", default=DEFAULT_FEATURE, choices=list(FEATURES),
+                   help=f"{what}: " + "; ".join(f"'{k}' = {v}" for k, v in FEATURES.items())
+                   + f" (default {DEFAULT_FEATURE})")
+
+
 def _check_scale(args: argparse.Namespace) -> None:
     if args.workers < 1:
         raise ValueError(f"--workers={args.workers} must be at least 1")
@@ -110,7 +118,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _cmd_fit(args: argparse.Namespace) -> int:
     from .fit import features, fit_model
 
-    train = features(args.dataset, variant=args.variant)
+    train = features(args.dataset, feature=args.feature)
     model = fit_model(train, args.order)
     out = Path(args.out) if args.out else Path(args.dataset) / f"model_order{args.order}.json"
     model.to_json(out)
@@ -128,7 +136,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     model = pc.PoseRegressor.from_json(args.model)
     rows = []
     for d in args.datasets:
-        t = features(d, variant=args.variant)
+        t = features(d, feature=args.feature)
         s = model.score(t.cop_px, t.angles_deg)
         rows.append({"dataset": str(d), "n": s.n, "dropped": len(t.dropped),
                      "r2": s.r2_overall, "r2_roll": float(s.r2[0]), "r2_pitch": float(s.r2[1]),
@@ -159,8 +167,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true",
                    help="coarser grids (roll step 8°, pitch step 3.5°, 30 test poses)")
     p.add_argument("--no-charts", action="store_true", help="skip the PNG charts")
-    p.add_argument("--feature", default="area_change", choices=["area_change", "area"],
-                   help="headline CoP feature (default area_change; both are reported)")
+    _feature_argument(p, "headline CoP feature (both are fitted and reported)")
     _scale_args(p)
     add_tolerance_arguments(p)
     p.set_defaults(func=_cmd_calibrate)
@@ -190,8 +197,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "save it as JSON.")
     p.add_argument("dataset", help="dataset folder (from tactip sweep)")
     p.add_argument("--order", type=int, default=2, choices=[1, 2, 3], help="polynomial order")
-    p.add_argument("--variant", default="area_change", choices=["area", "area_change"],
-                   help="CoP weighting (default: cell growth; 'area' is the paper's)")
+    _feature_argument(p, "CoP feature to fit on")
     p.add_argument("--out", help="model file (default DATASET/model_orderN.json)")
     p.set_defaults(func=_cmd_fit)
 
@@ -199,8 +205,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="R² and RMSE of a saved regressor on one or more datasets.")
     p.add_argument("model", help="model JSON (from tactip fit or tactip calibrate)")
     p.add_argument("datasets", nargs="+", help="dataset folders")
-    p.add_argument("--variant", default="area_change", choices=["area", "area_change"],
-                   help="CoP weighting the model was fitted with")
+    _feature_argument(p, "CoP feature the model was fitted on")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_evaluate)
 

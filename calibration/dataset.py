@@ -32,20 +32,28 @@ import numpy as np
 
 MANIFEST = "manifest.json"
 DATASET_KIND = "tactip-sim dataset"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 # Bristol TacTip convention: pose_1..pose_6 = x, y, z (mm), Rx, Ry, Rz (deg); z = depth (press)
 TARGET_COLUMNS = [
     "index", "image", "pose_1", "pose_2", "pose_3", "pose_4", "pose_5", "pose_6",
     "roll_deg", "pitch_deg", "depth_mm", "tip", "force_N", "contact_area_mm2",
-    "true_cop_x_mm", "true_cop_y_mm", "cop_x_px", "cop_y_px", "cop_ac_x_px", "cop_ac_y_px",
-    "cop_std_px", "n_markers", "reliable_frames", "frames", "contact",
+    "true_cop_x_mm", "true_cop_y_mm", "cop_area_x_px", "cop_area_y_px", "cop_growth_x_px",
+    "cop_growth_y_px", "cop_area_std_px", "n_markers", "reliable_frames", "frames", "contact",
 ]
+
+# Format 1 named the two centres of pressure otherwise; its finished datasets still read.
+FORMAT_1_NAMES = {
+    "cop_x_px": "cop_area_x_px", "cop_y_px": "cop_area_y_px", "cop_ac_x_px": "cop_growth_x_px",
+    "cop_ac_y_px": "cop_growth_y_px", "cop_std_px": "cop_area_std_px",
+    "cop_px": "cop_area_px", "cop_ac_px": "cop_growth_px",
+}
+"""Format 1 name -> format 2 name, for columns of ``targets.csv`` and keys of records."""
 
 # record fields: scalars and arrays saved per sample
 SCALARS = ("index", "roll_deg", "pitch_deg", "depth_mm", "force_N", "contact_area_mm2",
-           "n_markers", "reliable_frames", "frames", "contact", "cop_std_px")
-VECTORS = ("true_cop_mm", "cop_px", "cop_ac_px")
+           "n_markers", "reliable_frames", "frames", "contact", "cop_area_std_px")
+VECTORS = ("true_cop_mm", "cop_area_px", "cop_growth_px")
 ARRAYS = ("markers_mm", "markers_px", "visible")
 
 
@@ -90,9 +98,9 @@ class SampleRecord:
     force_N: float
     contact_area_mm2: float
     true_cop_mm: np.ndarray  # (2,) ground-truth pressure centroid
-    cop_px: np.ndarray  # (2,) CoP from perception (area-weighted), averaged over frames
-    cop_ac_px: np.ndarray  # (2,) area-change-weighted variant
-    cop_std_px: float  # frame-to-frame spread of cop_px
+    cop_area_px: np.ndarray  # (2,) the paper's CoP (cell-area weighted), averaged over frames
+    cop_growth_px: np.ndarray  # (2,) the growth-weighted CoP, averaged over frames
+    cop_area_std_px: float  # frame-to-frame spread of cop_area_px
     n_markers: float  # markers detected, mean over frames
     reliable_frames: int
     frames: int
@@ -108,7 +116,9 @@ class SampleRecord:
 
     @classmethod
     def from_npz(cls, path: Path) -> SampleRecord:
-        with np.load(path) as d:
+        """A record from its file (format 1's key names read too)."""
+        with np.load(path) as data:
+            d = {FORMAT_1_NAMES.get(k, k): data[k] for k in data.files}
             kw: dict[str, Any] = {k: d[k].item() for k in SCALARS}
             kw.update({k: d[k].copy() for k in VECTORS + ARRAYS})
         kw["index"] = int(kw["index"])
@@ -150,6 +160,13 @@ class Dataset:
         """
         if self.manifest_path.is_file():
             old = self.manifest()
+            if old.get("format_version") != FORMAT_VERSION:
+                raise DatasetError(
+                    f"{self.root} was written in dataset format {old.get('format_version')!r} "
+                    f"(this version writes format {FORMAT_VERSION}: the centre-of-pressure "
+                    "columns were renamed), so a sweep cannot continue in it; its finished "
+                    "tables still read (`tactip fit`, `tactip evaluate`): choose a new --out "
+                    "folder for new samples")
             mismatch = {k: (old.get("identity", {}).get(k), v) for k, v in identity.items()
                         if old.get("identity", {}).get(k) != v}
             if mismatch:
@@ -218,9 +235,9 @@ class Dataset:
                 r.index, f"images/{r.index:05d}.png", 0.0, 0.0, _f(r.depth_mm), _f(r.roll_deg),
                 _f(r.pitch_deg), 0.0, _f(r.roll_deg), _f(r.pitch_deg), _f(r.depth_mm), tip,
                 _f(r.force_N), _f(r.contact_area_mm2), _f(r.true_cop_mm[0]),
-                _f(r.true_cop_mm[1]), _f(r.cop_px[0]), _f(r.cop_px[1]), _f(r.cop_ac_px[0]),
-                _f(r.cop_ac_px[1]), _f(r.cop_std_px), _f(r.n_markers), r.reliable_frames,
-                r.frames, r.contact,
+                _f(r.true_cop_mm[1]), _f(r.cop_area_px[0]), _f(r.cop_area_px[1]),
+                _f(r.cop_growth_px[0]), _f(r.cop_growth_px[1]), _f(r.cop_area_std_px),
+                _f(r.n_markers), r.reliable_frames, r.frames, r.contact,
             ])
         atomic_write_text(self.root / "targets.csv", buf.getvalue())
         arrays = {k: np.stack([getattr(r, k) for r in recs]) if recs else np.zeros(0)
@@ -237,7 +254,8 @@ class Dataset:
             raise DatasetError(f"{self.root} has no targets.csv (the sweep did not finish: rerun "
                                "it to resume)")
         with path.open(newline="") as fh:
-            rows = list(csv.DictReader(fh))
+            rows = [{FORMAT_1_NAMES.get(k, k): v for k, v in row.items()}
+                    for row in csv.DictReader(fh)]
         cols: dict[str, np.ndarray] = {}
         for name in TARGET_COLUMNS:
             vals = [row[name] for row in rows]

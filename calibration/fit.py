@@ -33,15 +33,29 @@ class FeatureTable:
     image_size: tuple[int, int]
 
 
-def features(dataset: Dataset | str | Path, *, variant: str = "area_change") -> FeatureTable:
-    """Read a finished dataset's CoP features (``variant``: "area_change" (default: cells
-    weighted by their growth) or "area" (the paper's weighting by clipped cell areas))."""
-    if variant not in ("area", "area_change"):
-        raise ValueError(f"variant={variant!r} must be 'area' or 'area_change'")
+FEATURES = {
+    "growth": "CoP weighted by Voronoi cell growth against the rest frame",
+    "area": "the paper's CoP, weighted by (clipped) Voronoi cell areas",
+}
+"""The centre-of-pressure features, by their one name (code, ``--feature``, the
+``cop_<name>_x_px`` columns of ``targets.csv``, docs), and what each is. The first is the
+default headline feature (docs/calibration.md says why)."""
+DEFAULT_FEATURE = next(iter(FEATURES))
+
+
+def check_feature(feature: str) -> str:
+    if feature not in FEATURES:
+        raise ValueError(f"feature={feature!r} is not allowed: one of {', '.join(FEATURES)}")
+    return feature
+
+
+def features(dataset: Dataset | str | Path, *, feature: str = DEFAULT_FEATURE) -> FeatureTable:
+    """Read a finished dataset's centre-of-pressure feature ``feature`` (a :data:`FEATURES`
+    name) with the poses."""
+    check_feature(feature)
     ds = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
     t = ds.table()
-    cols = ("cop_x_px", "cop_y_px") if variant == "area" else ("cop_ac_x_px", "cop_ac_y_px")
-    cop = np.stack([t[cols[0]], t[cols[1]]], axis=1)
+    cop = np.stack([t[f"cop_{feature}_x_px"], t[f"cop_{feature}_y_px"]], axis=1)
     angles = np.stack([t["roll_deg"], t["pitch_deg"]], axis=1)
     ok = np.all(np.isfinite(cop), axis=1)
     res = ds.manifest().get("scene", {}).get("camera", {}).get("resolution", [0, 0])
@@ -95,13 +109,7 @@ def r2_table_csv(rows: list[ScoreRow]) -> str:
     return "\n".join(lines) + "\n"
 
 
-FEATURE_TEXT = {
-    "area_change": "CoP weighted by Voronoi cell growth against the rest frame",
-    "area": "the paper's CoP, weighted by (clipped) Voronoi cell areas",
-}
-
-
-def r2_table_markdown(rows: list[ScoreRow], *, feature: str = "area_change") -> str:
+def r2_table_markdown(rows: list[ScoreRow], *, feature: str = DEFAULT_FEATURE) -> str:
     """Laid out like the paper's Table I, ours beside the published numbers."""
     depths = sorted({r.depth_mm for r in rows})
     by = {(r.tip, r.order, r.depth_mm): r for r in rows}
@@ -124,5 +132,5 @@ def r2_table_markdown(rows: list[ScoreRow], *, feature: str = "area_change") -> 
     n = max((r.n for r in rows), default=0)
     lines.append(f"R² is the mean of the roll and pitch R² on each test set ({n} poses); depths "
                  "are relative to the training depth. Paper: Pestell et al., Table I. "
-                 f"Feature: {FEATURE_TEXT.get(feature, feature)}.")
+                 f"Feature: {FEATURES[check_feature(feature)]}.")
     return "\n".join(lines) + "\n"

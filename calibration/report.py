@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .dataset import Dataset
-from .fit import PAPER_DEPTHS, PAPER_R2, FeatureTable, ScoreRow, features
+from .fit import DEFAULT_FEATURE, PAPER_DEPTHS, PAPER_R2, FeatureTable, ScoreRow, features
 
 
 def _plt():
@@ -21,7 +21,7 @@ def _plt():
 
 
 def tip_charts(out: Path, tip: str, datasets: dict[str, Dataset], train: FeatureTable, *,
-               feature: str = "area_change") -> None:
+               feature: str = DEFAULT_FEATURE) -> None:
     import perception as pc
 
     charts = out / "charts"
@@ -52,7 +52,7 @@ def tip_charts(out: Path, tip: str, datasets: dict[str, Dataset], train: Feature
     tests = [(k, d) for k, d in datasets.items() if k != "train"]
     fig, axes = plt.subplots(2, len(tests), figsize=(3.6 * len(tests), 6.6), squeeze=False)
     for j, (name, ds) in enumerate(tests):
-        t = features(ds, variant=feature)
+        t = features(ds, feature=feature)
         p = model2.predict(t.cop_px)
         for k, angle in enumerate(("roll", "pitch")):
             ax = axes[k, j]

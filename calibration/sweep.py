@@ -106,7 +106,7 @@ def record(index: int, pose: Sequence[float], s: Any) -> SampleRecord:
         index=index, roll_deg=roll, pitch_deg=pitch, depth_mm=depth,
         force_N=float(state.force_N), contact_area_mm2=float(state.contact_area_mm2),
         true_cop_mm=np.asarray(state.pressure_centre_mm, dtype=float)[:2],
-        cop_px=p.cop_area, cop_ac_px=p.cop_growth, cop_std_px=p.spread,
+        cop_area_px=p.cop_area, cop_growth_px=p.cop_growth, cop_area_std_px=p.spread,
         n_markers=p.n_markers, reliable_frames=p.reliable, frames=len(r.images),
         contact=int(bool(state.in_contact)), markers_mm=np.asarray(state.markers_mm),
         markers_px=np.asarray(r.markers_px, dtype=float),

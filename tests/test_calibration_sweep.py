@@ -71,8 +71,8 @@ def test_dataset_round_trip(serial, spec):
     t = ds.table()
     assert np.all(t["force_N"] > 0) and np.all(t["contact"] == 1)
     # the perceived CoP comes from perception on the frames: finite, inside the image
-    assert np.all(np.isfinite(t["cop_x_px"])) and np.all((t["cop_x_px"] > 0)
-                                                         & (t["cop_x_px"] < 320))
+    assert np.all(np.isfinite(t["cop_area_x_px"])) and np.all((t["cop_area_x_px"] > 0)
+                                                         & (t["cop_area_x_px"] < 320))
     assert ds.manifest()["identity"]["tip"] == "A"
 
 
@@ -248,3 +248,39 @@ def test_warm_up_builds_the_worker_the_sweep_uses(spec, tmp_path):
     warm = chain_for(spec.with_mesh())
     run_sweep(spec, tmp_path / "ds", progress=False, limit=1)
     assert chain_for(spec.with_mesh()) is warm
+
+
+def test_format_1_datasets_still_read_and_refuse_a_resume(tmp_path, spec):
+    """A dataset written before the centre-of-pressure columns were renamed (format 1) reads
+    with its values under the new names, and a sweep will not append to it."""
+    import json
+
+    from calibration.dataset import FORMAT_1_NAMES
+    from calibration.fit import features
+
+    old_name = {new: old for old, new in FORMAT_1_NAMES.items()}
+    header = [old_name.get(c, c) for c in TARGET_COLUMNS]
+    assert "cop_ac_x_px" in header and "cop_x_px" in header
+    rows = []
+    for i in range(4):
+        row = dict.fromkeys(header, "0")
+        row.update({"index": str(i), "image": f"images/{i:05d}.png", "tip": "A",
+                    "roll_deg": str(2.0 * i), "pitch_deg": str(-1.0 * i), "depth_mm": "1.0",
+                    "cop_x_px": str(100.0 + i), "cop_y_px": "50", "cop_ac_x_px": str(200.0 + i),
+                    "cop_ac_y_px": "60"})
+        rows.append(",".join(row[c] for c in header))
+    root = tmp_path / "old"
+    root.mkdir()
+    (root / "targets.csv").write_text(",".join(header) + "\n" + "\n".join(rows) + "\n")
+    (root / "manifest.json").write_text(json.dumps(
+        {"kind": "tactip-sim dataset", "format_version": 1, "identity": {},
+         "scene": {"camera": {"resolution": [320, 240]}}}))
+    growth = features(root, feature="growth")
+    np.testing.assert_array_equal(growth.cop_px[:, 0], [200.0, 201.0, 202.0, 203.0])
+    np.testing.assert_array_equal(features(root, feature="area").cop_px[:, 0],
+                                  [100.0, 101.0, 102.0, 103.0])
+    np.testing.assert_array_equal(growth.angles_deg[:, 0], [0.0, 2.0, 4.0, 6.0])
+    with pytest.raises(DatasetError, match="dataset format 1.*renamed"):
+        run_sweep(spec, root, progress=False)
+    with pytest.raises(ValueError, match="feature='area_change' is not allowed"):
+        features(root, feature="area_change")

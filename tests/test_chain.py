@@ -41,12 +41,12 @@ def test_sweep_fidelity_level_and_stability_point_give_identical_features(small_
     for i, rec in enumerate(swept):
         obs, _ = rig.sample(rig.press(POSES[i]), "probe", i)
         # the growth-weighted CoP: the feature all three use
-        assert rec.cop_ac_px.tobytes() == level.cop_px[i].tobytes() == obs.cop.tobytes()
+        assert rec.cop_growth_px.tobytes() == level.cop_px[i].tobytes() == obs.cop.tobytes()
         assert rec.markers_mm.tobytes() == level.markers_mm[i].tobytes()
-        assert np.all(np.isfinite(rec.cop_ac_px))
+        assert np.all(np.isfinite(rec.cop_growth_px))
     # and the seed key matters: another index is another noise draw, other features
     other = Chain.for_tip(small_scene, "A", nominal=True).sample(POSES[0], set_tag("probe"), 1)
-    assert other.perceived.cop_growth.tobytes() != swept[0].cop_ac_px.tobytes()
+    assert other.perceived.cop_growth.tobytes() != swept[0].cop_growth_px.tobytes()
     assert other.state.force_N == swept[0].force_N  # the same press
 
 
