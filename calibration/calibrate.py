@@ -22,6 +22,7 @@ from .fit import (
     fit_model,
     r2_table_csv,
     r2_table_markdown,
+    save_model,
     score,
 )
 from .protocol import evaluation_sets, make_tip, training_set
@@ -106,7 +107,9 @@ def calibrate(
                 folder.mkdir(exist_ok=True)
                 for order in ORDERS:
                     model = fit_model(train, order)
-                    model.to_json(folder / f"tip_{tip}_order{order}.json")
+                    save_model(model, folder / f"tip_{tip}_order{order}.json", feature=feat,
+                               fitted_on={"scene_hash": scene_hash(scene), "tip": tip,
+                                          "data": f"tip_{tip}/train", "frames": frames})
                     for pose_set in sets[1:]:
                         test = features(results[pose_set.name].dataset, feature=feat)
                         rows[feat].append(score(model, test, tip=tip,

@@ -4,7 +4,6 @@ entry point so that ``tactip_sim`` never imports this package."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -115,43 +114,6 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_fit(args: argparse.Namespace) -> int:
-    from .fit import features, fit_model
-
-    train = features(args.dataset, feature=args.feature)
-    model = fit_model(train, args.order)
-    out = Path(args.out) if args.out else Path(args.dataset) / f"model_order{args.order}.json"
-    model.to_json(out)
-    s = model.score(train.cop_px, train.angles_deg)
-    print(f"order {args.order} fitted on {s.n} samples ({len(train.dropped)} dropped): training "
-          f"R² {s.r2_overall:.4f} (roll {s.r2[0]:.4f}, pitch {s.r2[1]:.4f}); saved {out}")
-    return 0
-
-
-def _cmd_evaluate(args: argparse.Namespace) -> int:
-    import perception as pc
-
-    from .fit import features
-
-    model = pc.PoseRegressor.from_json(args.model)
-    rows = []
-    for d in args.datasets:
-        t = features(d, feature=args.feature)
-        s = model.score(t.cop_px, t.angles_deg)
-        rows.append({"dataset": str(d), "n": s.n, "dropped": len(t.dropped),
-                     "r2": s.r2_overall, "r2_roll": float(s.r2[0]), "r2_pitch": float(s.r2[1]),
-                     "rmse_roll_deg": float(s.rmse_deg[0]),
-                     "rmse_pitch_deg": float(s.rmse_deg[1])})
-    if args.json:
-        print(json.dumps(rows, indent=2))
-    else:
-        for r in rows:
-            print(f"{r['dataset']}: R² {r['r2']:.4f} (roll {r['r2_roll']:.4f}, pitch "
-                  f"{r['r2_pitch']:.4f}); RMSE roll {r['rmse_roll_deg']:.2f}°, pitch "
-                  f"{r['rmse_pitch_deg']:.2f}°; n={r['n']}")
-    return 0
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     from .fidelity_auto import add_tolerance_arguments
 
@@ -192,22 +154,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_tolerance_arguments(p)
     p.set_defaults(func=_cmd_sweep)
 
-    p = sub.add_parser("fit", help="fit a roll/pitch regressor on a dataset",
-                       description="Fit a polynomial CoP -> (roll, pitch) model on a dataset and "
-                       "save it as JSON.")
-    p.add_argument("dataset", help="dataset folder (from tactip sweep)")
-    p.add_argument("--order", type=int, default=2, choices=[1, 2, 3], help="polynomial order")
-    _feature_argument(p, "CoP feature to fit on")
-    p.add_argument("--out", help="model file (default DATASET/model_orderN.json)")
-    p.set_defaults(func=_cmd_fit)
+    from .fit_cli import register as register_fit
 
-    p = sub.add_parser("evaluate", help="score a fitted model on datasets",
-                       description="R² and RMSE of a saved regressor on one or more datasets.")
-    p.add_argument("model", help="model JSON (from tactip fit or tactip calibrate)")
-    p.add_argument("datasets", nargs="+", help="dataset folders")
-    _feature_argument(p, "CoP feature the model was fitted on")
-    p.add_argument("--json", action="store_true", help="print JSON")
-    p.set_defaults(func=_cmd_evaluate)
+    register_fit(sub)
 
     from .studies.cli import register as register_studies
 

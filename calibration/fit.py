@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from .dataset import Dataset, DatasetError
+from .dataset import Dataset, DatasetError, json_default
 
 # Table I of the reference paper: R² at depths -0.5 / 0 / +0.5 mm, per tip and order
 PAPER_R2 = {
@@ -72,6 +74,27 @@ def fit_model(train: FeatureTable, order: int):
                            f"{order} model")
     model = pc.PoseRegressor(order=order, image_size=train.image_size)
     return model.fit(train.cop_px, train.angles_deg)
+
+
+def save_model(model: Any, path: str | Path, *, feature: str, fitted_on: dict[str, Any]
+               ) -> None:
+    """Write ``model`` as JSON with what it was fitted on: the CoP ``feature``, the image size
+    and ``fitted_on`` (e.g. the scene hash, the data folder). :func:`load_model` and
+    ``tactip evaluate`` use it to refuse a model applied to another feature or image format."""
+    from .dataset import atomic_write_text
+
+    data = model.to_dict()
+    data["fitted_on"] = {"feature": check_feature(feature),
+                         "image_size": list(model.image_size or []), **fitted_on}
+    atomic_write_text(Path(path), json.dumps(data, indent=2, default=json_default) + "\n")
+
+
+def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
+    """A saved model and its ``fitted_on`` record (empty for a model saved without one)."""
+    import perception as pc
+
+    model = pc.PoseRegressor.from_json(Path(path))
+    return model, json.loads(Path(path).read_text()).get("fitted_on", {})
 
 
 @dataclass(frozen=True)

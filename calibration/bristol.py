@@ -1,0 +1,342 @@
+"""Labelled TacTip data sets in the Bristol layout, real or simulated.
+
+A Bristol-layout folder holds ``targets.csv`` (one row per frame: an image column and the pose
+columns ``pose_1 … pose_6`` = x, y, z in mm and Rx, Ry, Rz in degrees) and the images it names,
+either beside it or in ``images/``. The Bristol tactile data sets (Tactile Gym, the lab's pose
+data sets) use ``sensor_image`` for the image column; this project's own datasets use ``image``
+and add ``images/rest.png``, their perceived features and a ``manifest.json``.
+
+Mapping (documented defaults, each a command-line option):
+
+=============  ===============  =============================================================
+quantity        column           note
+=============  ===============  =============================================================
+roll (deg)      ``pose_4``       Rx; ``--roll-column``, ``--roll-sign -1`` to flip
+pitch (deg)     ``pose_5``       Ry; ``--pitch-column``, ``--pitch-sign``
+depth (mm)      ``pose_3``       z, only used to choose the reference frame
+image           ``sensor_image`` else ``image``; ``--image-column``
+=============  ===============  =============================================================
+
+Reference (rest) frame: ``--rest IMAGE`` if given; else the folder's ``images/rest.png`` (this
+project's datasets); else the *least-deformed* frame, taken as the frame of the shallowest
+press (smallest depth column) when the folder has a depth column that varies, and the first
+frame otherwise. The choice is recorded in every output.
+
+Each frame is perceived on its own against the reference (tracking from the reference's markers,
+as for a tap), so the order of the rows does not matter.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .dataset import DATASET_KIND, MANIFEST, DatasetError
+from .fit import DEFAULT_FEATURE, FEATURES, FeatureTable, check_feature
+
+IMAGE_COLUMNS = ("sensor_image", "image")
+"""Image columns looked for, in this order (Bristol data sets, then this project's)."""
+
+
+@dataclass(frozen=True)
+class ColumnMap:
+    """Which columns hold the angles (and the depth), and their signs."""
+
+    roll: str = "pose_4"
+    pitch: str = "pose_5"
+    depth: str | None = "pose_3"
+    roll_sign: float = 1.0
+    pitch_sign: float = 1.0
+    image: str | None = None  # None: the first of IMAGE_COLUMNS present
+
+    def __post_init__(self) -> None:
+        for name in ("roll_sign", "pitch_sign"):
+            if getattr(self, name) not in (1.0, -1.0):
+                raise ValueError(f"{name}={getattr(self, name)!r} is not allowed: 1 or -1")
+
+
+@dataclass(frozen=True)
+class BristolFolder:
+    """A labelled folder: its images and angles (rows in file order).
+
+    images : one path per row
+    angles_deg : (n, 2) roll, pitch (degrees, signs applied)
+    depth_mm : (n,) the depth column (NaN when the folder has none)
+    rest : the reference frame's path, and ``rest_choice`` how it was chosen
+    ours : True for this project's own datasets (their perceived features are in the table)
+    """
+
+    root: Path
+    columns: ColumnMap
+    images: list[Path]
+    angles_deg: np.ndarray
+    depth_mm: np.ndarray
+    rest: Path
+    rest_choice: str
+    ours: bool
+    table: dict[str, list[str]] = field(repr=False)
+
+    @classmethod
+    def open(cls, root: str | Path, *, columns: ColumnMap | None = None,
+             rest: str | Path | None = None) -> BristolFolder:
+        """Read ``root``'s ``targets.csv`` and check its images.
+
+        Raises
+        ------
+        DatasetError
+            No ``targets.csv``, a missing column, an image that is missing, unreadable or of
+            another size than the others, or a rest frame of another size (each message names
+            the file and the problem).
+        """
+        import cv2
+
+        columns = columns or ColumnMap()
+        root = Path(root)
+        path = root / "targets.csv"
+        if not path.is_file():
+            raise DatasetError(f"{root}: no targets.csv (a Bristol-layout folder holds "
+                               "targets.csv and the images it names)")
+        with path.open(newline="") as fh:
+            reader = csv.DictReader(fh)
+            header = reader.fieldnames or []
+            rows = list(reader)
+        if not rows:
+            raise DatasetError(f"{path}: no rows")
+        image_col = columns.image or next((c for c in IMAGE_COLUMNS if c in header), None)
+        if image_col is None or image_col not in header:
+            raise DatasetError(f"{path}: no image column (looked for "
+                               f"{columns.image or ' or '.join(IMAGE_COLUMNS)}; columns: "
+                               f"{', '.join(header)}); give it with --image-column")
+        for opt, col in (("--roll-column", columns.roll), ("--pitch-column", columns.pitch)):
+            if col not in header:
+                raise DatasetError(f"{path}: no column {col!r} ({opt}); columns: "
+                                   f"{', '.join(header)}")
+        table = {c: [r[c] for r in rows] for c in header}
+        images = [_find_image(root, name, path, i) for i, name in enumerate(table[image_col])]
+        angles = np.stack([_floats(table[columns.roll], path, columns.roll) * columns.roll_sign,
+                           _floats(table[columns.pitch], path, columns.pitch)
+                           * columns.pitch_sign], axis=1)
+        depth = (_floats(table[columns.depth], path, columns.depth)
+                 if columns.depth and columns.depth in header else np.full(len(rows), np.nan))
+        sizes = {}
+        for p in images:
+            head = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            if head is None:
+                raise DatasetError(f"{p}: not a readable image")
+            sizes.setdefault(head.shape[:2], p)
+        if len(sizes) > 1:
+            (s0, p0), (s1, p1) = list(sizes.items())[:2]
+            raise DatasetError(f"{root}: images of different sizes ({p0.name} is "
+                               f"{s0[1]}x{s0[0]}, {p1.name} is {s1[1]}x{s1[0]}); one folder "
+                               "must hold one camera format")
+        ours = _is_ours(root)
+        rest_path, choice = _choose_rest(root, rest, images, depth, ours)
+        ref = cv2.imread(str(rest_path), cv2.IMREAD_UNCHANGED)
+        if ref is None:
+            raise DatasetError(f"{rest_path}: the rest frame is not a readable image")
+        (size,) = sizes
+        if ref.shape[:2] != size:
+            raise DatasetError(f"{rest_path}: the rest frame is {ref.shape[1]}x{ref.shape[0]} "
+                               f"but the folder's frames are {size[1]}x{size[0]}: a rest frame "
+                               "of another sensor or format")
+        return cls(root, columns, images, angles, depth, rest_path, choice, ours, table)
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        import cv2
+
+        h, w = cv2.imread(str(self.images[0]), cv2.IMREAD_UNCHANGED).shape[:2]
+        return int(w), int(h)
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+
+def _floats(values: Sequence[str], path: Path, col: str) -> np.ndarray:
+    try:
+        return np.array([float(v) for v in values])
+    except ValueError as exc:
+        raise DatasetError(f"{path}: column {col!r} is not numeric ({exc})") from None
+
+
+def _find_image(root: Path, name: str, path: Path, row: int) -> Path:
+    for cand in (root / name, root / "images" / name):
+        if cand.is_file():
+            return cand
+    raise DatasetError(f"{path}: row {row + 1} names {name!r}, which is neither in {root} nor in "
+                       f"{root / 'images'}")
+
+
+def _is_ours(root: Path) -> bool:
+    m = root / MANIFEST
+    if not m.is_file():
+        return False
+    try:
+        return json.loads(m.read_text()).get("kind") == DATASET_KIND
+    except (OSError, ValueError):
+        return False
+
+
+def _choose_rest(root: Path, rest: str | Path | None, images: list[Path], depth: np.ndarray,
+                 ours: bool) -> tuple[Path, str]:
+    if rest is not None:
+        p = Path(rest)
+        if not p.is_file():
+            raise DatasetError(f"--rest {rest}: no such image")
+        return p, "given (--rest)"
+    own = root / "images" / "rest.png"
+    if own.is_file():
+        return own, "the folder's images/rest.png"
+    if np.all(np.isfinite(depth)) and np.ptp(depth) > 0:
+        k = int(np.argmin(depth))
+        return images[k], f"least deformed: the shallowest press ({images[k].name})"
+    return images[0], f"the first frame ({images[0].name}; no depth column varies)"
+
+
+# ---------------------------------------------------------------------------------------------
+# Features of every frame
+
+PER_FRAME_COLUMNS = ("index", "image", "roll_deg", "pitch_deg", "depth_mm", *(
+    f"cop_{f}_{a}_px" for f in FEATURES for a in "xy"), "n_detected", "reliable", "reason")
+
+
+@dataclass(frozen=True)
+class FrameTable:
+    """Per-frame features of a folder.
+
+    cop : {feature name: (n, 2) px} (NaN where undefined)
+    reliable : (n,) bool, the pipeline's verdict; reason : why not
+    """
+
+    folder: BristolFolder
+    cop: dict[str, np.ndarray]
+    n_detected: np.ndarray
+    reliable: np.ndarray
+    reason: list[str]
+    rest_markers: int | None  # markers on the reference frame (None: stored features)
+
+    def features(self, feature: str = DEFAULT_FEATURE, *, keep_flagged: bool = False
+                 ) -> FeatureTable:
+        """The rows usable for fitting or scoring: a finite CoP, and reliable unless
+        ``keep_flagged``."""
+        cop = self.cop[check_feature(feature)]
+        ok = np.all(np.isfinite(cop), axis=1) & (self.reliable | keep_flagged)
+        f = self.folder
+        return FeatureTable(cop[ok], f.angles_deg[ok], f.depth_mm[ok], np.flatnonzero(~ok),
+                            f.image_size)
+
+    def write_csv(self, path: str | Path) -> None:
+        from .dataset import atomic_write_text
+
+        lines = [",".join(PER_FRAME_COLUMNS)]
+        f = self.folder
+        for i in range(len(f)):
+            cells = [str(i), f.images[i].name, repr(float(f.angles_deg[i, 0])),
+                     repr(float(f.angles_deg[i, 1])), repr(float(f.depth_mm[i]))]
+            cells += [repr(float(self.cop[name][i, k])) for name in FEATURES for k in (0, 1)]
+            cells += [str(int(self.n_detected[i])), str(int(self.reliable[i])),
+                      '"' + self.reason[i].replace('"', "'") + '"']
+            lines.append(",".join(cells))
+        atomic_write_text(Path(path), "\n".join(lines) + "\n")
+
+    def summary(self) -> dict[str, Any]:
+        return {"frames": len(self.folder), "flagged": int((~self.reliable).sum()),
+                "rest": str(self.folder.rest), "rest_choice": self.folder.rest_choice,
+                "rest_markers": self.rest_markers,
+                "image_size": list(self.folder.image_size)}
+
+
+def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
+                    progress: bool = False) -> FrameTable:
+    """Every frame of ``folder`` through the feature pipeline, each against the reference.
+
+    Raises
+    ------
+    DatasetError
+        The reference frame cannot be perceived (the message says why).
+    """
+    from tqdm import tqdm
+
+    import perception as pc
+
+    try:
+        pipe = pc.FeaturePipeline(str(folder.rest), expected_count=expected_count)
+    except pc.PerceptionError as exc:
+        raise DatasetError(f"{folder.rest}: the reference frame cannot be used ({exc})") from None
+    n = len(folder)
+    cop = {name: np.full((n, 2), np.nan) for name in FEATURES}
+    detected = np.zeros(n, dtype=np.int64)
+    reliable = np.zeros(n, dtype=bool)
+    reasons = [""] * n
+    for i, path in enumerate(tqdm(folder.images, disable=not progress, unit="frame",
+                                  desc=folder.root.name, dynamic_ncols=True)):
+        pipe.reset()
+        try:
+            f = pipe.process(str(path))
+        except pc.PerceptionError as exc:
+            reasons[i] = f"not perceived: {exc}"
+            continue
+        cop["area"][i] = f.cop
+        cop["growth"][i] = f.cop_area_change
+        detected[i] = f.n_detected
+        reliable[i] = bool(f.reliable)
+        reasons[i] = "" if f.reliable else f.reason
+    return FrameTable(folder, cop, detected, reliable, reasons, len(pipe.rest_points))
+
+
+def stored_features(folder: BristolFolder) -> FrameTable:
+    """This project's own dataset: the features its sweep perceived (averaged over the frames
+    of each sample) instead of re-perceiving the one frame it saved per sample."""
+    from .dataset import Dataset
+
+    t = Dataset(folder.root).table()
+    cop = {name: np.stack([t[f"cop_{name}_x_px"], t[f"cop_{name}_y_px"]], axis=1)
+           for name in FEATURES}
+    # a sample's stored CoP averages the frames where it was defined: every finite one counts
+    n = len(t["index"])
+    return FrameTable(folder, cop, np.asarray(t["n_markers"]), np.ones(n, dtype=bool),
+                      [""] * n, None)
+
+
+def folder_features(folder: BristolFolder, *, perceive: bool = False,
+                    expected_count: int | None = None, progress: bool = False) -> FrameTable:
+    """Features of a folder: stored ones for this project's datasets (unless ``perceive``),
+    perceived from the images otherwise."""
+    if folder.ours and not perceive:
+        return stored_features(folder)
+    return perceive_folder(folder, expected_count=expected_count, progress=progress)
+
+
+def cross_validate(table: FeatureTable, order: int, folds: int, *, seed: int = 0
+                   ) -> dict[str, Any]:
+    """``folds``-fold cross-validated R² of an order-``order`` regressor: every sample predicted
+    by the model fitted without its fold (shuffled folds, seeded), R² over all predictions."""
+    import perception as pc
+
+    n = len(table.cop_px)
+    if folds < 2 or folds > n:
+        raise ValueError(f"--cv={folds} is out of range: allowed [2, {n}] (the usable frames)")
+    idx = np.random.default_rng(seed).permutation(n)
+    pred = np.full((n, 2), np.nan)
+    for k in range(folds):
+        test = idx[k::folds]
+        train = np.setdiff1d(idx, test)
+        model = pc.PoseRegressor(order=order, image_size=table.image_size)
+        model.fit(table.cop_px[train], table.angles_deg[train])
+        pred[test] = model.predict(table.cop_px[test])
+    y = table.angles_deg
+    r2 = 1.0 - ((y - pred) ** 2).sum(axis=0) / ((y - y.mean(axis=0)) ** 2).sum(axis=0)
+    rmse = np.sqrt(((y - pred) ** 2).mean(axis=0))
+    return {"folds": folds, "order": order, "seed": seed, "r2_roll": float(r2[0]),
+            "r2_pitch": float(r2[1]), "rmse_roll_deg": float(rmse[0]),
+            "rmse_pitch_deg": float(rmse[1]), "predicted_deg": pred}
+
+
+__all__ = ["IMAGE_COLUMNS", "PER_FRAME_COLUMNS", "BristolFolder", "ColumnMap", "FrameTable",
+           "cross_validate", "folder_features", "perceive_folder", "stored_features"]

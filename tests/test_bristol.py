@@ -1,0 +1,179 @@
+"""Labelled folders in the Bristol layout: `tactip fit / evaluate / features` on folders built
+here from synthetic frames with known contact points, cross-validation against scikit-learn, and
+the errors a malformed folder gets."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+import perception as pc
+from calibration.bristol import BristolFolder, ColumnMap, cross_validate, folder_features
+from calibration.dataset import DatasetError
+from calibration.fit import FeatureTable
+from perception.synthetic import render_markers
+
+C = np.array([320.0, 240.0])
+SPACING = 26.0
+ROLL_PER_PX, PITCH_PER_PX = 0.12, -0.08  # the labels: angles linear in the contact point
+
+
+def _frame(contact: np.ndarray | None, rng: np.random.Generator) -> np.ndarray:
+    """Markers pushed away from ``contact`` (a Gaussian bulge 2 spacings wide): the cells
+    around the contact grow, so the growth-weighted CoP follows the contact point."""
+    pts = pc.hex_lattice(97, SPACING, C)
+    if contact is not None:
+        d = pts - contact
+        r = np.linalg.norm(d, axis=1, keepdims=True)
+        push = 9.0 * np.exp(-((r / (2.0 * SPACING)) ** 2)) * d / np.maximum(r, 1e-9)
+        pts = pts + push
+    return render_markers(pts, diameter_px=11.0, noise_sigma=0.01, rng=rng).image
+
+
+def _write_folder(root, contacts, *, image_col="sensor_image", subdir=True, rest_first=True):
+    """targets.csv in the Bristol columns; frame 0 is the rest frame (depth 0), the others
+    are presses at depth 1-3 mm whose angles are linear in the contact point."""
+    rng = np.random.default_rng(7)
+    img_dir = root / "images" if subdir else root
+    img_dir.mkdir(parents=True, exist_ok=True)
+    rows = [f"{image_col},pose_1,pose_2,pose_3,pose_4,pose_5,pose_6"]
+    frames = ([None] if rest_first else []) + list(contacts)
+    for i, c in enumerate(frames):
+        name = f"image_{i + 1}.png"
+        cv2.imwrite(str(img_dir / name), _frame(c, rng))
+        if c is None:
+            roll = pitch = depth = 0.0
+        else:
+            roll, pitch = ROLL_PER_PX * (c[0] - C[0]), PITCH_PER_PX * (c[1] - C[1])
+            depth = 1.0 + 2.0 * rng.random()
+        rows.append(f"{name},0,0,{depth},{roll},{pitch},0")
+    (root / "targets.csv").write_text("\n".join(rows) + "\n")
+    return root
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    rng = np.random.default_rng(3)
+    contacts = C + rng.uniform(-70, 70, (24, 2))
+    return _write_folder(tmp_path_factory.mktemp("bristol") / "taps", contacts), contacts
+
+
+def test_folder_reads_columns_images_and_picks_the_shallowest_press_as_rest(folder):
+    root, contacts = folder
+    f = BristolFolder.open(root)
+    assert len(f) == len(contacts) + 1 and f.image_size == (640, 480)
+    assert f.rest.name == "image_1.png" and "shallowest" in f.rest_choice
+    np.testing.assert_allclose(f.angles_deg[1:, 0], ROLL_PER_PX * (contacts[:, 0] - C[0]))
+    flipped = BristolFolder.open(root, columns=ColumnMap(roll_sign=-1.0))
+    np.testing.assert_array_equal(flipped.angles_deg[:, 0], -f.angles_deg[:, 0])
+
+
+def test_growth_cop_follows_the_known_contact_points(folder):
+    root, contacts = folder
+    frames = folder_features(BristolFolder.open(root))
+    assert frames.reliable.all(), frames.reason
+    cop = frames.cop["growth"][1:]
+    # the growth-weighted CoP lies near the contact point (the bulge is symmetric about it,
+    # clipped only by the lattice's edge)
+    err = np.linalg.norm(cop - contacts, axis=1)
+    assert np.median(err) < 0.3 * SPACING, err
+
+
+def test_fit_cv_and_evaluate_commands_write_the_contract_json(folder, tmp_path, capsys):
+    from tactip_sim.cli import main
+
+    root, _ = folder
+    model, cv_json, ev_json = tmp_path / "m.json", tmp_path / "cv.json", tmp_path / "ev.json"
+    assert main(["fit", str(root), "--order", "1", "--out", str(model), "--cv", "5",
+                 "--json", str(cv_json), "--no-progress"]) == 0
+    cv = json.loads(cv_json.read_text())
+    # the rest frame has no growth, so no growth CoP: 24 of the 25 rows are used
+    assert cv["n_used"] == 24 and cv["n_flagged"] == 0 and cv["n_rows"] == 25
+    assert cv["r2_roll"] > 0.9 and cv["r2_pitch"] > 0.9  # angles are linear in the contact
+    saved = json.loads(model.read_text())
+    assert saved["fitted_on"]["feature"] == "growth"
+    assert saved["fitted_on"]["image_size"] == [640, 480]
+    assert main(["evaluate", str(model), str(root), "--json", str(ev_json),
+                 "--no-progress"]) == 0
+    ev = json.loads(ev_json.read_text())
+    assert {"r2_roll", "r2_pitch", "n_used", "n_flagged"} <= set(ev)
+    assert ev["r2_roll"] >= cv["r2_roll"]  # scored on its own training data
+    out = tmp_path / "features.csv"
+    assert main(["features", str(root), "--out", str(out), "--no-progress"]) == 0
+    lines = out.read_text().splitlines()
+    assert len(lines) == 26 and lines[0].startswith("index,image,roll_deg")
+    capsys.readouterr()
+    assert main(["evaluate", str(model), str(root), "--feature", "area", "--no-progress"]) != 0
+    assert "fitted on the 'growth' CoP" in capsys.readouterr().err
+
+
+def test_cross_validation_matches_scikit_learn():
+    from sklearn.linear_model import LinearRegression
+    from sklearn.metrics import r2_score
+    from sklearn.model_selection import PredefinedSplit, cross_val_predict
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import PolynomialFeatures
+
+    rng = np.random.default_rng(11)
+    cop = rng.uniform(100, 500, (60, 2))
+    u = (cop - 300) / 200
+    angles = np.stack([10 * u[:, 0] + 3 * u[:, 0] * u[:, 1], -6 * u[:, 1] + 2 * u[:, 1] ** 2],
+                      axis=1) + rng.normal(0, 0.5, (60, 2))
+    table = FeatureTable(cop, angles, np.zeros(60), np.zeros(0, int), (640, 480))
+    ours = cross_validate(table, 2, 5, seed=4)
+    fold = np.empty(60, int)  # the same folds: every 5th sample of a seeded permutation
+    perm = np.random.default_rng(4).permutation(60)
+    for k in range(5):
+        fold[perm[k::5]] = k
+    ref = cross_val_predict(make_pipeline(PolynomialFeatures(2, include_bias=False),
+                                          LinearRegression()), cop, angles,
+                            cv=PredefinedSplit(fold))
+    np.testing.assert_allclose(ours["predicted_deg"], ref, atol=1e-8)
+    assert ours["r2_roll"] == pytest.approx(r2_score(angles[:, 0], ref[:, 0]), abs=1e-10)
+    assert ours["r2_pitch"] == pytest.approx(r2_score(angles[:, 1], ref[:, 1]), abs=1e-10)
+    with pytest.raises(ValueError, match="--cv=1 is out of range"):
+        cross_validate(table, 2, 1)
+
+
+def test_malformed_folders_get_errors_naming_the_file(tmp_path, folder):
+    root, contacts = folder
+    with pytest.raises(DatasetError, match="no targets.csv"):
+        BristolFolder.open(tmp_path)
+    bad = _write_folder(tmp_path / "missing", contacts[:3])
+    (bad / "images" / "image_2.png").unlink()
+    with pytest.raises(DatasetError, match="row 2 names 'image_2.png'"):
+        BristolFolder.open(bad)
+    with pytest.raises(DatasetError, match="no column 'Rx'"):
+        BristolFolder.open(root, columns=ColumnMap(roll="Rx"))
+    with pytest.raises(DatasetError, match="no image column"):
+        BristolFolder.open(root, columns=ColumnMap(image="frame"))
+    mixed = _write_folder(tmp_path / "mixed", contacts[:3], subdir=False)
+    cv2.imwrite(str(mixed / "image_3.png"), np.zeros((128, 128), np.uint8))
+    with pytest.raises(DatasetError, match="images of different sizes"):
+        BristolFolder.open(mixed)
+    small_rest = tmp_path / "rest128.png"
+    cv2.imwrite(str(small_rest), np.zeros((128, 128), np.uint8))
+    with pytest.raises(DatasetError, match="rest frame of another sensor"):
+        BristolFolder.open(root, rest=small_rest)
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.zeros((480, 640), np.uint8))
+    with pytest.raises(DatasetError, match="reference frame cannot be used"):
+        folder_features(BristolFolder.open(root, rest=blank))
+
+
+def test_a_model_of_another_image_format_is_refused(folder, tmp_path, capsys):
+    from tactip_sim.cli import main
+
+    root, _ = folder
+    model = tmp_path / "m.json"
+    assert main(["fit", str(root), "--order", "1", "--out", str(model), "--no-progress"]) == 0
+    data = json.loads(model.read_text())
+    data["image_size"] = [128, 128]  # as if fitted on the lab's processed frames
+    model.write_text(json.dumps(data))
+    capsys.readouterr()
+    assert main(["evaluate", str(model), str(root), "--no-progress"]) != 0
+    assert "fitted on 128x128 frames" in capsys.readouterr().err
+    assert main(["evaluate", str(model), str(root), "--rescale", "--no-progress"]) == 0
