@@ -85,12 +85,13 @@ class ReducedModel:
         c_path = cache.path_for("compliance", body.key, ".npz")
         r_path = cache.path_for("marker_response", body.markers_key, ".npz")
         comp = resp = None
-        if use_cache and c_path.is_file():
-            with np.load(c_path) as data:
-                comp = data["compliance"]
-        if use_cache and r_path.is_file():
-            with np.load(r_path) as data:
-                resp = data["response"]
+        if use_cache:
+            comp = (cache.load_npz(c_path, ["compliance"]) or {}).get("compliance")
+            resp = (cache.load_npz(r_path, ["response"]) or {}).get("response")
+            if comp is not None and comp.shape != (len(body.candidate_dofs),) * 2:
+                comp = None  # another discretisation under this key: rebuild
+            if resp is not None and resp.shape[1:] != (len(body.candidate_dofs),):
+                resp = None
         self.from_cache = comp is not None and resp is not None
         if comp is None:
             comp, resp = self._compute_all()
@@ -144,11 +145,11 @@ class ReducedModel:
         idx = np.arange(len(points), dtype=np.int64)
         self._row_start = idx * (idx + 1) // 2  # packed position of pair (i, 0)
         self._records = self.symmetric_blocks.view(np.dtype((np.void, 48))).ravel()
-        if bounds_path is not None and bounds_path.is_file():
-            with np.load(bounds_path) as data:
-                if np.array_equal(data["clusters"], self.clusters):
-                    self.cluster_bound, self.normal_bound = data["bound"], data["normal_bound"]
-                    return
+        if bounds_path is not None:
+            data = cache.load_npz(bounds_path, ["clusters", "bound", "normal_bound"])
+            if data is not None and np.array_equal(data["clusters"], self.clusters):
+                self.cluster_bound, self.normal_bound = data["bound"], data["normal_bound"]
+                return
         self.cluster_bound = cluster_bounds(comp, self.clusters)
         self.normal_bound = normal_cluster_bounds(self.symmetric_blocks, self.clusters)
         if bounds_path is not None:
