@@ -11,7 +11,7 @@ from pathlib import Path
 import tactip_sim as ts
 from tactip_sim.scene import preset_of, scene_hash, scene_to_dict
 
-from .dataset import atomic_write_text, json_default
+from .dataset import atomic_write_text, json_default, safe_name
 from .executor import close_client, open_client
 from .fit import (
     DEFAULT_FEATURE,
@@ -75,8 +75,14 @@ def calibrate(
     check_feature(feature)
     other = next(f for f in FEATURES if f != feature)
     out = Path(out)
+    tips = list(scene.protocol.tips) if tips is None else list(tips)
+    if not tips:
+        raise ValueError("tips=[] is not allowed: name at least one of protocol.tips "
+                         f"({', '.join(scene.protocol.tips)})")
+    for tip in tips:
+        make_tip(scene, safe_name(tip, "tip"))  # an unknown or unsafe name fails here
+    _check_previous(out, feature)
     out.mkdir(parents=True, exist_ok=True)
-    tips = list(tips) if tips else list(scene.protocol.tips)
     frames = scene.protocol.frames_per_sample if frames is None else frames
     t_start = time.perf_counter()
     rows: dict[str, list[ScoreRow]] = {feature: [], other: []}
@@ -160,3 +166,19 @@ def calibrate(
 
         summary_charts(out, rows[feature])
     return CalibrationResult(out, rows[feature], seconds, samples, timings, rows[other])
+
+
+def _check_previous(out: Path, feature: str) -> None:
+    """Refuse an --out holding a calibration with another headline feature: its headline
+    models and tables would be overwritten while the other feature's stayed stale."""
+    path = out / "manifest.json"
+    if not path.is_file():
+        return
+    try:
+        previous = json.loads(path.read_text()).get("feature")
+    except (OSError, ValueError):
+        return
+    if previous is not None and previous != feature:
+        raise ValueError(f"{out} holds a calibration with --feature {previous}; rerunning it "
+                         f"with --feature {feature} would mix the two: use another --out (or "
+                         f"--feature {previous})")

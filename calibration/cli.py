@@ -66,7 +66,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     if args.quick:
         args.overrides = [f"{k}={v}" for k, v in QUICK.items()] + list(args.overrides)
     scene, fidelity = _scene_and_fidelity(args)
-    tips = [t.strip() for t in args.tips.split(",")] if args.tips else None
+    tips = None if args.tips is None else [t.strip() for t in args.tips.split(",") if t.strip()]
     res = calibrate(scene, args.out, tips=tips, frames=args.frames, workers=args.workers,
                     scheduler=args.scheduler, progress=not args.no_progress,
                     charts=not args.no_charts, feature=args.feature, fidelity=fidelity)

@@ -22,7 +22,9 @@ import csv
 import io
 import json
 import os
+import re
 import tempfile
+import zipfile
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,6 +61,24 @@ ARRAYS = ("markers_mm", "markers_px", "visible")
 
 class DatasetError(ValueError):
     """A dataset folder cannot be used as asked (e.g. it holds a different scene)."""
+
+
+_SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_+-]{0,31}$")
+
+
+def safe_name(value: str, key: str) -> str:
+    """``value`` if it can become part of a file or folder name: 1-32 letters, digits, ``_``,
+    ``+`` or ``-``, starting with a letter or digit (no separators, no ``..``).
+
+    Raises
+    ------
+    ValueError
+        Naming ``key`` and the allowed form.
+    """
+    if not isinstance(value, str) or not _SAFE_NAME.match(value):
+        raise ValueError(f"{key}={value!r} is not allowed: it names folders, so 1-32 letters, "
+                         "digits, '_', '+' or '-', starting with a letter or digit")
+    return value
 
 
 def _umask() -> int:
@@ -169,6 +189,11 @@ class Dataset:
                     "folder for new samples")
             mismatch = {k: (old.get("identity", {}).get(k), v) for k, v in identity.items()
                         if old.get("identity", {}).get(k) != v}
+            if mismatch and not self.done() and not any((self.root / "images").glob("*")):
+                mismatch = {}  # nothing was computed under the old identity: start afresh
+                atomic_write_text(self.manifest_path, json.dumps(
+                    {"kind": DATASET_KIND, "format_version": FORMAT_VERSION,
+                     "identity": identity, **extra}, indent=2, default=json_default))
             if mismatch:
                 k, (was, now) = next(iter(mismatch.items()))
                 why = {
@@ -212,8 +237,22 @@ class Dataset:
         atomic_write_bytes(self.rest_image_path, png)
 
     def done(self) -> set[int]:
+        """Indices of the complete samples: a readable record and a non-empty image. A sample
+        damaged after it was written (a torn record, a missing or empty image) is removed, so
+        a resume computes it again."""
         d = self.root / "records"
-        return {int(p.stem) for p in d.glob("[0-9]*.npz")} if d.is_dir() else set()
+        if not d.is_dir():
+            return set()
+        out = set()
+        for p in d.glob("[0-9]*.npz"):
+            i = int(p.stem)
+            image = self.image_path(i)
+            if _readable_zip(p) and image.is_file() and image.stat().st_size > 0:
+                out.add(i)
+            else:
+                p.unlink(missing_ok=True)
+                image.unlink(missing_ok=True)
+        return out
 
     def write_sample(self, record: SampleRecord, image_png: bytes) -> None:
         """Image first, record last: a record's presence means the sample is complete."""
@@ -256,6 +295,17 @@ class Dataset:
         with path.open(newline="") as fh:
             rows = [{FORMAT_1_NAMES.get(k, k): v for k, v in row.items()}
                     for row in csv.DictReader(fh)]
+        expected = self.manifest().get("n_samples")
+        index = [row.get("index") for row in rows]
+        if len(set(index)) != len(index):
+            raise DatasetError(f"{path}: duplicated sample rows (indices repeat); rebuild it "
+                               "from the records by rerunning the sweep")
+        if expected is not None and len(rows) != expected:
+            raise DatasetError(f"{path} holds {len(rows)} samples but the manifest says "
+                               f"{expected}: truncated or edited; rerun the sweep to rebuild it "
+                               "from the records")
+        if any(None in row.values() or None in row for row in rows):
+            raise DatasetError(f"{path}: a row has a missing or extra cell (truncated?)")
         cols: dict[str, np.ndarray] = {}
         for name in TARGET_COLUMNS:
             vals = [row[name] for row in rows]
@@ -286,3 +336,11 @@ def poses_digest(poses: Iterable[Iterable[float]]) -> str:
 
     arr = np.ascontiguousarray(np.asarray(list(poses), dtype=np.float64))
     return hashlib.sha256(arr.tobytes()).hexdigest()[:16]
+
+
+def _readable_zip(path: Path) -> bool:
+    try:
+        with zipfile.ZipFile(path) as z:
+            return z.testzip() is None
+    except (OSError, zipfile.BadZipFile):
+        return False

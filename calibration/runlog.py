@@ -28,11 +28,12 @@ class RunLog:
     ----------
     path : the log file
     frames : perceived frames per sample (for the frames/s summary)
-    flush_s : seconds between rewrites while samples are being written
+    flush_s : seconds between rewrites while samples are being written (default 0: after
+        every sample, so that even a SIGKILL, which no handler sees, loses no count)
     info : anything else to record with this invocation (workers, scheduler, ...)
     """
 
-    def __init__(self, path: str | Path, frames: int, *, flush_s: float = 10.0,
+    def __init__(self, path: str | Path, frames: int, *, flush_s: float = 0.0,
                  **info: Any) -> None:
         self.path = Path(path)
         self.previous = self._load()
