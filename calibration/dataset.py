@@ -195,7 +195,9 @@ class Dataset:
                     {"kind": DATASET_KIND, "format_version": FORMAT_VERSION,
                      "identity": identity, **extra}, indent=2, default=json_default))
             if mismatch:
-                k, (was, now) = next(iter(mismatch.items()))
+                # the mesh follows from the scene and the tip: name the cause, not the effect
+                k = next((k for k in mismatch if k != "mesh_digest"), "mesh_digest")
+                was, now = mismatch[k]
                 why = {
                     "mesh_digest": "; the tip's tet mesh differs from the one that computed it "
                                    "(pytetwild builds a different mesh on each machine: resume "

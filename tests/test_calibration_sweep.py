@@ -353,3 +353,11 @@ def test_runs_json_counts_every_written_sample_without_a_clean_exit(tmp_path):
     # no flush(), no finish(): read what a killed process would have left
     (entry,) = json.loads((tmp_path / "runs.json").read_text())
     assert entry["samples_computed"] == 7 and not entry["finished"]
+
+
+def test_a_resume_with_another_tip_names_the_tip_not_the_mesh(spec, serial):
+    from dataclasses import replace
+
+    other = replace(spec, tip="B", nominal=False)  # a manufactured tip B: another mesh too
+    with pytest.raises(DatasetError, match="already holds a different sweep \\(tip: 'A' there"):
+        run_sweep(other, serial, progress=False)
