@@ -264,6 +264,7 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
     from tqdm import tqdm
 
     import perception as pc
+    from perception.hull_cop import hull_cop
 
     try:
         pipe = pc.FeaturePipeline(str(folder.rest), expected_count=expected_count)
@@ -284,6 +285,7 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
             continue
         cop["area"][i] = f.cop
         cop["growth"][i] = f.cop_area_change
+        cop["hull"][i] = hull_cop(f.points)
         detected[i] = f.n_detected
         reliable[i] = bool(f.reliable)
         reasons[i] = "" if f.reliable else f.reason

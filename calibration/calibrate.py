@@ -35,7 +35,8 @@ ORDERS = (1, 2, 3)
 # rest frame) is the default: with Voronoi cells clipped to the sensor region, as they must be
 # so the outer ring is not inflated, the paper's "area" weighting is pinned near the region's
 # centroid (clipped areas sum to the region's area) and moves a few pixels over the whole
-# protocol. Both are fitted and reported; ``r2_table_<other>.*`` holds the other feature.
+# protocol. The lab's "hull" CoP (cells bounded by each frame's own hull) moves with the
+# markers. All are fitted and reported; ``r2_table_<name>.*`` holds each non-headline one.
 
 
 @dataclass(frozen=True)
@@ -45,7 +46,7 @@ class CalibrationResult:
     seconds: float
     samples: int
     timings: dict[str, float]
-    other_rows: list[ScoreRow]  # the same table for the other CoP feature
+    other_rows: dict[str, list[ScoreRow]]  # the same table for each other CoP feature
 
 
 def calibrate(
@@ -73,7 +74,7 @@ def calibrate(
     ``--fidelity auto`` choice) in the manifest.
     """
     check_feature(feature)
-    other = next(f for f in FEATURES if f != feature)
+    others = [f for f in FEATURES if f != feature]
     out = Path(out)
     tips = list(scene.protocol.tips) if tips is None else list(tips)
     if not tips:
@@ -85,7 +86,7 @@ def calibrate(
     out.mkdir(parents=True, exist_ok=True)
     frames = scene.protocol.frames_per_sample if frames is None else frames
     t_start = time.perf_counter()
-    rows: dict[str, list[ScoreRow]] = {feature: [], other: []}
+    rows: dict[str, list[ScoreRow]] = {f: [] for f in (feature, *others)}
     timings: dict[str, float] = {}
     samples = 0
     sample_seconds = 0.0
@@ -107,7 +108,7 @@ def calibrate(
                 results[pose_set.name] = res
                 samples += res.computed
                 sample_seconds += res.sample_seconds
-            for feat in (feature, other):
+            for feat in (feature, *others):
                 train = features(results["train"].dataset, feature=feat)
                 folder = models_dir if feat == feature else models_dir / feat
                 folder.mkdir(exist_ok=True)
@@ -132,9 +133,10 @@ def calibrate(
         close_client(client)
     atomic_write_text(out / "r2_table.csv", r2_table_csv(rows[feature]))
     atomic_write_text(out / "r2_table.md", r2_table_markdown(rows[feature], feature=feature))
-    alt = f"r2_table_{other}"
-    atomic_write_text(out / f"{alt}.csv", r2_table_csv(rows[other]))
-    atomic_write_text(out / f"{alt}.md", r2_table_markdown(rows[other], feature=other))
+    for other in others:
+        atomic_write_text(out / f"r2_table_{other}.csv", r2_table_csv(rows[other]))
+        atomic_write_text(out / f"r2_table_{other}.md",
+                          r2_table_markdown(rows[other], feature=other))
     seconds = time.perf_counter() - t_start
     log.finish()
     timings["total_s"] = seconds
@@ -165,7 +167,8 @@ def calibrate(
         from .report import summary_charts
 
         summary_charts(out, rows[feature])
-    return CalibrationResult(out, rows[feature], seconds, samples, timings, rows[other])
+    return CalibrationResult(out, rows[feature], seconds, samples, timings,
+                             {f: rows[f] for f in others})
 
 
 def _check_previous(out: Path, feature: str) -> None:

@@ -115,6 +115,8 @@ class Perceived:
         Voronoi cell areas), mean over the frames where it is defined (NaN if none)
     cop_growth : (2,) px, the growth-weighted centre of pressure (cells weighted by their
         growth against the rest frame), likewise
+    cop_hull : (2,) px, the lab's centre of pressure (cells bounded by the frame's own marker
+        hull scaled 1.1: :func:`perception.hull_cop.hull_cop`), likewise
     spread : RMS spread of the per-frame ``cop_area`` about its mean (px)
     n_markers : mean detections per frame
     reliable : frames the pipeline called fully reliable
@@ -124,6 +126,7 @@ class Perceived:
 
     cop_area: np.ndarray
     cop_growth: np.ndarray
+    cop_hull: np.ndarray
     spread: float
     n_markers: float
     reliable: int
@@ -161,8 +164,10 @@ def perceive(pipeline: Any, images: Sequence[np.ndarray]) -> Perceived:
     pipeline : perception.FeaturePipeline (reset here)
     images : the sample's frames
     """
+    from perception.hull_cop import hull_cop
+
     pipeline.reset()
-    cops, cops_growth, counts, pts, reliable = [], [], [], [], 0
+    cops, cops_growth, cops_hull, counts, pts, reliable = [], [], [], [], [], 0
     for image in images:
         f = pipeline.process(image)
         counts.append(f.n_detected)
@@ -172,6 +177,9 @@ def perceive(pipeline: Any, images: Sequence[np.ndarray]) -> Perceived:
             cops.append(f.cop)
         if np.all(np.isfinite(f.cop_area_change)):
             cops_growth.append(f.cop_area_change)
+        hull = hull_cop(f.points)
+        if np.all(np.isfinite(hull)):
+            cops_hull.append(hull)
     nan2 = np.full(2, np.nan)
     with np.errstate(invalid="ignore"):
         stack = np.stack(pts)
@@ -182,6 +190,7 @@ def perceive(pipeline: Any, images: Sequence[np.ndarray]) -> Perceived:
     return Perceived(
         cop_area=np.mean(cops, axis=0) if cops else nan2,
         cop_growth=np.mean(cops_growth, axis=0) if cops_growth else nan2,
+        cop_hull=np.mean(cops_hull, axis=0) if cops_hull else nan2,
         spread=float(np.sqrt(np.var(cops, axis=0).sum())) if len(cops) > 1 else 0.0,
         n_markers=float(np.mean(counts)), reliable=reliable, points=points, frame_points=stack)
 

@@ -41,7 +41,8 @@ TARGET_COLUMNS = [
     "index", "image", "pose_1", "pose_2", "pose_3", "pose_4", "pose_5", "pose_6",
     "roll_deg", "pitch_deg", "depth_mm", "tip", "force_N", "contact_area_mm2",
     "true_cop_x_mm", "true_cop_y_mm", "cop_area_x_px", "cop_area_y_px", "cop_growth_x_px",
-    "cop_growth_y_px", "cop_area_std_px", "n_markers", "reliable_frames", "frames", "contact",
+    "cop_growth_y_px", "cop_hull_x_px", "cop_hull_y_px", "cop_area_std_px", "n_markers",
+    "reliable_frames", "frames", "contact",
 ]
 
 # Format 1 named the two centres of pressure otherwise; its finished datasets still read.
@@ -51,11 +52,13 @@ FORMAT_1_NAMES = {
     "cop_px": "cop_area_px", "cop_ac_px": "cop_growth_px",
 }
 """Format 1 name -> format 2 name, for columns of ``targets.csv`` and keys of records."""
+FORMAT_2_NEW = ("cop_hull_x_px", "cop_hull_y_px", "cop_hull_px")
+"""Added in format 2 (the lab's CoP): NaN when a format-1 dataset is read."""
 
 # record fields: scalars and arrays saved per sample
 SCALARS = ("index", "roll_deg", "pitch_deg", "depth_mm", "force_N", "contact_area_mm2",
            "n_markers", "reliable_frames", "frames", "contact", "cop_area_std_px")
-VECTORS = ("true_cop_mm", "cop_area_px", "cop_growth_px")
+VECTORS = ("true_cop_mm", "cop_area_px", "cop_growth_px", "cop_hull_px")
 ARRAYS = ("markers_mm", "markers_px", "visible")
 
 
@@ -120,6 +123,7 @@ class SampleRecord:
     true_cop_mm: np.ndarray  # (2,) ground-truth pressure centroid
     cop_area_px: np.ndarray  # (2,) the paper's CoP (cell-area weighted), averaged over frames
     cop_growth_px: np.ndarray  # (2,) the growth-weighted CoP, averaged over frames
+    cop_hull_px: np.ndarray  # (2,) the lab's CoP (cells bounded by the frame's hull), likewise
     cop_area_std_px: float  # frame-to-frame spread of cop_area_px
     n_markers: float  # markers detected, mean over frames
     reliable_frames: int
@@ -139,6 +143,7 @@ class SampleRecord:
         """A record from its file (format 1's key names read too)."""
         with np.load(path) as data:
             d = {FORMAT_1_NAMES.get(k, k): data[k] for k in data.files}
+            d.setdefault("cop_hull_px", np.full(2, np.nan))
             kw: dict[str, Any] = {k: d[k].item() for k in SCALARS}
             kw.update({k: d[k].copy() for k in VECTORS + ARRAYS})
         kw["index"] = int(kw["index"])
@@ -277,7 +282,8 @@ class Dataset:
                 _f(r.pitch_deg), 0.0, _f(r.roll_deg), _f(r.pitch_deg), _f(r.depth_mm), tip,
                 _f(r.force_N), _f(r.contact_area_mm2), _f(r.true_cop_mm[0]),
                 _f(r.true_cop_mm[1]), _f(r.cop_area_px[0]), _f(r.cop_area_px[1]),
-                _f(r.cop_growth_px[0]), _f(r.cop_growth_px[1]), _f(r.cop_area_std_px),
+                _f(r.cop_growth_px[0]), _f(r.cop_growth_px[1]), _f(r.cop_hull_px[0]),
+                _f(r.cop_hull_px[1]), _f(r.cop_area_std_px),
                 _f(r.n_markers), r.reliable_frames, r.frames, r.contact,
             ])
         atomic_write_text(self.root / "targets.csv", buf.getvalue())
@@ -310,7 +316,9 @@ class Dataset:
             raise DatasetError(f"{path}: a row has a missing or extra cell (truncated?)")
         cols: dict[str, np.ndarray] = {}
         for name in TARGET_COLUMNS:
-            vals = [row[name] for row in rows]
+            vals = [row.get(name, "nan" if name in FORMAT_2_NEW else None) for row in rows]
+            if any(v is None for v in vals):
+                raise DatasetError(f"{path}: no column {name!r}")
             try:
                 cols[name] = np.array(vals, dtype=float)
             except ValueError:

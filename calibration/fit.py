@@ -38,6 +38,8 @@ class FeatureTable:
 FEATURES = {
     "growth": "CoP weighted by Voronoi cell growth against the rest frame",
     "area": "the paper's CoP, weighted by (clipped) Voronoi cell areas",
+    "hull": "the lab's CoP, weighted by Voronoi cell areas bounded by the frame's own marker "
+            "hull scaled 1.1 (unclipped)",
 }
 """The centre-of-pressure features, by their one name (code, ``--feature``, the
 ``cop_<name>_x_px`` columns of ``targets.csv``, docs), and what each is. The first is the
