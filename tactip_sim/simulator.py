@@ -25,6 +25,7 @@ from .fem.reduced import ReducedModel
 from .fem.snap import snap_to_pad
 from .fem.state import ContactState
 from .fem.tolerances import TOL, Tolerances, single_threaded_blas
+from .fem.window import stop_at_window, window_generalised_forces
 from .geometry import Pad, build_pad
 from .mesh import TetMesh, tetrahedralise
 from .scene import Scene
@@ -150,19 +151,30 @@ class Simulator:
             markers, dirs = self.body.markers.from_field(result.u, finite=True)
             return self._state(pose, indenter, solver, result.contact, markers, dirs,
                                result.u, result.iterations, t0)
+        window = None
         if solver == "reduced":
             op = self.reduced
             sol = solve_contact(placement, self._cand_rest, op, label=str(pose), tol=self.tol)
-            markers, dirs = self.body.markers.from_values(op.marker_values(sol.active,
-                                                                           sol.forces))
-            u = (self.body.displacement(self.body.space.candidates[sol.active], sol.forces)
-                 if full_field else None)
+            if getattr(placement.indenter, "flat", False):  # pins stop at the window
+                sol, window, values = stop_at_window(op, self.body.markers, placement,
+                                                     self._cand_rest, sol, label=str(pose),
+                                                     tol=self.tol)
+            else:
+                values = op.marker_values(sol.active, sol.forces)
+            markers, dirs = self.body.markers.from_values(values)
+            u = None
+            if full_field:
+                gen = None if window is None or not window.any() else \
+                    window_generalised_forces(self.body.markers, values, window)
+                u = self.body.displacement(self.body.space.candidates[sol.active], sol.forces,
+                                           gen)
         else:
             full = FullOperator(self.body)
             sol = solve_contact(placement, self._cand_rest, full, label=str(pose), tol=self.tol)
             u = full.field(sol.active, sol.forces)
             markers, dirs = self.body.markers.from_field(u)
-        return self._state(pose, indenter, solver, sol, markers, dirs, u, sol.iterations, t0)
+        return self._state(pose, indenter, solver, sol, markers, dirs, u, sol.iterations, t0,
+                           window)
 
     def press_many(self, poses: Iterable[Pose], indenter: Indenter | None = None, *,
                    solver: str | None = None) -> list[ContactState]:
@@ -226,11 +238,12 @@ class Simulator:
             contact_forces_N=empty, contact_pressures_kpa=np.zeros(0), force_N=0.0,
             force_vector_N=np.zeros(3), contact_area_mm2=0.0,
             pressure_centre_mm=np.full(2, np.nan), max_penetration_mm=0.0, complementarity=0.0,
-            in_contact=False, iterations=0, seconds=time.perf_counter() - t0)
+            in_contact=False, iterations=0, seconds=time.perf_counter() - t0,
+            window_forces_N=np.zeros(len(m.rest_mm)))
 
     def _state(self, pose: Pose, indenter: Indenter, solver: str, sol: ContactSolution,
                markers: np.ndarray, dirs: np.ndarray, u: np.ndarray | None, iterations: int,
-               t0: float) -> ContactState:
+               t0: float, window: np.ndarray | None = None) -> ContactState:
         space = self.body.space
         nodes = space.candidates[sol.active]
         points = self._cand_rest[sol.active] + sol.u[sol.active]
@@ -252,7 +265,8 @@ class Simulator:
             contact_area_mm2=float(area.sum()), pressure_centre_mm=centre,
             max_penetration_mm=max(0.0, -float(sol.gap.min(initial=0.0))),
             complementarity=sol.complementarity, in_contact=len(nodes) > 0,
-            iterations=iterations, seconds=time.perf_counter() - t0)
+            iterations=iterations, seconds=time.perf_counter() - t0,
+            window_forces_N=None if window is None else window / 1000.0)
 
 
 def _check_solver(solver: str) -> str:

@@ -134,26 +134,31 @@ class Factor:
         return np.asarray(self._solve(np.asarray(rhs, dtype=np.float64)))
 
 
-def schur_inverse(matrix: sp.spmatrix, last: np.ndarray, extra: sp.spmatrix | None = None
-                  ) -> tuple[np.ndarray, np.ndarray | None]:
+def schur_inverse(matrix: sp.spmatrix, last: np.ndarray, extra: sp.spmatrix | None = None,
+                  *, extra_inverse: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray | None] | tuple[
+                      np.ndarray, np.ndarray | None, np.ndarray | None]:
     """``(A^-1)[last][:, last]`` and ``(extra A^-1)[:, last]`` by one partial factorisation.
 
     The unknowns ``last`` are ordered after all others (the others by METIS), so the trailing
     block of the Cholesky factor ``L`` is the Cholesky factor of the Schur complement ``S`` of
     the others, and ``(A^-1)_last = S^-1 = L_ss^-T L_ss^-1`` (dense LAPACK ``trtri`` +
     ``lauum``). With ``Z = L^-1 extra'`` (forward solves only), ``extra A^-1 E_last =
-    Z_last' L_ss^-1``. Requires CHOLMOD.
+    Z_last' L_ss^-1``; and, with ``extra_inverse``, ``extra A^-1 extra' = Z' Z``. Requires
+    CHOLMOD.
 
     Parameters
     ----------
     matrix : (n, n) sparse symmetric positive definite
     last : (k,) int, distinct indices
     extra : optional (r, n) sparse rows
+    extra_inverse : also return ``extra A^-1 extra'``
 
     Returns
     -------
     inverse : (k, k) float, symmetric
     response : (r, k) float or None
+    extra_block : (r, r) float or None, only with ``extra_inverse``
     """
     from scipy.linalg import lapack
     from sksparse.cholmod import analyze, cholesky
@@ -167,11 +172,16 @@ def schur_inverse(matrix: sp.spmatrix, last: np.ndarray, extra: sp.spmatrix | No
     factor = cholesky(a[perm][:, perm].tocsc(), ordering_method="natural", mode="supernodal")
     if not np.array_equal(factor.P(), np.arange(n)):
         raise RuntimeError("CHOLMOD reordered a natural-order factor")
-    z_last = None
+    z_last = extra_block = None
     if extra is not None and extra.shape[0]:
         rhs = np.asfortranarray(sp.csr_matrix(extra)[:, perm].T.toarray())
-        z_last = factor.solve_L(rhs, use_LDLt_decomposition=False)[n - k:]
+        z = factor.solve_L(rhs, use_LDLt_decomposition=False)
         del rhs
+        if extra_inverse:
+            extra_block = z.T @ z
+            extra_block = 0.5 * (extra_block + extra_block.T)
+        z_last = z[n - k:]
+        del z
     low = factor.L()
     del factor
     tail = np.asfortranarray(low[n - k:, n - k:].toarray())
@@ -184,4 +194,6 @@ def schur_inverse(matrix: sp.spmatrix, last: np.ndarray, extra: sp.spmatrix | No
     if info:
         raise np.linalg.LinAlgError(f"lauum failed (info={info})")
     inv += np.tril(inv, -1).T  # lauum filled the lower triangle; the upper one was zero
+    if extra_inverse:
+        return np.ascontiguousarray(inv), response, extra_block
     return np.ascontiguousarray(inv), response

@@ -105,11 +105,15 @@ class ElasticBody:
                      self.timings["factorise_s"])
         return self._factor
 
-    def displacement(self, nodes: np.ndarray, forces: np.ndarray) -> np.ndarray:
-        """(n_dofs,) mm: the linear response to point forces (w, 3) mN on nodes (w,)."""
+    def displacement(self, nodes: np.ndarray, forces: np.ndarray,
+                     marker_forces: np.ndarray | None = None) -> np.ndarray:
+        """(n_dofs,) mm: the linear response to point forces (w, 3) mN on nodes (w,), plus
+        generalised forces (6 p,) on the marker operator's values (the window on the pins)."""
         rhs = np.zeros(len(self.free))
         dofs = (3 * np.asarray(nodes, dtype=np.int64)[:, None] + np.arange(3)).ravel()
         np.add.at(rhs, self.free_index[dofs], np.asarray(forces).ravel())
+        if marker_forces is not None:
+            rhs += self.markers.operator[:, self.free].T @ np.asarray(marker_forces)
         u = np.zeros(self.space.n_dofs)
         u[self.free] = self.factor.solve(rhs)
         return u

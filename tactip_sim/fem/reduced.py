@@ -5,6 +5,7 @@ materials and candidate set)::
 
     C = E_s' K^-1 E_s      (3 s, 3 s) mm/mN, s = candidate nodes, 3 components each
     R = M K^-1 E_s         (6 p, 3 s)       marker response (:class:`~.markers.Markers`)
+    Q = M K^-1 M'          (6 p, 6 p)       marker compliance (pins pressed by the window)
 
 by one partial Cholesky factorisation with the candidates ordered last
 (:func:`~.elasticity.schur_inverse`; blocked solves when CHOLMOD is absent), plus a cluster
@@ -69,6 +70,9 @@ class ReducedModel:
         of ``compliance`` on and below the diagonal, packed by rows
         (:func:`pack_symmetric_blocks`)
     marker_response_t : (3 s, 6 p) float, marker operator output per unit candidate force
+    marker_compliance : (6 p, 6 p) float, marker operator output per unit generalised force
+        on the marker values (by reciprocity ``R'`` is the candidates' response to those);
+        None for a model built :meth:`from_arrays` without it
     n_vertex : the first ``n_vertex`` candidates are mesh vertices
     clusters : (s,) int, voxel cluster of each candidate (:func:`cluster_candidates`)
     cluster_bound : (K, K) mm/mN, largest 3x3 block norm of ``C`` between two clusters
@@ -84,24 +88,26 @@ class ReducedModel:
         t0 = time.perf_counter()
         c_path = cache.path_for("compliance", body.key, ".npz")
         r_path = cache.path_for("marker_response", body.markers_key, ".npz")
-        comp = resp = None
+        comp = resp = mcomp = None
         if use_cache:
             comp = (cache.load_npz(c_path, ["compliance"]) or {}).get("compliance")
-            resp = (cache.load_npz(r_path, ["response"]) or {}).get("response")
+            loaded = cache.load_npz(r_path, ["response", "marker_compliance"]) or {}
+            resp, mcomp = loaded.get("response"), loaded.get("marker_compliance")
             if comp is not None and comp.shape != (len(body.candidate_dofs),) * 2:
                 comp = None  # another discretisation under this key: rebuild
             if resp is not None and resp.shape[1:] != (len(body.candidate_dofs),):
                 resp = None
         self.from_cache = comp is not None and resp is not None
         if comp is None:
-            comp, resp = self._compute_all()
+            comp, resp, mcomp = self._compute_all()
             if use_cache:
                 cache.save_npz(c_path, compliance=comp)
-                cache.save_npz(r_path, response=resp)
+                cache.save_npz(r_path, response=resp, marker_compliance=mcomp)
         elif resp is None:
-            resp = self._compute_markers()
+            resp, mcomp = self._compute_markers()
             if use_cache:
-                cache.save_npz(r_path, response=resp)
+                cache.save_npz(r_path, response=resp, marker_compliance=mcomp)
+        self.marker_compliance = mcomp
         space = body.space
         # "-v2": the normal (one-sided) bound was added to the file
         bounds_path = cache.path_for("compliance", body.key + "-bounds-v2", ".npz")
@@ -126,7 +132,7 @@ class ReducedModel:
         cell_mm : cluster size
         """
         model = cls.__new__(cls)
-        model.body, model.from_cache = None, False
+        model.body, model.from_cache, model.marker_compliance = None, False, None
         s = len(points_mm)
         model._setup(np.ascontiguousarray(compliance, dtype=np.float64),
                      np.asarray(marker_response, dtype=np.float64).reshape(-1, 3 * s),
@@ -156,23 +162,24 @@ class ReducedModel:
             cache.save_npz(bounds_path, clusters=self.clusters, bound=self.cluster_bound,
                            normal_bound=self.normal_bound)
 
-    def _compute_all(self) -> tuple[np.ndarray, np.ndarray]:
+    def _compute_all(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         body = self.body
         t0 = time.perf_counter()
         if cholmod_available():
             k_free = body.stiffness[body.free][:, body.free]
-            comp, resp = schur_inverse(k_free, body.candidate_free,
-                                       body.markers.operator[:, body.free])
+            comp, resp, mcomp = schur_inverse(k_free, body.candidate_free,
+                                              body.markers.operator[:, body.free],
+                                              extra_inverse=True)
             if resp is None:
-                resp = np.zeros((0, len(body.candidate_free)))
+                resp, mcomp = np.zeros((0, len(body.candidate_free))), np.zeros((0, 0))
         else:
-            comp, resp = self._blocked_solves()
+            comp, resp, mcomp = self._blocked_solves()
         body.timings["compliance_s"] = time.perf_counter() - t0
         log.info("surface compliance of %d candidate dofs in %.1f s", len(comp),
                  body.timings["compliance_s"])
-        return comp, resp
+        return comp, resp, mcomp
 
-    def _blocked_solves(self) -> tuple[np.ndarray, np.ndarray]:
+    def _blocked_solves(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Without CHOLMOD: K^-1 E_s by blocks of solves with the SuperLU factor."""
         body = self.body
         cols = body.candidate_free
@@ -187,15 +194,17 @@ class ReducedModel:
             x = body.factor.solve(rhs)
             comp[:, blk] = x[cols]
             resp[:, blk] = op @ x
-        return 0.5 * (comp + comp.T), resp
+        return 0.5 * (comp + comp.T), resp, self._compute_markers()[1]
 
-    def _compute_markers(self) -> np.ndarray:
+    def _compute_markers(self) -> tuple[np.ndarray, np.ndarray]:
+        """The marker response ``R`` (6 p, 3 s) and the marker compliance ``Q`` (6 p, 6 p)."""
         body = self.body
         op = body.markers.operator[:, body.free]
         if op.shape[0] == 0:
-            return np.zeros((0, len(body.candidate_free)))
+            return np.zeros((0, len(body.candidate_free))), np.zeros((0, 0))
         x = body.factor.solve(np.asfortranarray(op.T.toarray()))
-        return np.ascontiguousarray(x[body.candidate_free].T)
+        q = op @ x
+        return np.ascontiguousarray(x[body.candidate_free].T), 0.5 * (q + q.T)
 
     # --- the ComplianceOperator protocol -----------------------------------------------------
     def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ from .pose import Pose
 _FLOAT_ARRAYS = (
     "markers_mm", "rest_markers_mm", "marker_directions", "surface_displacements_mm",
     "contact_points_mm", "contact_forces_N", "contact_pressures_kpa", "force_vector_N",
-    "pressure_centre_mm",
+    "pressure_centre_mm", "window_forces_N",
 )
 _INT_ARRAYS = ("surface_vertices", "contact_nodes")
 
@@ -45,6 +45,9 @@ class ContactState:
     in_contact : whether any node carries force
     iterations : active-set iterations (reduced/full) or Newton iterations (neo-Hookean)
     seconds : wall time of the solve
+    window_forces_N : (p,) force of the window on each pin tip (N, along +z); NaN where the
+        solver does not model the pins stopping at the window (only the reduced solve with a
+        flat indenter does: :mod:`~tactip_sim.fem.window`), so tips may then pass below it
     """
 
     pose: Pose
@@ -69,8 +72,12 @@ class ContactState:
     in_contact: bool
     iterations: int
     seconds: float
+    window_forces_N: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        if self.window_forces_N is None:
+            object.__setattr__(self, "window_forces_N",
+                               np.full(len(np.asarray(self.markers_mm)), np.nan))
         names = [*_FLOAT_ARRAYS]
         if self.vertex_displacements_mm is not None:
             names.append("vertex_displacements_mm")
@@ -87,6 +94,22 @@ class ContactState:
             object.__setattr__(self, name, float(getattr(self, name)))
         object.__setattr__(self, "in_contact", bool(self.in_contact))
         object.__setattr__(self, "iterations", int(self.iterations))
+
+    @property
+    def window_modelled(self) -> bool:
+        """Whether this solve stopped the pins at the window."""
+        return bool(np.all(np.isfinite(self.window_forces_N)))
+
+    @property
+    def pins_on_window(self) -> int:
+        """Pin tips resting on the window (carrying its force)."""
+        return int(np.sum(np.nan_to_num(self.window_forces_N) > 0))
+
+    @property
+    def tips_below_window(self) -> int:
+        """Pin tips below the window's inner face (z < 0): possible only where the window is
+        not modelled; their images are not physical (flag or refuse such samples)."""
+        return int(np.sum(self.markers_mm[:, 2] < -1e-6))
 
     @property
     def marker_displacements_mm(self) -> np.ndarray:
@@ -113,4 +136,9 @@ class ContactState:
             "complementarity_mN_mm": self.complementarity,
             "iterations": self.iterations,
             "seconds": self.seconds,
+            "window_modelled": self.window_modelled,
+            "pins_on_window": self.pins_on_window,
+            "window_force_N": float(np.nansum(self.window_forces_N)),
+            "tips_below_window": self.tips_below_window,
+            "lowest_tip_mm": float(self.markers_mm[:, 2].min(initial=np.inf)),
         }
