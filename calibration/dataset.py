@@ -42,7 +42,7 @@ TARGET_COLUMNS = [
     "roll_deg", "pitch_deg", "depth_mm", "tip", "force_N", "contact_area_mm2",
     "true_cop_x_mm", "true_cop_y_mm", "cop_area_x_px", "cop_area_y_px", "cop_growth_x_px",
     "cop_growth_y_px", "cop_hull_x_px", "cop_hull_y_px", "cop_area_std_px", "n_markers",
-    "reliable_frames", "frames", "contact",
+    "reliable_frames", "frames", "contact", "pins_on_window",
 ]
 
 # Format 1 named the two centres of pressure otherwise; its finished datasets still read.
@@ -52,12 +52,14 @@ FORMAT_1_NAMES = {
     "cop_px": "cop_area_px", "cop_ac_px": "cop_growth_px",
 }
 """Format 1 name -> format 2 name, for columns of ``targets.csv`` and keys of records."""
-FORMAT_2_NEW = ("cop_hull_x_px", "cop_hull_y_px", "cop_hull_px")
-"""Added in format 2 (the lab's CoP): NaN when a format-1 dataset is read."""
+FORMAT_2_NEW = {"cop_hull_x_px": "nan", "cop_hull_y_px": "nan", "pins_on_window": "0"}
+"""Columns added in format 2 (the lab's CoP; pins held by the window) and their value when a
+format-1 dataset is read (its FEM let pins pass the window: none was held)."""
 
 # record fields: scalars and arrays saved per sample
 SCALARS = ("index", "roll_deg", "pitch_deg", "depth_mm", "force_N", "contact_area_mm2",
-           "n_markers", "reliable_frames", "frames", "contact", "cop_area_std_px")
+           "n_markers", "reliable_frames", "frames", "contact", "cop_area_std_px",
+           "pins_on_window")
 VECTORS = ("true_cop_mm", "cop_area_px", "cop_growth_px", "cop_hull_px")
 ARRAYS = ("markers_mm", "markers_px", "visible")
 
@@ -129,6 +131,7 @@ class SampleRecord:
     reliable_frames: int
     frames: int
     contact: int
+    pins_on_window: int  # pin tips held by the window (a press deep enough to reach it)
     markers_mm: np.ndarray  # (97, 3) ground truth
     markers_px: np.ndarray  # (97, 2) ground truth (analytic projection)
     visible: np.ndarray  # (97,) bool
@@ -144,6 +147,7 @@ class SampleRecord:
         with np.load(path) as data:
             d = {FORMAT_1_NAMES.get(k, k): data[k] for k in data.files}
             d.setdefault("cop_hull_px", np.full(2, np.nan))
+            d.setdefault("pins_on_window", np.array(0))
             kw: dict[str, Any] = {k: d[k].item() for k in SCALARS}
             kw.update({k: d[k].copy() for k in VECTORS + ARRAYS})
         kw["index"] = int(kw["index"])
@@ -284,7 +288,7 @@ class Dataset:
                 _f(r.true_cop_mm[1]), _f(r.cop_area_px[0]), _f(r.cop_area_px[1]),
                 _f(r.cop_growth_px[0]), _f(r.cop_growth_px[1]), _f(r.cop_hull_px[0]),
                 _f(r.cop_hull_px[1]), _f(r.cop_area_std_px),
-                _f(r.n_markers), r.reliable_frames, r.frames, r.contact,
+                _f(r.n_markers), r.reliable_frames, r.frames, r.contact, r.pins_on_window,
             ])
         atomic_write_text(self.root / "targets.csv", buf.getvalue())
         arrays = {k: np.stack([getattr(r, k) for r in recs]) if recs else np.zeros(0)
@@ -316,7 +320,7 @@ class Dataset:
             raise DatasetError(f"{path}: a row has a missing or extra cell (truncated?)")
         cols: dict[str, np.ndarray] = {}
         for name in TARGET_COLUMNS:
-            vals = [row.get(name, "nan" if name in FORMAT_2_NEW else None) for row in rows]
+            vals = [row.get(name, FORMAT_2_NEW.get(name)) for row in rows]
             if any(v is None for v in vals):
                 raise DatasetError(f"{path}: no column {name!r}")
             try:

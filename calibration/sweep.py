@@ -109,7 +109,8 @@ def record(index: int, pose: Sequence[float], s: Any) -> SampleRecord:
         cop_area_px=p.cop_area, cop_growth_px=p.cop_growth, cop_hull_px=p.cop_hull,
         cop_area_std_px=p.spread,
         n_markers=p.n_markers, reliable_frames=p.reliable, frames=len(r.images),
-        contact=int(bool(state.in_contact)), markers_mm=np.asarray(state.markers_mm),
+        contact=int(bool(state.in_contact)), pins_on_window=int(state.pins_on_window),
+        markers_mm=np.asarray(state.markers_mm),
         markers_px=np.asarray(r.markers_px, dtype=float),
         visible=np.asarray(r.visible, dtype=bool),
     )
