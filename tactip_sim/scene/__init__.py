@@ -3,14 +3,16 @@
 from ._spec import SceneError, Spec
 from .load import (
     apply_overrides,
+    apply_preset,
     load_scene,
+    preset_of,
     replace_in,
     scene_from_dict,
     scene_hash,
     scene_to_dict,
     scene_to_toml,
 )
-from .presets import BUILTIN_PRESETS, PRESET_KEYS, apply_preset, preset_of
+from .presets import BUILTIN_PRESETS, PRESET_KEYS
 from .schema import SECTIONS, Scene
 
 __all__ = [

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ._spec import SceneError
-from .presets import parse_presets
+from .presets import parse_presets, preset_names
 from .schema import SECTIONS, Scene
 
 
@@ -105,6 +105,31 @@ def replace_in(scene: Scene, **changes: Mapping[str, Any]) -> Scene:
     return scene_from_dict(data, source=scene.source)
 
 
+def apply_preset(scene: Scene, name: str) -> Scene:
+    """A validated copy of ``scene`` with preset ``name`` applied.
+
+    Raises
+    ------
+    SceneError
+        Unknown preset (the message lists the scene's presets), or the preset makes the scene
+        invalid (the message names the key).
+    """
+    if name not in scene.presets:
+        raise SceneError(f"--fidelity {name!r} is not a preset of scene {scene.name!r}; "
+                         f"allowed: {', '.join(preset_names(scene))} (or auto)")
+    return replace_in(scene, **scene.presets[name])
+
+
+def preset_of(scene: Scene) -> str | None:
+    """The name of the first preset (alphabetically) whose every setting the scene already
+    has, or None: which level a scene is at."""
+    d = scene_to_dict(scene)
+    for name in preset_names(scene):
+        if all(d[s][k] == v for s, kv in scene.presets[name].items() for k, v in kv.items()):
+            return name
+    return None
+
+
 def scene_to_dict(scene: Scene) -> dict[str, Any]:
     """The resolved scene as plain TOML-able data (lists, not tuples), without ``source``."""
 
@@ -185,12 +210,8 @@ def _cross_checks(scene: Scene, *, base_dir: Path) -> None:
             f"fidelity.refine_edge_mm={fid.refine_edge_mm:g} is out of range: allowed "
             f"[0, fidelity.mesh_edge_mm={fid.mesh_edge_mm:g}] (0 = no refinement)"
         )
-    if not scene.is_block and pins.count:
-        # lay the pins out once: raises a SceneError naming pins.* if they do not fit
-        from ..geometry.pad import dome_shapes
-        from ..geometry.pins import place_pins
-
-        place_pins(dome_shapes(scene)[1], pins)
+    # whether the pins fit on the dome is geometry's check, where the pad is built
+    # (tactip_sim.geometry.place_pins raises the same SceneError naming pins.*)
     cam, body, lens = scene.camera, scene.body, scene.lens
     if cam.distance_mm > body.depth_mm:
         raise SceneError(

@@ -119,30 +119,3 @@ def preset_names(scene) -> list[str]:
     return sorted(scene.presets)
 
 
-def apply_preset(scene, name: str):
-    """A validated copy of ``scene`` with preset ``name`` applied.
-
-    Raises
-    ------
-    SceneError
-        Unknown preset (the message lists the scene's presets), or the preset makes the scene
-        invalid (the message names the key).
-    """
-    from .load import replace_in
-
-    if name not in scene.presets:
-        raise SceneError(f"--fidelity {name!r} is not a preset of scene {scene.name!r}; "
-                         f"allowed: {', '.join(preset_names(scene))} (or auto)")
-    return replace_in(scene, **scene.presets[name])
-
-
-def preset_of(scene) -> str | None:
-    """The name of the first preset (alphabetically) whose every setting the scene already
-    has, or None: which level a scene is at."""
-    from .load import scene_to_dict
-
-    d = scene_to_dict(scene)
-    for name in preset_names(scene):
-        if all(d[s][k] == v for s, kv in scene.presets[name].items() for k, v in kv.items()):
-            return name
-    return None
