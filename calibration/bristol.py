@@ -220,13 +220,22 @@ class FrameTable:
     reliable: np.ndarray
     reason: list[str]
     rest_markers: int | None  # markers on the reference frame (None: stored features)
+    detection_reliable: np.ndarray | None = None  # (n,) bool; None: as ``reliable``
+
+    def usable(self, feature: str) -> np.ndarray:
+        """(n,) bool: frames whose verdict allows ``feature``: the lab's ``hull`` CoP needs
+        only a reliable detection (it is computed on the frame's detected markers, without
+        tracking), the others the full verdict (tracking included)."""
+        if feature == "hull" and self.detection_reliable is not None:
+            return self.detection_reliable
+        return self.reliable
 
     def features(self, feature: str = DEFAULT_FEATURE, *, keep_flagged: bool = False
                  ) -> FeatureTable:
         """The rows usable for fitting or scoring: a finite CoP, and reliable unless
         ``keep_flagged``."""
         cop = self.cop[check_feature(feature)]
-        ok = np.all(np.isfinite(cop), axis=1) & (self.reliable | keep_flagged)
+        ok = np.all(np.isfinite(cop), axis=1) & (self.usable(feature) | keep_flagged)
         f = self.folder
         return FeatureTable(cop[ok], f.angles_deg[ok], f.depth_mm[ok], np.flatnonzero(~ok),
                             f.image_size)
@@ -264,7 +273,6 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
     from tqdm import tqdm
 
     import perception as pc
-    from perception.hull_cop import hull_cop
 
     try:
         pipe = pc.FeaturePipeline(str(folder.rest), expected_count=expected_count)
@@ -274,6 +282,7 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
     cop = {name: np.full((n, 2), np.nan) for name in FEATURES}
     detected = np.zeros(n, dtype=np.int64)
     reliable = np.zeros(n, dtype=bool)
+    detection_ok = np.zeros(n, dtype=bool)
     reasons = [""] * n
     for i, path in enumerate(tqdm(folder.images, disable=not progress, unit="frame",
                                   desc=folder.root.name, dynamic_ncols=True)):
@@ -285,11 +294,13 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
             continue
         cop["area"][i] = f.cop
         cop["growth"][i] = f.cop_area_change
-        cop["hull"][i] = hull_cop(f.points)
+        cop["hull"][i] = f.cop_hull
         detected[i] = f.n_detected
         reliable[i] = bool(f.reliable)
+        detection_ok[i] = bool(f.detection_reliable)
         reasons[i] = "" if f.reliable else f.reason
-    return FrameTable(folder, cop, detected, reliable, reasons, len(pipe.rest_points))
+    return FrameTable(folder, cop, detected, reliable, reasons, len(pipe.rest_points),
+                      detection_ok)
 
 
 def stored_features(folder: BristolFolder) -> FrameTable:

@@ -116,7 +116,7 @@ class Perceived:
     cop_growth : (2,) px, the growth-weighted centre of pressure (cells weighted by their
         growth against the rest frame), likewise
     cop_hull : (2,) px, the lab's centre of pressure (cells bounded by the frame's own marker
-        hull scaled 1.1: :func:`perception.hull_cop.hull_cop`), likewise
+        hull scaled 1.1, of the frame's detected markers: ``FrameFeatures.cop_hull``), likewise
     spread : RMS spread of the per-frame ``cop_area`` about its mean (px)
     n_markers : mean detections per frame
     reliable : frames the pipeline called fully reliable
@@ -164,8 +164,6 @@ def perceive(pipeline: Any, images: Sequence[np.ndarray]) -> Perceived:
     pipeline : perception.FeaturePipeline (reset here)
     images : the sample's frames
     """
-    from perception.hull_cop import hull_cop
-
     pipeline.reset()
     cops, cops_growth, cops_hull, counts, pts, reliable = [], [], [], [], [], 0
     for image in images:
@@ -177,9 +175,8 @@ def perceive(pipeline: Any, images: Sequence[np.ndarray]) -> Perceived:
             cops.append(f.cop)
         if np.all(np.isfinite(f.cop_area_change)):
             cops_growth.append(f.cop_area_change)
-        hull = hull_cop(f.points)
-        if np.all(np.isfinite(hull)):
-            cops_hull.append(hull)
+        if np.all(np.isfinite(f.cop_hull)):
+            cops_hull.append(f.cop_hull)
     nan2 = np.full(2, np.nan)
     with np.errstate(invalid="ignore"):
         stack = np.stack(pts)

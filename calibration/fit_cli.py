@@ -86,7 +86,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     s = model.score(train.cop_px, train.angles_deg)
     report: dict[str, Any] = {
         "model": str(out), "feature": feature, "order": args.order, "n_used": s.n,
-        "n_flagged": int((~frames.reliable).sum()), "n_rows": len(frames.folder),
+        "n_flagged": int((~frames.usable(feature)).sum()), "n_rows": len(frames.folder),
         "train_r2_roll": float(s.r2[0]), "train_r2_pitch": float(s.r2[1]), **frames.summary()}
     print(f"order {args.order} ({feature} CoP) fitted on {s.n} of {len(frames.folder)} frames "
           f"({report['n_flagged']} flagged by perception): training R² roll {s.r2[0]:.4f}, "
@@ -127,14 +127,14 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
                     "another format is not the same feature (crop, lens). Fit a model on this "
                     "format, or pass --rescale to scale the CoPs by the image sizes")
         pred = model.predict(t.cop_px, image_size=size) if len(t.cop_px) else np.zeros((0, 2))
-        rows.append(_scores(str(d), t.angles_deg, pred, frames, len(t.cop_px)))
+        rows.append(_scores(str(d), t.angles_deg, pred, frames, len(t.cop_px), feature))
         pooled_x.append(pred)
         pooled_y.append(t.angles_deg)
         flagged += rows[-1]["n_flagged"]
         total += len(frames.folder)
     report = {"model": str(args.model), "feature": feature,
               **_scores("all", np.concatenate(pooled_y), np.concatenate(pooled_x), None,
-                        sum(r["n_used"] for r in rows)),
+                        sum(r["n_used"] for r in rows), feature),
               "n_flagged": flagged, "n_rows": total, "datasets": rows}
     report.pop("dataset")
     for r in rows:
@@ -145,8 +145,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _scores(name: str, y: np.ndarray, pred: np.ndarray, frames: Any, n_used: int
-            ) -> dict[str, Any]:
+def _scores(name: str, y: np.ndarray, pred: np.ndarray, frames: Any, n_used: int,
+            feature: str) -> dict[str, Any]:
     nan = float("nan")
     if n_used >= 2:
         ss = ((y - y.mean(axis=0)) ** 2).sum(axis=0)
@@ -159,7 +159,8 @@ def _scores(name: str, y: np.ndarray, pred: np.ndarray, frames: Any, n_used: int
            "r2_pitch": float(r2[1]), "rmse_roll_deg": float(rmse[0]),
            "rmse_pitch_deg": float(rmse[1])}
     if frames is not None:
-        out.update({"n_flagged": int((~frames.reliable).sum()), "n_rows": len(frames.folder),
+        out.update({"n_flagged": int((~frames.usable(feature)).sum()),
+                    "n_rows": len(frames.folder),
                     **frames.summary()})
     return out
 

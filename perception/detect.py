@@ -23,6 +23,12 @@ The method, with no per-image tuning (every threshold is a ratio to something me
    rim and exterior), and the caller's sensor region.
 7. **Reliability**: the count against ``expected_count``, or without it the minimum count and
    the regularity of sizes and spacings (a marker array is regular, noise is not).
+
+**Binarised frames** (two grey levels, e.g. the Bristol data sets' 128x128 processed frames with
+markers of 4-9 px, or thresholded full-resolution frames) carry no intensity to weigh or noise
+to measure: :func:`_detect_binary` takes the connected components of the bright level, their
+pixel centroids, the reference area from their median, the same area and shape filters, and
+rejects components close to much larger bright structures (the rim ring and its fragments).
 """
 
 from __future__ import annotations
@@ -225,6 +231,8 @@ def detect_markers_detailed(
     scale = full_scale(grey)
     _check_options(shape, expected_count, expected_diameter_px, noise_sigma, scale)
     region = as_polygon(mask, image_shape=shape) if mask is not None else None
+    if _is_binary(grey):
+        return _detect_binary(grey, shape, region, expected_count, expected_diameter_px, p)
 
     # 1-2. background, noise floor ---------------------------------------------------------
     d_known = float(expected_diameter_px) if expected_diameter_px is not None else None
@@ -373,6 +381,111 @@ def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
             return False, (f"marker spacing is irregular (robust CV {cv:.2f} > "
                            f"max_spacing_dispersion={p.max_spacing_dispersion})")
     return True, f"found {n} markers of {diameter:.1f} px"
+
+
+def _is_binary(grey: np.ndarray) -> bool:
+    """Whether the frame holds exactly two grey levels (a binarised frame)."""
+    lo, hi = float(grey.min()), float(grey.max())
+    if lo == hi:
+        return False
+    return not np.any((grey != lo) & (grey != hi))
+
+
+#: Components nearer than this many marker diameters to a much larger bright structure (the
+#: rim ring of a binarised frame) are not markers.
+_BINARY_RIM_DIAMETERS = 1.5
+#: A bright component this many times the reference marker area is a structure, not a marker.
+_BINARY_STRUCTURE_RATIO = 10.0
+#: A component of this range of areas (in reference areas) and at least this elongation is two
+#: touching markers (two equal discs side by side: area ratio 2, axis ratio about 2).
+_BINARY_PAIR_RATIO = (1.6, 2.6)
+_BINARY_PAIR_ELONGATION = 1.4
+#: Components smaller than this fraction of the reference area count as markers only inside
+#: the hull of the full-size ones.
+_BINARY_SPECK_RATIO = 0.5
+
+
+def _detect_binary(grey: np.ndarray, shape: tuple[int, int], region, expected_count: int | None,
+                   expected_diameter_px: float | None, p: DetectionParams) -> MarkerDetection:
+    """Markers of a binarised frame: connected components of the bright level (see the
+    module docstring). Noise sigma is 0 (two levels); peaks are 1."""
+    fg = (grey == grey.max()).astype(np.uint8)
+    n, labels, stats, cents = cv2.connectedComponentsWithStats(fg, connectivity=8)
+    if n <= 1:
+        return _empty(shape, "no bright components in the binarised frame", 0.0)
+    area = stats[1:, cv2.CC_STAT_AREA].astype(np.float64)
+    pts = cents[1:].astype(np.float64)  # pixel centres at integer coordinates, as OpenCV's
+    ys, xs = np.nonzero(labels)
+    lab = labels[ys, xs] - 1
+    m = n - 1
+    dx, dy = xs - pts[lab, 0], ys - pts[lab, 1]
+    # second moments, each pixel a unit square (variance 1/12 per axis of its own)
+    sxx = np.bincount(lab, dx * dx, m) / area + 1.0 / 12.0
+    syy = np.bincount(lab, dy * dy, m) / area + 1.0 / 12.0
+    sxy = np.bincount(lab, dx * dy, m) / area
+    half = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
+    l1, l2 = 0.5 * (sxx + syy) + half, np.maximum(0.5 * (sxx + syy) - half, 1e-12)
+    elongation = np.sqrt(l1 / l2)
+    fill = area / (4.0 * np.pi * np.sqrt(l1 * l2))
+    ref = (np.pi * float(expected_diameter_px) ** 2 / 4.0 if expected_diameter_px
+           else float(median(area)))
+    # two touching markers make one component of about twice the area, elongated along the
+    # line joining them: split it into its two halves across the major axis
+    pair = ((area / ref > _BINARY_PAIR_RATIO[0]) & (area / ref < _BINARY_PAIR_RATIO[1])
+            & (elongation > _BINARY_PAIR_ELONGATION))
+    if pair.any():
+        theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # major axis of each component
+        side = (dx * np.cos(theta[lab]) + dy * np.sin(theta[lab])) >= 0.0
+        halves = []
+        for s_ in (side, ~side):
+            w = np.bincount(lab[s_], minlength=m).astype(np.float64)
+            cx = np.bincount(lab[s_], xs[s_], m) / np.maximum(w, 1)
+            cy = np.bincount(lab[s_], ys[s_], m) / np.maximum(w, 1)
+            halves.append((np.stack([cx, cy], axis=1), w))
+        keep = ~pair
+        pts = np.concatenate([pts[keep], halves[0][0][pair], halves[1][0][pair]])
+        area = np.concatenate([area[keep], halves[0][1][pair], halves[1][1][pair]])
+        elongation = np.concatenate([elongation[keep], np.ones(2 * int(pair.sum()))])
+        fill = np.concatenate([fill[keep], np.ones(2 * int(pair.sum()))])
+        m = len(pts)
+    order = np.lexsort((pts[:, 0], pts[:, 1]))
+    pts, area, elongation, fill = pts[order], area[order], elongation[order], fill[order]
+    d_ref = 2.0 * np.sqrt(ref / np.pi)
+    code = np.zeros(m, dtype=np.int8)
+    ratio = area / ref
+    code[(ratio < p.area_ratio_min) | (ratio > p.area_ratio_max)] = _SIZE
+    shaped = (code == 0) & (area >= 4)  # the shape of 1-3 pixel blobs says nothing
+    code[shaped & ((elongation > p.max_elongation) | (fill < p.min_fill))] = _SHAPE
+    structures = np.isin(labels, 1 + np.flatnonzero(stats[1:, cv2.CC_STAT_AREA]
+                                                    > _BINARY_STRUCTURE_RATIO * ref))
+    if structures.any():
+        dist = cv2.distanceTransform((~structures).astype(np.uint8), cv2.DIST_L2, 3)
+        ix = np.clip(np.rint(pts[:, 0]).astype(np.intp), 0, shape[1] - 1)
+        iy = np.clip(np.rint(pts[:, 1]).astype(np.intp), 0, shape[0] - 1)
+        code[(code == 0) & (dist[iy, ix] < _BINARY_RIM_DIAMETERS * d_ref)] = _RIM
+    # specks of a few pixels outside the array of full-size markers (rim debris)
+    full = (code == 0) & (area >= _BINARY_SPECK_RATIO * ref)
+    if full.sum() >= 3:
+        hull = shapely.convex_hull(shapely.multipoints(pts[full]))
+        speck = np.flatnonzero((code == 0) & ~full)
+        code[speck[~shapely.intersects_xy(hull, pts[speck, 0], pts[speck, 1])]] = _SMALL
+    if region is not None:
+        ok = np.flatnonzero(code == 0)
+        code[ok[~shapely.intersects_xy(region, pts[ok, 0], pts[ok, 1])]] = _OUTSIDE
+    ok = code == 0
+    if not ok.any():
+        return _reject_all(shape, pts, np.ones(m, bool), code, "every component was rejected",
+                           0.0)
+    d_final = 2.0 * np.sqrt(float(median(area[ok])) / np.pi)
+    # binarised markers of a few pixels still locate to a fraction of a pixel on average:
+    # the diameter floor of grey frames does not apply
+    reliable, why = _reliability(pts[ok], area[ok], max(d_final, p.min_diameter_px),
+                                 expected_count, p)
+    return MarkerDetection(
+        points=pts[ok], areas_px=area[ok], peaks=np.ones(int(ok.sum())),
+        marker_diameter_px=d_final, image_shape=shape, reliable=reliable,
+        reason=f"binarised frame: {why}", rejected_points=pts[~ok],
+        rejected_reasons=tuple(_REASONS[c] for c in code[~ok]), noise_sigma=0.0)
 
 
 def detect_markers(

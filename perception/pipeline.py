@@ -16,6 +16,7 @@ from .contact import ContactDetector, surface_deformation
 from .cop import centre_of_pressure
 from .detect import MarkerDetection, detect_markers_detailed
 from .errors import ImageError, PerceptionError
+from .hull_cop import hull_cop
 from .image import as_grey, full_scale
 from .params import ContactParams, DetectionParams, TrackingParams
 from .region import RegionLike, as_polygon, fit_region
@@ -50,6 +51,10 @@ class FrameFeatures:
     cop_area_change : (2,) float64, px
         Centre of pressure weighted by cell growth, ``max(area_change, 0)``; NaN when no cell
         has grown (no contact).
+    cop_hull : (2,) float64, px
+        The lab's centre of pressure (:func:`perception.hull_cop.hull_cop`) of the frame's
+        *detected* markers, as the lab's code computes it: it needs no tracking, only a
+        reliable detection (NaN otherwise).
     deformation_px : float, px
         Mean marker displacement from rest (NaN when nothing is tracked).
     n_detected : int
@@ -59,6 +64,8 @@ class FrameFeatures:
     reliable : bool
         False if the detection was unreliable, too many tracks were lost, or the CoP is
         undefined; ``reason`` says which.
+    detection_reliable : bool
+        The detection's own verdict (what ``cop_hull`` needs).
     reason : str
     contact : bool
         Contact state after this frame (hysteresis on ``deformation_px``).
@@ -71,6 +78,7 @@ class FrameFeatures:
     area_change: np.ndarray
     cop: np.ndarray
     cop_area_change: np.ndarray
+    cop_hull: np.ndarray
     deformation_px: float
     n_detected: int
     n_lost: int
@@ -78,9 +86,10 @@ class FrameFeatures:
     reason: str
     contact: bool
     frame_index: int
+    detection_reliable: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("points", "areas", "area_change", "cop", "cop_area_change"):
+        for name in ("points", "areas", "area_change", "cop", "cop_area_change", "cop_hull"):
             object.__setattr__(self, name, _ro(getattr(self, name)))
 
 
@@ -223,6 +232,7 @@ class FeaturePipeline:
         cop = centre_of_pressure(points, areas, on_empty="nan")
         cop_change = centre_of_pressure(points, areas, weighting="area_change",
                                         rest_areas=self.rest_areas, on_empty="nan")
+        cop_hull = hull_cop(det.points) if det.reliable else np.full(2, np.nan)
         deformation = surface_deformation(points, self.rest_points)
         in_contact = self.contact_detector.update(deformation)
 
@@ -239,6 +249,8 @@ class FeaturePipeline:
             reliable, reason = True, f"{m - n_lost} of {m} markers tracked"
         return FrameFeatures(
             points=points, areas=areas, area_change=change, cop=cop, cop_area_change=cop_change,
-            deformation_px=deformation, n_detected=det.count, n_lost=n_lost, reliable=reliable,
+            cop_hull=cop_hull, deformation_px=deformation, n_detected=det.count, n_lost=n_lost,
+            reliable=reliable,
             reason=reason, contact=in_contact, frame_index=self.tracker.frame_index,
+            detection_reliable=bool(det.reliable),
         )

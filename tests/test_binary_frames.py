@@ -1,0 +1,86 @@
+"""Binarised frames (two grey levels): synthetic ones with known marker centres, a rim ring and
+debris, touching pairs; and the real 128x128 processed frames of a 331-pin TacTip."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+import perception as pc
+from perception.synthetic import render_markers
+
+from .conftest import SHARED
+
+C = np.array([64.0, 64.0])
+
+
+def _binarised(centres, *, diameter=3.2, shape=(128, 128), ring=True, specks=()):
+    """Anti-aliased discs thresholded at half level (the lab's processing binarises), a rim
+    ring around them, and single-pixel specks at ``specks``."""
+    frame = render_markers(centres, shape=shape, diameter_px=diameter, marker_level=1.0,
+                           skin_level=0.0, exterior_level=0.0, sensor_radius_px=200.0).image
+    out = np.where(frame >= 128, 255, 0).astype(np.uint8)
+    if ring:
+        cv2.circle(out, (64, 64), 60, 255, 3)
+    for x, y in specks:
+        out[y, x] = 255
+    return out
+
+
+def test_known_centres_through_a_ring_and_debris():
+    rng = np.random.default_rng(1)
+    centres = pc.hex_lattice(331, 5.0, C) + rng.uniform(-0.3, 0.3, (331, 2))  # as the real: r 50
+    image = _binarised(centres, specks=[(64, 9), (10, 64), (118, 70)])
+    det = pc.detect_markers_detailed(image, expected_count=331)
+    assert det.reliable and det.count == 331, det.reason
+    dist, _ = cKDTree(det.points).query(centres)
+    # a 3 px disc binarised: its pixel centroid is within a third of a pixel of the centre
+    assert np.median(dist) < 0.2 and dist.max() < 0.6
+    # the ring and the three specks are rejected, and nothing near the ring is kept
+    assert len(det.rejected_reasons) == 4
+    assert np.linalg.norm(det.points - C, axis=1).max() < 56.0
+
+
+def test_touching_pairs_are_split_into_their_two_markers():
+    centres = pc.hex_lattice(61, 8.0, C)
+    moved = centres.copy()
+    moved[10] = centres[11] + np.array([-3.4, 0.0])  # marker 10 pressed against 11
+    image = _binarised(moved, diameter=4.0, ring=False)
+    det = pc.detect_markers_detailed(image, expected_count=61)
+    assert det.count == 61
+    d, _ = cKDTree(det.points).query(moved)
+    assert d.max() < 1.0  # both members of the pair found near their centres
+
+
+def test_blank_and_single_level_frames_are_flagged_not_crashing():
+    for image in (np.zeros((128, 128), np.uint8), np.full((128, 128), 255, np.uint8)):
+        det = pc.detect_markers_detailed(image, expected_count=331)
+        assert not det.reliable and det.count == 0
+
+
+REAL128 = SHARED / "real" / "tactip331_tap128"
+
+
+@pytest.mark.skipif(not REAL128.is_dir(), reason="../shared/real/tactip331_tap128 absent")
+def test_real_128px_frames_find_99_percent_of_pins_in_every_frame():
+    frames = sorted((REAL128 / "images").glob("*.png"))
+    counts = np.array([pc.detect_markers_detailed(str(f), expected_count=331).count
+                       for f in frames[::4]])
+    assert len(counts) >= 200
+    assert np.mean((counts >= 0.99 * 331) & (counts <= 1.01 * 331)) >= 0.95
+
+
+@pytest.mark.skipif(not (SHARED / "real").is_dir(), reason="../shared/real absent")
+def test_raw_and_binarised_full_resolution_real_frames():
+    raws = sorted((SHARED / "real" / "tactip331_tap").glob("*.png"))
+    raws.append(SHARED / "real" / "tactip331_raw" / "raw_tactile_image.png")
+    for f in raws:
+        grey = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+        _, binary = cv2.threshold(grey, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+        for image in (str(f), binary):
+            det = pc.detect_markers_detailed(image, expected_count=331)
+            assert det.reliable and abs(det.count - 331) <= 4, (Path(f).name, det.reason)
