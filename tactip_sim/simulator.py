@@ -1,8 +1,13 @@
 """The :class:`Simulator`: a scene's pad as an elastic body you can press with rigid indenters.
 
->>> sim = Simulator(scene)                                   # doctest: +SKIP
->>> state = sim.press(Pose(roll_deg=4, pitch_deg=-2, depth_mm=1.5))  # doctest: +SKIP
->>> state.markers_mm, state.force_N, state.pressure_centre_mm       # doctest: +SKIP
+>>> import tactip_sim as ts
+>>> scene = ts.load_scene("scenes/shadow_fingertip.toml")     # the bundled scene
+>>> sim = Simulator(scene)
+>>> state = sim.press(Pose(roll_deg=4, pitch_deg=-2, depth_mm=1.5))
+>>> state.in_contact, state.markers_mm.shape, state.pins_on_window
+(True, (97, 3), 0)
+>>> bool(0 < state.force_N < 20), state.pressure_centre_mm.shape
+(True, (2,))
 
 The mesh is built (or loaded) at construction; the stiffness, its factorisation and the
 reduced model's compliance are formed on first use and the compliance is cached on disk.
