@@ -2,11 +2,12 @@
 
     python benchmarks/bench_perception_compile.py
 
-Perception's compiled kernels (``perception/_kernels.py``) are compiled on first use and cached
-on disk. This copies the ``perception`` package into a temporary folder (no ``__pycache__``), and
-in two fresh processes in turn times ``import perception`` and a ``FeaturePipeline`` built on a
-synthetic rest frame processing one frame: the first process compiles every kernel the pipeline
-uses, the second loads them from the cache the first wrote.
+Perception's compiled kernels (``perception/*_kernels.py``, each beside the module that calls
+it) are compiled on first use and cached on disk. This copies the ``perception`` package into a
+temporary folder (no ``__pycache__``), and in two fresh processes in turn times ``import
+perception`` and a ``FeaturePipeline`` built on a synthetic rest frame processing one frame: the
+first process compiles every kernel the pipeline uses, the second loads them from the cache the
+first wrote.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Low-level image and blob operations of the detector.
 
 Background (top-hat), noise and threshold estimates, half-maximum segmentation and blob
-measurements (one compiled raster scan, :mod:`perception._kernels`). Kept apart from
+measurements (one compiled raster scan, :mod:`perception.blobs_kernels`). Kept apart from
 :mod:`perception.detect` so the detector reads as a sequence of decisions.
 """
 
@@ -65,7 +65,7 @@ def blob_measures(labels: np.ndarray, n_labels: int, intensity: np.ndarray, leve
     half-maximum segmentation cuts off; with the background subtracted from the weights, the
     centroid of a symmetric spot is then unbiased to well below 0.1 px.
 
-    The sums come from one compiled raster scan (:func:`perception._kernels.blob_sums`): the
+    The sums come from one compiled raster scan (:func:`perception.blobs_kernels.blob_sums`): the
     weighted ones in float64, the unweighted shape moments in exact integer arithmetic -
     small blobs sit exactly on the elongation and fill thresholds (a 1 x 3 line has
     elongation 3), so the decisions must not depend on rounding.
@@ -91,7 +91,7 @@ def blob_measures(labels: np.ndarray, n_labels: int, intensity: np.ndarray, leve
     centroids : (n_labels - 1, 2) float64, px, OpenCV (x, y)
         NaN where a blob's weights sum to zero.
     """
-    from ._kernels import blob_sums  # compiled on first use (Numba)
+    from .blobs_kernels import blob_sums  # compiled on first use (Numba)
 
     h, w = labels.shape[:2]
     grown = labels
@@ -164,13 +164,13 @@ def square_extreme(img: np.ndarray, kernel: int, *, take_min: bool) -> np.ndarra
 
     Exactly ``cv2.erode`` / ``cv2.dilate`` with a rectangular kernel and the default border
     (pixels outside the image ignored). Large kernels on 8-bit images run as two compiled
-    column passes (:func:`perception._kernels.column_extreme_u8`) with a transpose between,
+    column passes (:func:`perception.blobs_kernels.column_extreme_u8`) with a transpose between,
     so the cost does not grow with the kernel; everything else goes to OpenCV.
     """
     if not _compiled_morphology(img, kernel):
         op = cv2.erode if take_min else cv2.dilate
         return op(img, cv2.getStructuringElement(cv2.MORPH_RECT, (kernel, kernel)))
-    from ._kernels import column_extreme_u8  # compiled on first use (Numba)
+    from .blobs_kernels import column_extreme_u8  # compiled on first use (Numba)
 
     cols = column_extreme_u8(np.ascontiguousarray(img), kernel, take_min)
     return cv2.transpose(column_extreme_u8(cv2.transpose(cols), kernel, take_min))
@@ -184,7 +184,7 @@ def top_hat(grey: np.ndarray, kernel: int) -> tuple[np.ndarray, np.ndarray]:
     """
     if _compiled_morphology(grey, kernel):
         # erode columns, rows, then dilate rows, columns: two transposes instead of four
-        from ._kernels import column_extreme_u8
+        from .blobs_kernels import column_extreme_u8
 
         t = cv2.transpose(column_extreme_u8(np.ascontiguousarray(grey), kernel, True))
         t = column_extreme_u8(column_extreme_u8(t, kernel, True), kernel, False)

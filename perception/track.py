@@ -190,7 +190,7 @@ class MarkerTracker:
         """Gated optimal one-to-one assignment: (track indices, detection indices)."""
         if len(det) == 0:
             return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
-        from ._kernels import gated_counts  # compiled on first use (Numba)
+        from .track_kernels import gated_counts  # compiled on first use (Numba)
 
         pred = self.predicted()
         lost = ~self._seen  # a lost track may also come back at its rest position

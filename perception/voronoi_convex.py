@@ -47,7 +47,8 @@ markers have moved enough to flip an edge.
 
 Points are handled as complex numbers x + iy (a × b = Im(conj(a) b)). The triangulation
 bookkeeping is vectorised; the circumcentres, the Delaunay check and steps 3 and 4 are compiled
-loops over triangles, cells, cell edges and region edges (:mod:`perception._kernels`, Numba),
+loops over triangles, cells, cell edges and region edges (Numba, next door in
+:mod:`perception.voronoi_kernels`: :func:`~perception.voronoi_kernels.clip_cells` is steps 3-4),
 which replaced some seventy small numpy operations per frame (the Voronoi stage 2.9-3.2x faster,
 BENCHMARKS.md).
 """
@@ -241,8 +242,8 @@ class ConvexVoronoi:
 
     def _clip(self, topo: _Topology, pts: np.ndarray, verts: np.ndarray) -> np.ndarray | None:
         """Steps 3 and 4 of the module docstring (complex points centred on topo.centre), in
-        one compiled pass (:func:`perception._kernels.clip_cells`)."""
-        from ._kernels import clip_cells  # compiled on first use (Numba)
+        one compiled pass (:func:`perception.voronoi_kernels.clip_cells`)."""
+        from .voronoi_kernels import clip_cells  # compiled on first use (Numba)
 
         areas, ok = clip_cells(pts, topo.n, verts, topo.own, topo.nbr, topo.t_from, topo.t_to,
                                topo.starts, self._z - topo.centre, self._edge, self._edge_len,
@@ -253,7 +254,7 @@ class ConvexVoronoi:
 
 def _circumcentres(pts: np.ndarray, simplices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Circumcentres (t,) complex of the triangles and twice their signed areas (t,)."""
-    from ._kernels import circumcentres  # compiled on first use (Numba)
+    from .voronoi_kernels import circumcentres  # compiled on first use (Numba)
 
     return circumcentres(pts, simplices)
 
@@ -261,7 +262,7 @@ def _circumcentres(pts: np.ndarray, simplices: np.ndarray) -> tuple[np.ndarray, 
 def _still_delaunay(topo: _Topology, pts: np.ndarray, verts: np.ndarray,
                     twice_area: np.ndarray) -> bool:
     """Whether a triangulation is (to rounding) the Delaunay triangulation of ``pts``."""
-    from ._kernels import still_delaunay
+    from .voronoi_kernels import still_delaunay
 
     return bool(still_delaunay(pts, topo.simplices, verts, twice_area, topo.far_t, topo.far_v,
                                _INCIRCLE_TOL))

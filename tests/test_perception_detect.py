@@ -358,10 +358,22 @@ def test_square_extreme_and_top_hat_equal_opencv(dtype):
             th, bg = top_hat(img, k)
             assert np.array_equal(bg, cv2.morphologyEx(img, cv2.MORPH_OPEN, rect))
             assert np.array_equal(th, cv2.subtract(img, bg))
-    if dtype == np.uint8:  # the compiled passes did run (the others are OpenCV's own)
-        from perception._kernels import column_extreme_u8
 
-        assert column_extreme_u8.signatures
+
+def test_compiled_column_pass_equals_opencv_column_morphology():
+    """The compiled pass behind the large 8-bit kernels, on its own: a k x 1 (rows) erosion or
+    dilation, as OpenCV computes it with a column kernel and its default border."""
+    import cv2
+
+    from perception.blobs_kernels import column_extreme_u8
+
+    rng = np.random.default_rng(6)
+    for shape in [(480, 640), (37, 23), (1, 50), (50, 1), (17, 17), (5, 8)]:
+        img = (rng.random(shape) * 256).astype(np.uint8)
+        for k in (1, 3, 17, 21, 43, 101):
+            col = cv2.getStructuringElement(cv2.MORPH_RECT, (1, k))
+            assert np.array_equal(column_extreme_u8(img, k, True), cv2.erode(img, col))
+            assert np.array_equal(column_extreme_u8(img, k, False), cv2.dilate(img, col))
 
 
 @pytest.mark.parametrize("seed, inset", [(19, None), (97, 10.0)])

@@ -231,3 +231,28 @@ def test_features_after_reset_do_not_depend_on_earlier_frames():
         a, b = used.process(image), fresh.process(image)
         for name in ("points", "areas", "cop", "cop_area_change"):
             assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
+
+
+def test_numba_is_loaded_on_first_use_only():
+    # the compiled kernels sit beside their callers and are imported inside the functions that
+    # call them: importing perception (every eager submodule included) leaves Numba unloaded;
+    # processing a frame loads it and the kernels of blobs, tracking and Voronoi
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np, perception as pc\n"
+        "from perception.synthetic import render_markers\n"
+        "kernels = ('perception.blobs_kernels', 'perception.track_kernels', "
+        "'perception.voronoi_kernels')\n"
+        "print(sorted(m for m in ('numba', *kernels) if m in sys.modules))\n"
+        "rest = pc.hex_lattice(37, 36.0, (319.5, 239.5))\n"
+        "frame = lambda pts: render_markers(pts, diameter_px=10.0).image\n"
+        "pc.FeaturePipeline(frame(rest), expected_count=37).process(frame(rest + 1.0))\n"
+        "print(sorted(m for m in ('numba', *kernels) if m in sys.modules))\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    before, after = res.stdout.strip().splitlines()
+    assert before == "[]"
+    assert after == str(sorted(["numba", "perception.blobs_kernels", "perception.track_kernels",
+                                "perception.voronoi_kernels"]))

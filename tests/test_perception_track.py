@@ -190,14 +190,18 @@ def test_assignment_shortcut_equals_the_full_assignment():
         det = rest + rng.normal(0.0, noise, rest.shape)
         det = det[rng.random(len(det)) > 0.1]
         det = np.vstack([det, rng.uniform(rest.min(0), rest.max(0), (5, 2))])
-        tracker.reset()
-        rows, cols = tracker._assign(det)
+        tracker.reset()  # every track predicted at rest: the cost is the distance to rest
+        positions = tracker.update(det)
         cost = cdist(rest, det)
         feasible = cost <= gate
         big = gate * (min(cost.shape) + 1.0) + 1.0
         r_ref, c_ref = linear_sum_assignment(np.where(feasible, cost, big))
         keep = feasible[r_ref, c_ref]
-        assert np.array_equal(rows, r_ref[keep]) and np.array_equal(cols, c_ref[keep])
+        expected = np.full(len(rest), -1)
+        expected[r_ref[keep]] = c_ref[keep]
+        assert np.array_equal(tracker.last_match, expected)
+        assert np.array_equal(np.isnan(positions[:, 0]), expected < 0)
+        assert np.array_equal(positions[expected >= 0], det[expected[expected >= 0]])
         tangled += int((feasible.sum(axis=1) > 1).any())
     assert tangled > 20  # the solver path was exercised, not only the shortcut
 
@@ -207,7 +211,7 @@ def test_gated_counts_equal_the_cost_matrix_decisions():
     the rest position as a second chance for lost tracks, pairs exactly at the gate included."""
     from scipy.spatial.distance import cdist
 
-    from perception._kernels import gated_counts
+    from perception.track_kernels import gated_counts
 
     rng = np.random.default_rng(11)
     for _ in range(30):

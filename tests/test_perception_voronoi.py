@@ -208,21 +208,28 @@ def test_convex_path_equals_geos_on_random_sets(kind):
 
 
 def test_clipped_voronoi_reuses_the_triangulation_while_it_is_delaunay():
+    from perception.region import convex_ring
+    from perception.voronoi_convex import ConvexVoronoi
+
     rng = np.random.default_rng(7)
     pts, disc = _lattice_and_disc()
     vor = pc.ClippedVoronoi(disc)
     assert vor.convex
+    convex = ConvexVoronoi(convex_ring(disc))  # the convex path on its own, counting Qhull runs
     moved = pts
     for _ in range(6):  # small motions: the first triangulation stays Delaunay
         moved = moved + rng.normal(0.0, 0.2, pts.shape)
-        assert np.allclose(vor.areas(moved), pc.voronoi_areas(moved, disc, method="geos"),
+        got = vor.areas(moved)
+        assert np.allclose(got, pc.voronoi_areas(moved, disc, method="geos"),
                            rtol=1e-9, atol=0.0)
-    assert vor._fast.n_triangulations == 1
+        assert np.array_equal(got, convex.areas(moved))  # what ClippedVoronoi runs
+    assert convex.n_triangulations == 1
     # a large shear flips edges: the stale triangulation is detected and replaced
     sheared = pts + np.stack([0.8 * (pts[:, 1] - C[1]), np.zeros(len(pts))], axis=1)
-    assert np.allclose(vor.areas(sheared), pc.voronoi_areas(sheared, disc, method="geos"),
-                       rtol=1e-9, atol=0.0)
-    assert vor._fast.n_triangulations == 2
+    got = vor.areas(sheared)
+    assert np.allclose(got, pc.voronoi_areas(sheared, disc, method="geos"), rtol=1e-9, atol=0.0)
+    assert np.array_equal(got, convex.areas(sheared))
+    assert convex.n_triangulations == 2
     # duplicates and lost markers in the middle of a sequence
     dup = sheared.copy()
     dup[5] = dup[6]
