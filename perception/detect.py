@@ -364,15 +364,21 @@ def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
                        f"{p.min_diameter_px} px")
     if n < p.min_markers:
         return False, f"only {n} markers found (min_markers={p.min_markers})"
+    med, sd = robust_spread(areas)
+    irregular = sd / med > p.max_size_dispersion
+    sizes = (f"blob sizes are irregular (robust CV {sd / med:.2f} > "
+             f"max_size_dispersion={p.max_size_dispersion}): not a marker array")
     if expected_count is not None:
+        # the count is a further condition, never a replacement for the size check: noise
+        # that happens to give about the expected count is still noise
         tol = max(1, int(np.floor(p.count_tolerance * expected_count)))
         if abs(n - expected_count) > tol:
             return False, f"found {n} markers, expected {expected_count} ± {tol}"
+        if irregular:
+            return False, sizes
         return True, f"found {n} markers, expected {expected_count} ± {tol}"
-    med, sd = robust_spread(areas)
-    if sd / med > p.max_size_dispersion:
-        return False, (f"blob sizes are irregular (robust CV {sd / med:.2f} > "
-                       f"max_size_dispersion={p.max_size_dispersion}): not a marker array")
+    if irregular:
+        return False, sizes
     if n >= 3:
         dist, _ = cKDTree(points).query(points, k=2)
         nn_med, nn_sd = robust_spread(dist[:, 1])

@@ -84,3 +84,15 @@ def test_raw_and_binarised_full_resolution_real_frames():
         for image in (str(f), binary):
             det = pc.detect_markers_detailed(image, expected_count=331)
             assert det.reliable and abs(det.count - 331) <= 4, (Path(f).name, det.reason)
+
+
+def test_telling_the_count_never_makes_noise_reliable():
+    """Blurred noise that happens to give about the expected number of blobs is still noise:
+    the verdict with --expected-count is never weaker than without."""
+    rng = np.random.default_rng(0)
+    noise = cv2.GaussianBlur((rng.normal(0.5, 0.2, (480, 640)).clip(0, 1) * 255)
+                             .astype(np.uint8), (0, 0), 4)
+    free = pc.detect_markers_detailed(noise)
+    told = pc.detect_markers_detailed(noise, expected_count=free.count)  # the count it found
+    assert not free.reliable
+    assert not told.reliable and "irregular" in told.reason
