@@ -2,12 +2,49 @@
 
 Runs on real camera frames as well as rendered ones (it never imports the simulator).
 
+On a synthetic frame of 37 markers with known centres (:mod:`perception.synthetic`):
+
+>>> import numpy as np
 >>> import perception as pc
->>> pts = pc.detect_markers(image)                       # doctest: +SKIP
->>> tracker = pc.MarkerTracker(rest_pts)                 # doctest: +SKIP
->>> areas = pc.voronoi_areas(points, region)             # doctest: +SKIP
->>> cop = pc.centre_of_pressure(points, areas)           # doctest: +SKIP
->>> model = pc.PoseRegressor(order=2).fit(cop_xy, angles_deg)   # doctest: +SKIP
+>>> from perception.synthetic import render_markers
+>>> rest = render_markers(pc.hex_lattice(37, 36.0, (319.5, 239.5)), diameter_px=10.0,
+...                       noise_sigma=0.02, rng=0)
+>>> rest_pts = pc.detect_markers(rest.image, expected_count=37)
+>>> rest_pts.shape
+(37, 2)
+>>> error = np.hypot(*(rest_pts[:, None] - rest.centres[None]).transpose(2, 0, 1)).min(axis=1)
+>>> bool(error.max() < 0.1)                              # px, from the true centres
+True
+
+Tracking keeps each marker's identity from the rest frame on (NaN rows for lost markers):
+
+>>> tracker = pc.MarkerTracker(rest_pts)
+>>> shifted = render_markers(rest.centres + (1.5, -0.5), diameter_px=10.0, noise_sigma=0.02,
+...                          rng=1)
+>>> points = tracker.update(pc.detect_markers(shifted.image, expected_count=37))
+>>> print(np.round(np.nanmean(points - rest_pts, axis=0), 2), tracker.n_lost)
+[ 1.5 -0.5] 0
+
+Voronoi cell areas clipped to the sensor region (by default fitted to the rest markers) sum to
+its area; the centre of pressure of this symmetric array is its centre:
+
+>>> region = pc.fit_region(rest_pts)
+>>> areas = pc.voronoi_areas(rest_pts, region)
+>>> bool(np.isclose(areas.sum(), region.area))
+True
+>>> print(np.round(pc.centre_of_pressure(rest_pts, areas), 1))
+[319.5 239.5]
+
+A pose regressor maps centres of pressure to roll and pitch (here an exactly linear relation):
+
+>>> rng = np.random.default_rng(0)
+>>> cop_xy = rng.uniform((280, 200), (360, 280), (20, 2))
+>>> angles_deg = 0.25 * (cop_xy - (319.5, 239.5)) * (1, -1)
+>>> model = pc.PoseRegressor(order=2).fit(cop_xy, angles_deg)
+>>> print(np.round(model.predict([329.5, 229.5]), 3))
+[[2.5 2.5]]
+
+:class:`FeaturePipeline` chains these for a sequence of frames.
 
 Coordinates are OpenCV pixel coordinates (x right, y down, pixel centres at integer
 coordinates); areas are px²; angles are degrees.

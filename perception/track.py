@@ -58,8 +58,32 @@ class MarkerTracker:
 
     Examples
     --------
-    >>> tracker = MarkerTracker(rest_pts)          # doctest: +SKIP
+    Seven markers 10 px apart; the gate is half the spacing:
+
+    >>> import numpy as np
+    >>> from perception.geometry import hex_lattice
+    >>> rest_pts = hex_lattice(7, 10.0, (50.0, 50.0))
+    >>> tracker = MarkerTracker(rest_pts)
+    >>> round(tracker.gate_px, 6)
+    5.0
+
+    The skin moves by (2, 1) px; the detections come in another order and marker 0 is missing:
+
+    >>> detected_pts = (rest_pts + (2.0, 1.0))[::-1][:6]
     >>> positions = tracker.update(detected_pts)   # (m, 2), NaN rows for lost markers
+    >>> tracker.lost.tolist()
+    [True, False, False, False, False, False, False]
+    >>> tracker.last_match.tolist()                # detection row of each track, -1: none
+    [-1, 5, 4, 3, 2, 1, 0]
+    >>> bool(np.array_equal(positions[1:], rest_pts[1:] + (2.0, 1.0)))
+    True
+
+    It moves on by (2, 1) px: the tracked markers are looked for one step further (constant
+    velocity), the lost one at its last known and its rest position, and all are found again:
+
+    >>> positions = tracker.update(rest_pts + (4.0, 2.0))
+    >>> tracker.n_lost, tracker.last_match.tolist()
+    (0, [0, 1, 2, 3, 4, 5, 6])
     """
 
     def __init__(self, rest_points: np.ndarray, *, rest_areas: np.ndarray | None = None,
