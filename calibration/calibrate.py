@@ -26,6 +26,7 @@ from .fit import (
     score,
 )
 from .protocol import evaluation_sets, make_tip, training_set
+from .rig import RigModel
 from .runlog import RunLog
 from .sweep import SweepSpec, run_sweep
 from .versions import package_versions
@@ -61,6 +62,7 @@ def calibrate(
     charts: bool = True,
     feature: str = DEFAULT_FEATURE,
     fidelity: dict | None = None,
+    rig: RigModel | None = None,
 ) -> CalibrationResult:
     """Run the reference paper's calibration protocol in simulation (resumable).
 
@@ -71,8 +73,10 @@ def calibrate(
     feature), ``r2_table_<other>.*`` for each other feature, ``models/*.json`` (headline) and
     ``models/<other>/*.json``, charts and ``manifest.json``.
     ``fidelity`` records how the scene's fidelity was chosen (``--fidelity``, or the
-    ``--fidelity auto`` choice) in the manifest.
+    ``--fidelity auto`` choice) in the manifest. ``rig`` adds the data collection's
+    imperfections (:mod:`calibration.rig`; default: an ideal rig).
     """
+    rig = RigModel() if rig is None else rig
     check_feature(feature)
     others = [f for f in FEATURES if f != feature]
     out = Path(out)
@@ -102,7 +106,7 @@ def calibrate(
             t_tip = time.perf_counter()
             results = {}
             for pose_set in sets:
-                spec = SweepSpec(scene, tip, pose_set, frames=frames)
+                spec = SweepSpec(scene, tip, pose_set, frames=frames, rig=rig)
                 res = run_sweep(spec, out / f"tip_{tip}" / pose_set.name, client=client,
                                 progress=progress, on_sample=log.tick)
                 results[pose_set.name] = res
@@ -153,6 +157,7 @@ def calibrate(
         "frames_per_sample": frames,
         "fidelity": {"preset": preset_of(scene), **(fidelity or {})},
         "feature": feature,
+        "rig": rig.record(),
         "seed": scene.protocol.seed,
         "pose_sets": {s.name: len(s) for s in sets},
         "workers": workers,

@@ -25,6 +25,7 @@ key give the same bytes in a sweep, a fidelity level and a stability map.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import zlib
 from collections.abc import Sequence
@@ -305,15 +306,18 @@ class Chain:
         with np.errstate(invalid="ignore"):  # caps pushed through the window: NaN sightlines
             return self.renderer.ground_truth(markers, directions)
 
-    def render(self, state: Any, *key: int, frames: int | None = None) -> Rendered:
+    def render(self, state: Any, *key: int, frames: int | None = None, gain: float = 1.0
+               ) -> Rendered:
         """Render ``state`` (None: the rest pose) once without noise, then synthesise
         ``frames`` (default: the chain's) noisy frames from it with the camera model; seeded by
-        ``key``."""
+        ``key``. ``gain`` scales the camera's exposure (a rig's drift)."""
         rng = self.rng(*key)
         radiance = self.radiance(state, rng)
         px, visible, blobs = self.truth(state)
-        images = self.renderer.camera.frames(radiance, rng,
-                                             self.frames if frames is None else frames)
+        camera = self.renderer.camera
+        if gain != 1.0:
+            camera = dataclasses.replace(camera, exposure=camera.exposure * gain)
+        images = camera.frames(radiance, rng, self.frames if frames is None else frames)
         return Rendered(px, visible, blobs, images)
 
     def perceive(self, images: Sequence[np.ndarray]) -> Perceived:
@@ -327,20 +331,20 @@ class Chain:
         out[self.pin_of[ok]] = perceived.points[ok]
         return out
 
-    def observe(self, state: Any, *key: int) -> Sample:
+    def observe(self, state: Any, *key: int, gain: float = 1.0) -> Sample:
         """Render and perceive an already pressed ``state`` (physics time 0)."""
         t0 = time.perf_counter()
-        rendered = self.render(state, *key)
+        rendered = self.render(state, *key, gain=gain)
         t1 = time.perf_counter()
         perceived = self.perceive(rendered.images)
         t2 = time.perf_counter()
         return Sample(state, rendered, perceived, self.pins_px(perceived),
                       {"physics": 0.0, "render": t1 - t0, "perception": t2 - t1})
 
-    def sample(self, pose: Sequence[float] | ts.Pose, *key: int) -> Sample:
-        """Press, render and perceive one pose, seeded by ``key``."""
+    def sample(self, pose: Sequence[float] | ts.Pose, *key: int, gain: float = 1.0) -> Sample:
+        """Press, render and perceive one pose, seeded by ``key`` (``gain``: exposure scale)."""
         state, physics_s = self.press(pose)
-        s = self.observe(state, *key)
+        s = self.observe(state, *key, gain=gain)
         s.seconds["physics"] = physics_s
         return s
 

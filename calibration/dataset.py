@@ -60,7 +60,7 @@ format-1 dataset is read (its FEM let pins pass the window: none was held)."""
 SCALARS = ("index", "roll_deg", "pitch_deg", "depth_mm", "force_N", "contact_area_mm2",
            "n_markers", "reliable_frames", "frames", "contact", "cop_area_std_px",
            "pins_on_window")
-VECTORS = ("true_cop_mm", "cop_area_px", "cop_growth_px", "cop_hull_px")
+VECTORS = ("true_cop_mm", "cop_area_px", "cop_growth_px", "cop_hull_px", "reached_pose")
 ARRAYS = ("markers_mm", "markers_px", "visible")
 
 
@@ -126,6 +126,8 @@ class SampleRecord:
     cop_area_px: np.ndarray  # (2,) the paper's CoP (cell-area weighted), averaged over frames
     cop_growth_px: np.ndarray  # (2,) the growth-weighted CoP, averaged over frames
     cop_hull_px: np.ndarray  # (2,) the lab's CoP (cells bounded by the frame's hull), likewise
+    reached_pose: np.ndarray  # (3,) roll°, pitch°, depth mm the rig really reached (the pose
+    # columns hold the commanded pose, the label; equal for an ideal rig)
     cop_area_std_px: float  # frame-to-frame spread of cop_area_px
     n_markers: float  # markers detected, mean over frames
     reliable_frames: int
@@ -148,6 +150,8 @@ class SampleRecord:
             d = {FORMAT_1_NAMES.get(k, k): data[k] for k in data.files}
             d.setdefault("cop_hull_px", np.full(2, np.nan))
             d.setdefault("pins_on_window", np.array(0))
+            d.setdefault("reached_pose", np.array([d["roll_deg"], d["pitch_deg"],
+                                                   d["depth_mm"]], dtype=float).ravel())
             kw: dict[str, Any] = {k: d[k].item() for k in SCALARS}
             kw.update({k: d[k].copy() for k in VECTORS + ARRAYS})
         kw["index"] = int(kw["index"])

@@ -26,6 +26,7 @@ from .dataset import Dataset, SampleRecord, poses_digest
 from .executor import execute
 from .executor import progress as progress_bar
 from .protocol import PoseSet, make_tip
+from .rig import RigModel, find_zero
 from .versions import package_versions, perception_results_version
 
 
@@ -39,6 +40,9 @@ class SweepSpec:
     frames : noisy frames averaged per sample
     nominal : use the unperturbed design instead of a manufactured tip
     indenter : optional indenter override (``[indenter]`` keys), e.g. ``{"kind": "sphere"}``
+    rig : the data collection's imperfections (:class:`~calibration.rig.RigModel`; default
+        an ideal rig): the pose reached and each sample's exposure are drawn from it, the
+        commanded pose stays the label
     mesh : the tip's tet mesh; :meth:`with_mesh` resolves it once, in the process that starts
         the sweep, and it travels with the spec to every worker. pytetwild does not give the
         same mesh twice, so workers that each built their own would compute one tip with
@@ -52,6 +56,7 @@ class SweepSpec:
     nominal: bool = False
     indenter: dict[str, Any] = field(default_factory=dict)
     mesh: Any = field(default=None, repr=False, compare=False)
+    rig: RigModel = field(default_factory=RigModel)
 
     def with_mesh(self) -> SweepSpec:
         """This spec with its tip's mesh (from the cache, ``scenes/meshes/`` or built once)."""
@@ -77,6 +82,8 @@ class SweepSpec:
             "indenter": dict(sorted(self.indenter.items())),
             # features computed by another perception version must not be mixed in
             "perception_results": perception_results_version(),
+            # the rig's imperfections (None: an ideal rig, as datasets made before it)
+            "rig": None if self.rig.ideal else self.rig.record(),
         }
 
     def chain_key(self) -> str:
@@ -97,9 +104,11 @@ class SweepSpec:
                              indenter=self.indenter or None, mesh=self.mesh, frames=self.frames)
 
 
-def record(index: int, pose: Sequence[float], s: Any) -> SampleRecord:
-    """The dataset record of sample ``index`` at ``pose`` (roll°, pitch°, depth mm) from its
-    :class:`~calibration.chain.Sample`."""
+def record(index: int, pose: Sequence[float], s: Any, reached: Sequence[float] | None = None
+           ) -> SampleRecord:
+    """The dataset record of sample ``index`` at commanded ``pose`` (roll°, pitch°, depth mm;
+    the label) from its :class:`~calibration.chain.Sample`; ``reached``: the pose the rig
+    really reached (default: the commanded one)."""
     state, r, p = s.state, s.rendered, s.perceived
     roll, pitch, depth = (float(v) for v in pose)
     return SampleRecord(
@@ -110,6 +119,7 @@ def record(index: int, pose: Sequence[float], s: Any) -> SampleRecord:
         cop_area_std_px=p.spread,
         n_markers=p.n_markers, reliable_frames=p.reliable, frames=len(r.images),
         contact=int(bool(state.in_contact)), pins_on_window=int(state.pins_on_window),
+        reached_pose=np.asarray(pose if reached is None else reached, dtype=float),
         markers_mm=np.asarray(state.markers_mm),
         markers_px=np.asarray(r.markers_px, dtype=float),
         visible=np.asarray(r.visible, dtype=bool),
@@ -127,6 +137,18 @@ def chain_for(spec: SweepSpec) -> Chain:
         _CHAINS.clear()
         _CHAINS[key] = spec.chain()
     return _CHAINS[key]
+
+
+_ZEROS: dict[str, float] = {}
+
+
+def rig_zero(spec: SweepSpec, chain: Chain) -> float:
+    """How far past first contact the rig's zero lies for this tip (:func:`find_zero`, once
+    per process and tip)."""
+    key = spec.chain_key()
+    if key not in _ZEROS:
+        _ZEROS[key] = find_zero(chain, spec.rig.zero_step_mm)
+    return _ZEROS[key]
 
 
 def _set_up(spec: SweepSpec) -> float:
@@ -159,11 +181,16 @@ def run_chunk(spec: SweepSpec, indices: Sequence[int]
     for i in indices:
         t0 = time.perf_counter()
         pose = spec.poses.poses[int(i)]
-        s = chain.sample(pose, spec.set_tag, int(i))
+        reached, gain = pose, 1.0
+        if not spec.rig.ideal:
+            rng = spec.rig.rng(spec.scene.protocol.seed, spec.tip, spec.poses.name, int(i))
+            reached, gain = spec.rig.perturb(pose, rng, zero_offset_mm=rig_zero(spec, chain))
+        s = chain.sample(reached, spec.set_tag, int(i), gain=gain)
         ok, png = cv2.imencode(".png", s.rendered.images[0])
         if not ok:  # pragma: no cover - OpenCV cannot fail on a uint8 image
             raise RuntimeError(f"could not encode sample {i} as PNG")
-        out.append((record(int(i), pose, s), png.tobytes(), time.perf_counter() - t0))
+        out.append((record(int(i), pose, s, reached), png.tobytes(),
+                    time.perf_counter() - t0))
     return cv2.imencode(".png", chain.rest_image)[1].tobytes(), out
 
 
