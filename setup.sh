@@ -29,6 +29,6 @@ python3 -c "import tactip_sim.llvm as l; print('   Dr.Jit will use', l.ensure_ll
 if [ "$RUN" = 1 ]; then
   echo "== main job: the calibration protocol on scenes/shadow_fingertip.toml (resumable: rerun"
   echo "   ./setup.sh after an interruption and it continues where it stopped)"
-  python3 -m tactip_sim.cli mesh scenes/shadow_fingertip.toml
-  python3 -m tactip_sim.cli calibrate scenes/shadow_fingertip.toml --out out/calibration --workers 2
+  python3 -m tactip_sim.commands mesh scenes/shadow_fingertip.toml
+  python3 -m tactip_sim.commands calibrate scenes/shadow_fingertip.toml --out out/calibration --workers 2
 fi

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactip_sim.cli import add_scene_argument, load_scene_args, parse_overrides, with_overrides
+from tactip_sim.commands import add_scene_argument, load_scene_args, parse_overrides, with_overrides
 
 QUICK = {  # a reduced protocol for a first look (and for tests): same ranges, coarser grids
     "protocol.roll_step_deg": 8.0,

@@ -2,8 +2,10 @@
 
 Data flow: scene file -> :func:`load_scene` -> :func:`build_pad` (geometry) ->
 :func:`tetrahedralise` (mesh) -> :class:`Simulator` (FEM contact, ``press``) ->
-``Simulator.render`` (Mitsuba) -> frames. Heavy modules (pytetwild, scikit-fem, Mitsuba) load
-only when first used: the names below marked lazy are imported on attribute access.
+``Simulator.render`` (Mitsuba; the :class:`Camera` projects through the window) -> frames.
+The ``tactip`` command line is :mod:`tactip_sim.commands`. Heavy modules (pytetwild,
+scikit-fem, Mitsuba) load only when first used: the names in ``_LAZY`` are imported on
+attribute access.
 """
 
 from importlib import import_module
@@ -25,7 +27,8 @@ _LAZY = {
     "Edge": ".fem",
     "MeshIndenter": ".fem",
     "ContactError": ".fem",
-    "project": ".optics",
+    "Camera": ".optics",
+    "project": ".optics",  # Camera.from_scene(scene).project(points), for one-off calls
     "Frame": ".render",
     "LLVMError": ".llvm",
 }

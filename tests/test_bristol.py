@@ -83,7 +83,7 @@ def test_growth_cop_follows_the_known_contact_points(folder):
 
 
 def test_fit_cv_and_evaluate_commands_write_the_contract_json(folder, tmp_path, capsys):
-    from tactip_sim.cli import main
+    from tactip_sim.commands import main
 
     root, _ = folder
     model, cv_json, ev_json = tmp_path / "m.json", tmp_path / "cv.json", tmp_path / "ev.json"
@@ -165,7 +165,7 @@ def test_malformed_folders_get_errors_naming_the_file(tmp_path, folder):
 
 
 def test_a_model_of_another_image_format_is_refused(folder, tmp_path, capsys):
-    from tactip_sim.cli import main
+    from tactip_sim.commands import main
 
     root, _ = folder
     model = tmp_path / "m.json"

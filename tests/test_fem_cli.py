@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tactip_sim.cli import main
+from tactip_sim.commands import main
 
 SCENE = str(Path(__file__).resolve().parents[1] / "scenes" / "shadow_fingertip.toml")
 P1 = ["--set", "fidelity.element_order=1"]

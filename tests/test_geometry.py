@@ -87,18 +87,6 @@ def test_lattice_has_node_at_origin_and_rows_along_x():
     assert np.any(np.all(np.isclose(pts, [3.0, 0.0]), axis=1))
 
 
-def test_camera_mount_tilt_and_shift(pad, scene):
-    cam = pad.camera
-    np.testing.assert_allclose(cam.centre_mm, [scene.camera.shift_mm, 0.0,
-                                               -scene.window.thickness_mm
-                                               - scene.camera.distance_mm])
-    tilt = np.degrees(np.arccos(cam.axis @ np.array([0.0, 0.0, 1.0])))
-    assert tilt == pytest.approx(scene.camera.tilt_deg)
-    assert cam.axis[0] < 0  # tilted back over the pad, away from the protrusion
-    np.testing.assert_allclose(cam.rotation.T @ cam.rotation, np.eye(3), atol=1e-12)
-    assert np.linalg.det(cam.rotation) == pytest.approx(1.0)
-
-
 def test_leds_and_occluder(pad):
     assert pad.leds_mm.shape == (4, 3)
     assert np.all(pad.leds_mm[:, 2] < 0)

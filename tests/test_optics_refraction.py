@@ -6,9 +6,25 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-import tactip_sim as ts
-from tactip_sim.optics import Layers, Lens, bend_up, fresnel_transmittance, sightlines
+from tactip_sim.optics import Camera, Layers, Lens, bend_up, fresnel_transmittance
 from tactip_sim.optics.refraction import refracted_air_directions
+
+
+@pytest.fixture(scope="module")
+def camera(scene):
+    return Camera.from_scene(scene)
+
+
+def mount_by_hand(scene) -> tuple[np.ndarray, np.ndarray]:
+    """The documented mount: lens centre ``distance_mm`` below the window's inner face and
+    ``shift_mm`` along +x; optical axis tilted ``tilt_deg`` from +z towards -x, image y along
+    +y. Returns the centre (3,) and the camera axes as columns (x right, y down, z axis)."""
+    t = np.deg2rad(scene.camera.tilt_deg)
+    centre = np.array([scene.camera.shift_mm, 0.0,
+                       -scene.window.thickness_mm - scene.camera.distance_mm])
+    z = np.array([-np.sin(t), 0.0, np.cos(t)])
+    y = np.array([0.0, 1.0, 0.0])
+    return centre, np.column_stack([np.cross(y, z), y, z])
 
 
 def fermat_air_direction(c: np.ndarray, p: np.ndarray, layers: Layers) -> np.ndarray:
@@ -34,8 +50,8 @@ def fermat_air_direction(c: np.ndarray, p: np.ndarray, layers: Layers) -> np.nda
 
 def project_by_hand(scene, d_air: np.ndarray) -> np.ndarray:
     """Equidistant projection written out: r = f theta / pitch about the image centre."""
-    mount = ts.geometry.camera_mount(scene)
-    dc = mount.rotation.T @ d_air
+    _, axes = mount_by_hand(scene)
+    dc = axes.T @ d_air
     theta = np.arccos(dc[2])
     r = scene.lens.focal_length_mm * theta / (scene.camera.pixel_pitch_um * 1e-3)
     w, h = scene.camera.resolution
@@ -45,7 +61,7 @@ def project_by_hand(scene, d_air: np.ndarray) -> np.ndarray:
 
 def test_inverse_solve_matches_fermat(scene, pad):
     layers = Layers.from_scene(scene)
-    c = pad.camera.centre_mm
+    c, _ = mount_by_hand(scene)
     ours = refracted_air_directions(pad.markers_mm, c, layers)
     for i in (0, 40, 48, 96):
         assert np.allclose(ours[i], fermat_air_direction(c, pad.markers_mm[i], layers),
@@ -54,7 +70,7 @@ def test_inverse_solve_matches_fermat(scene, pad):
 
 def test_forward_bending_reaches_the_point(scene, pad):
     layers = Layers.from_scene(scene)
-    c = pad.camera.centre_mm
+    c, _ = mount_by_hand(scene)
     d = refracted_air_directions(pad.markers_mm, c, layers)
     origin = tuple(np.broadcast_to(c, d.shape).T)
     out = bend_up(origin, tuple(d.T), layers)
@@ -67,13 +83,13 @@ def test_forward_bending_reaches_the_point(scene, pad):
     assert np.allclose(s_air, s_gel)
 
 
-def test_refraction_shift_of_a_marker_from_physics(scene, pad):
+def test_refraction_shift_of_a_marker_from_physics(scene, pad, camera):
     """The pixel shift that refraction causes, computed independently (Fermat + the
     equidistant formula) for the marker that moves most, equals the library's."""
     layers = Layers.from_scene(scene)
-    c = pad.camera.centre_mm
-    with_r = ts.project(scene, pad.markers_mm)
-    without = ts.project(scene, pad.markers_mm, refraction="none")
+    c, _ = mount_by_hand(scene)
+    with_r = camera.project(pad.markers_mm)
+    without = camera.project(pad.markers_mm, refraction="none")
     shift = np.linalg.norm(with_r - without, axis=1)
     i = int(np.argmax(shift))
     p = pad.markers_mm[i]
@@ -85,12 +101,12 @@ def test_refraction_shift_of_a_marker_from_physics(scene, pad):
     assert 5.0 < np.linalg.norm(expected) < 40.0
 
 
-def test_gel_angle_stays_inside_the_critical_angle(scene, pad):
+def test_gel_angle_stays_inside_the_critical_angle(scene, pad, camera):
     layers = Layers.from_scene(scene)
     crit = np.arcsin(1 / scene.gel.refractive_index)
     assert layers.critical_angle_gel_rad == pytest.approx(crit)
     far = np.array([[60.0, 0.0, 3.0], [0.0, 200.0, 3.0]])  # far off to the side, in the gel
-    lines = sightlines(scene, np.vstack([pad.markers_mm, far]))
+    lines = camera.sightlines(np.vstack([pad.markers_mm, far]))
     assert np.all(lines.gel_angle_rad < crit)
     assert lines.gel_angle_rad[-1] > crit - np.deg2rad(3)  # grazing in air -> near critical
 
@@ -109,21 +125,24 @@ def test_fresnel():
     assert fresnel_transmittance(np.array(np.cos(tb)), n1, n2) == pytest.approx(1 - rs / 2)
 
 
-def test_points_below_the_window_are_not_refracted(scene, pad):
-    c = pad.camera.centre_mm
+def test_points_below_the_window_are_not_refracted(scene, camera):
+    c, axes = mount_by_hand(scene)
     p = np.array([[c[0] + 2.0, 1.0, -5.0]])  # in air, above the lens
-    a = ts.project(scene, p)
-    b = ts.project(scene, p, refraction="none")
+    a = camera.project(p)
+    b = camera.project(p, refraction="none")
     assert np.allclose(a, b)
     lens = Lens.from_scene(scene)
-    assert np.allclose(a, lens.project_directions((p - c) @ pad.camera.rotation))
+    assert np.allclose(a, lens.project_directions((p - c) @ axes))
 
 
-def test_camera_inside_the_gel_is_rejected(scene, pad):
-    from dataclasses import replace
-
-    from tactip_sim.geometry import CameraMount
-
-    inside = replace(pad, camera=CameraMount(np.array([0.0, 0.0, 1.0]), np.eye(3)))
-    with pytest.raises(ValueError, match="camera.distance_mm"):
-        ts.project(scene, pad.markers_mm, pad=inside)
+def test_a_point_straight_above_the_lens_is_seen_along_a_vertical_ray(scene, camera):
+    """A ray along the window normal is not bent, so a point in the gel straight above the lens
+    centre appears ``tilt`` off the axis: at ``cx + f * tilt / pitch`` (equidistant lens)."""
+    c, _ = mount_by_hand(scene)
+    lines = camera.sightlines(np.array([[c[0], c[1], 3.0]]))
+    assert np.allclose(lines.air_direction, [[0.0, 0.0, 1.0]])
+    assert lines.gel_angle_rad[0] == pytest.approx(0.0, abs=1e-12)
+    f_px = scene.lens.focal_length_mm / (scene.camera.pixel_pitch_um * 1e-3)
+    w, h = scene.camera.resolution
+    expected = [(w - 1) / 2 + f_px * np.deg2rad(scene.camera.tilt_deg), (h - 1) / 2]
+    assert np.allclose(lines.px[0], expected, atol=1e-9)

@@ -6,29 +6,27 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.optics import cap_images, resolvable, visibility
+from tactip_sim.optics import Camera, Criteria, resolvable, visibility
 
 from .test_render_frame import measured, rms
 
 
 @pytest.fixture(scope="module")
 def sim(scene):
-    try:
-        simulator, _ = ts.Simulator, ts.Pose
-    except (ImportError, AttributeError) as exc:  # the FEM stage is not in this checkout
-        pytest.skip(f"physics unavailable: {exc}")
-    return simulator(scene)
+    return ts.Simulator(scene)
 
 
 def check_pose(sim, scene, roll: float, pitch: float, depth: float, rng: int) -> tuple[int, float]:
     state = sim.press(ts.Pose(roll, pitch, depth))
     frame = sim.render(state, rng=rng)
     m, d = state.markers_mm, state.marker_directions
-    assert np.allclose(frame.markers_px, ts.project(scene, m))
-    vis = visibility(scene, m, pad=sim.pad, directions=d)
+    assert np.max(np.linalg.norm(m - sim.pad.markers_mm, axis=1)) > 0.1  # pressed, not at rest
+    camera = Camera.from_scene(scene)
+    assert np.allclose(frame.markers_px, camera.project(m))
+    vis = visibility(camera, sim.pad, m, d)
     assert np.array_equal(frame.visible, vis.visible)
-    _, diam, outline = cap_images(scene, m, d)
-    ok, _ = resolvable(scene, vis, diam, outline)
+    _, diam, outline = camera.cap_images(m, d, scene.pins.marker_diameter_mm / 2)
+    ok, _ = resolvable(camera, vis, diam, outline, Criteria.from_scene(scene))
     got, found = measured(frame)
     assert found[ok].all(), f"pose ({roll}, {pitch}, {depth}): resolvable markers missed"
     return int(ok.sum()), rms((got - frame.blobs_px)[ok])

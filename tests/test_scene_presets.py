@@ -7,7 +7,7 @@ import argparse
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.cli import add_scene_argument, load_scene_args
+from tactip_sim.commands import add_scene_argument, load_scene_args
 from tactip_sim.scene import (
     BUILTIN_PRESETS,
     PRESET_KEYS,

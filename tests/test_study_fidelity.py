@@ -135,7 +135,7 @@ def test_auto_choice_meets_its_tolerance_on_fresh_poses(study, small):
 
 def test_sweep_with_fidelity_auto_uses_and_records_the_choice(study, scene_path, tmp_path,
                                                              capsys):
-    from tactip_sim.cli import main
+    from tactip_sim.commands import main
 
     out, summary = study
     choice = choose_level(summary, max_marker_error_px=TOLERANCE_PX)

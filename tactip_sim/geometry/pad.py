@@ -1,8 +1,9 @@
-"""The finger-pad assembled from a scene: surfaces, pins, window, rim, camera mount, occluder.
+"""The finger-pad assembled from a scene: surfaces, pins, window, rim, LEDs, occluder.
 
 Sensor frame (mm): origin at the centre of the window's outer face, +z out of the pad towards
 the contact surface, +x along the pad's long axis (distal), +y completing a right-handed frame.
-The window occupies ``-thickness <= z <= 0``; the camera sits below it.
+The window occupies ``-thickness <= z <= 0``; the camera sits below it (its pose is
+:class:`tactip_sim.optics.Camera`'s, the one home of the camera).
 """
 
 from __future__ import annotations
@@ -18,27 +19,6 @@ from .surfaces import DomeShape, block_mesh
 
 
 @dataclass(frozen=True)
-class CameraMount:
-    """Camera pose in the sensor frame.
-
-    centre_mm : (3,) lens centre
-    rotation : (3, 3) columns = camera x (image right), y (image down), z (optical axis)
-        expressed in the sensor frame; ``R @ p_cam + centre = p_sensor``
-    """
-
-    centre_mm: np.ndarray
-    rotation: np.ndarray
-
-    def to_camera(self, points_mm: np.ndarray) -> np.ndarray:
-        """(n, 3) sensor-frame points -> camera frame."""
-        return (np.asarray(points_mm, dtype=float) - self.centre_mm) @ self.rotation
-
-    @property
-    def axis(self) -> np.ndarray:
-        return self.rotation[:, 2]
-
-
-@dataclass(frozen=True)
 class Pad:
     """Everything geometric about one fingertip.
 
@@ -48,7 +28,6 @@ class Pad:
     pins : pin roots, directions and tips
     markers_mm : (97, 3) marker centres (= pin tips), sensor frame
     window_semi_axes_mm : (2,) window (= footprint + rim) semi-axes
-    camera : the camera mount
     leds_mm : (k, 3) LED positions
     protrusion_box_mm : (2, 3) min and max corners of the distal unit's protrusion
     """
@@ -60,7 +39,6 @@ class Pad:
     inner: DomeShape | None
     pins: PinLayout
     window_semi_axes_mm: np.ndarray
-    camera: CameraMount
     leds_mm: np.ndarray
     protrusion_box_mm: np.ndarray
 
@@ -84,17 +62,6 @@ def rot_x(angle_rad: float) -> np.ndarray:
 def rot_y(angle_rad: float) -> np.ndarray:
     c, s = np.cos(angle_rad), np.sin(angle_rad)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def camera_mount(scene: Scene, *, shift_mm: float | None = None,
-                 tilt_deg: float | None = None) -> CameraMount:
-    """The camera pose: ``distance_mm`` below the window's inner face, shifted ``shift_mm`` along
-    +x, optical axis tilted ``tilt_deg`` from +z towards -x (rotation about +y by -tilt)."""
-    cam = scene.camera
-    shift = cam.shift_mm if shift_mm is None else shift_mm
-    tilt = cam.tilt_deg if tilt_deg is None else tilt_deg
-    centre = np.array([shift, 0.0, -scene.window.thickness_mm - cam.distance_mm])
-    return CameraMount(centre, rot_y(-np.deg2rad(tilt)))
 
 
 def dome_shapes(scene: Scene, *, skin_thickness_mm: float | None = None
@@ -155,7 +122,6 @@ def build_pad(
         pins=pins,
         window_semi_axes_mm=np.array([p.footprint_length_mm / 2 + rim,
                                       p.footprint_width_mm / 2 + rim]),
-        camera=camera_mount(scene),
         leds_mm=leds,
         protrusion_box_mm=protrusion,
     )

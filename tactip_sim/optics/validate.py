@@ -1,33 +1,30 @@
-"""Geometry validation of the camera mount and lens (``tactip validate-lens``).
+"""The numbers behind the lens and camera-mount validation (``tactip validate-lens``).
 
-What a designer needs before printing a camera mount:
+What a designer needs before printing a camera mount, from the analytic projection (no
+rendering):
 
 * :func:`marker_report`: which of the markers the camera sees, how large they appear and how
-  far apart they are, from the analytic projection (no rendering);
+  far apart they are;
 * :func:`sweep`: how many markers stay visible and resolvable as the tilt, the forward shift,
   the camera distance or the lens's field of view change (a different lens keeps the image
-  circle: the focal length is scaled with the field of view);
-* :func:`run`: the above, OpenCV's fisheye calibration of rendered targets
-  (:mod:`tactip_sim.optics.calibrate`, bare lens) and a rendered frame checked against the
-  analytic ground truth, written to a folder as PNG charts, ``summary.json`` and
-  ``summary.md``.
+  circle: the focal length is scaled with the field of view).
+
+The OpenCV calibration of rendered targets is :mod:`tactip_sim.render.calibrate`; the command,
+its charts and its report are :mod:`tactip_sim.commands.validate_lens`.
 """
 
 from __future__ import annotations
 
-import json
-import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..geometry import Pad, build_pad, camera_mount
-from ..scene import Scene, replace_in, scene_hash, scene_to_toml
+from ..geometry import Pad, build_pad
+from ..scene import Scene, replace_in
+from .camera import Camera
 from .lens import Lens
-from .refraction import Layers
-from .visibility import Criteria, cap_images, resolvable, visibility
+from .visibility import Criteria, resolvable, visibility
 
 SWEEPS: dict[str, tuple[str, str, np.ndarray]] = {
     "tilt_deg": ("camera", "tilt_deg", np.arange(-10.0, 20.5, 1.0)),
@@ -74,25 +71,25 @@ class MarkerReport:
         }
 
 
-def _mount_and_lens(scene: Scene) -> tuple[Any, Lens]:
-    return camera_mount(scene), Lens.from_scene(scene)
-
-
-def marker_report(scene: Scene, pad: Pad | None = None, *, criteria: Criteria | None = None,
+def marker_report(camera: Camera, pad: Pad, *, criteria: Criteria | None = None,
                   markers_mm: np.ndarray | None = None, directions: np.ndarray | None = None
                   ) -> MarkerReport:
     """Visibility, apparent size and spacing of every marker (analytic, no rendering).
 
-    ``pad`` supplies the occluders and (by default) the rest markers; the camera pose and lens
-    always come from ``scene``, so a modified scene can reuse one pad.
+    Parameters
+    ----------
+    camera : the camera (a design variant's: one pad serves every camera)
+    pad : the occluders, the cap size and (by default) the rest markers
+    criteria : resolvability thresholds (default: :meth:`Criteria.from_scene` of the pad's
+        scene)
+    markers_mm, directions : (n, 3) marker centres (mm) and pin axes (default: the pad's)
     """
-    pad = build_pad(scene) if pad is None else pad
     m = pad.markers_mm if markers_mm is None else markers_mm
     d = pad.pins.directions if directions is None else directions
-    mount, lens = _mount_and_lens(scene)
-    vis = visibility(scene, m, pad=pad, directions=d, mount=mount, lens=lens)
-    _, diam, outline = cap_images(scene, m, d, mount=mount, lens=lens)
-    ok, gap = resolvable(scene, vis, diam, outline, criteria)
+    crit = Criteria.from_scene(pad.scene) if criteria is None else criteria
+    vis = visibility(camera, pad, m, d)
+    _, diam, outline = camera.cap_images(m, d, pad.scene.pins.marker_diameter_mm / 2)
+    ok, gap = resolvable(camera, vis, diam, outline, crit)
     dist = np.linalg.norm(vis.px[:, None] - vis.px[None], axis=2)
     keep = vis.visible[None, :] & vis.visible[:, None]
     np.fill_diagonal(keep, False)
@@ -101,8 +98,15 @@ def marker_report(scene: Scene, pad: Pad | None = None, *, criteria: Criteria | 
                         vis.summary())
 
 
+def _check_sweep(name: str) -> None:
+    if name not in SWEEPS:
+        raise ValueError(f"name={name!r} is not a sweep: expected one of "
+                         + ", ".join(repr(k) for k in SWEEPS))
+
+
 def sweep_scene(scene: Scene, name: str, value: float) -> Scene:
     """``scene`` with one swept quantity changed (``fov_deg`` keeps the image circle)."""
+    _check_sweep(name)
     section, key, _ = SWEEPS[name]
     if name == "fov_deg":
         lens = Lens.from_scene(scene)
@@ -127,19 +131,20 @@ def sweep(scene: Scene, name: str, values: np.ndarray | None = None, *, pad: Pad
     Returns
     -------
     dict with ``values``, ``visible``, ``resolvable`` (counts), ``min_diameter_px``,
-    ``min_gap_px`` and ``skipped`` (values the scene rejects, with the reason)
+    ``min_gap_px`` and ``skipped`` (values the scene or the camera rejects, with the reason)
     """
+    _check_sweep(name)
     pad = build_pad(scene) if pad is None else pad
     vals = SWEEPS[name][2] if values is None else np.asarray(values, float)
     out: dict[str, Any] = {"name": name, "values": [], "visible": [], "resolvable": [],
                            "min_diameter_px": [], "min_gap_px": [], "skipped": []}
     for v in vals:
         try:
-            sc = sweep_scene(scene, name, float(v))
+            camera = Camera.from_scene(sweep_scene(scene, name, float(v)))
         except ValueError as exc:
             out["skipped"].append([float(v), str(exc)])
             continue
-        rep = marker_report(sc, pad, criteria=criteria)
+        rep = marker_report(camera, pad, criteria=criteria)
         vis = rep.visible
         out["values"].append(float(v))
         out["visible"].append(int(vis.sum()))
@@ -148,217 +153,3 @@ def sweep(scene: Scene, name: str, values: np.ndarray | None = None, *, pad: Pad
         gaps = rep.gap_px[vis & np.isfinite(rep.gap_px)]
         out["min_gap_px"].append(float(gaps.min()) if len(gaps) else 0.0)
     return out
-
-
-# ---------------------------------------------------------------------------------- charts
-def _plot_sweeps(sweeps: dict[str, dict[str, Any]], base: dict[str, float], n: int,
-                 path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names = list(sweeps)
-    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.6), squeeze=False)
-    for ax, name in zip(axes[0], names, strict=True):
-        s = sweeps[name]
-        ax.plot(s["values"], s["visible"], "o-", ms=3, label="visible")
-        ax.plot(s["values"], s["resolvable"], "s--", ms=3, label="resolvable")
-        ax.axhline(n, color="grey", lw=0.8)
-        ax.axvline(base[name], color="k", ls=":", lw=1, label="scene")
-        ax.set_xlabel(name)
-        ax.set_ylabel("markers")
-        ax.set_ylim(0, n * 1.05)
-        ax.grid(alpha=0.3)
-    axes[0][0].legend(loc="lower left", fontsize=8)
-    fig.suptitle("Markers seen as the camera mount / lens changes (analytic)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def _plot_markers(rep: MarkerReport, scene: Scene, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    w, h = scene.camera.resolution
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    v = rep.visible
-    for ax, val, label in ((axes[0], rep.diameter_px, "apparent diameter (px)"),
-                           (axes[1], rep.spacing_px, "nearest-neighbour spacing (px)")):
-        sc = ax.scatter(rep.px[v, 0], rep.px[v, 1], c=val[v], s=val[v] ** 2 * 0.35 if
-                        label.startswith("apparent") else 30, cmap="viridis")
-        bad = v & ~rep.resolvable
-        ax.scatter(rep.px[bad, 0], rep.px[bad, 1], facecolors="none", edgecolors="r", s=160,
-                   label="not resolvable")
-        inv = ~v & np.all(np.isfinite(rep.px), axis=1)
-        ax.scatter(rep.px[inv, 0], rep.px[inv, 1], marker="x", c="r", label="not visible")
-        ax.set_xlim(0, w)
-        ax.set_ylim(h, 0)
-        ax.set_aspect("equal")
-        ax.set_title(label)
-        fig.colorbar(sc, ax=ax, shrink=0.8)
-        ax.legend(loc="lower right", fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-# ---------------------------------------------------------------------------------- run
-def _render_check(scene: Scene, pad: Pad, out: Path) -> dict[str, Any]:
-    """Render the rest pose and compare blob centroids with the analytic ground truth."""
-    import cv2
-
-    from ..render import Renderer, blob_centroids, match_blobs
-
-    r = Renderer(scene, pad)
-    frame = r.render(rng=0)
-    frame.save(out / "frame_rest")
-    cent, _ = blob_centroids(frame.image)
-    matched, found = match_blobs(cent, frame.blobs_px)
-    e_blob = np.linalg.norm(matched - frame.blobs_px, axis=1)
-    e_centre = np.linalg.norm(matched - frame.markers_px, axis=1)
-    overlay = cv2.cvtColor(frame.image, cv2.COLOR_GRAY2BGR) if frame.image.ndim == 2 else \
-        frame.image[..., ::-1].copy()
-    for (x, y), ok in zip(frame.markers_px, frame.visible, strict=True):
-        if np.isfinite(x):
-            cv2.drawMarker(overlay, (round(x), round(y)), (0, 0, 255) if ok else (255, 0, 0),
-                           cv2.MARKER_CROSS, 6, 1)
-    cv2.imwrite(str(out / "frame_rest_overlay.png"), overlay)
-    return {
-        "markers_found": int(found.sum()), "visible": int(frame.visible.sum()),
-        "blobs_detected": len(cent),
-        "centroid_vs_blob_rms_px": float(np.sqrt(np.nanmean(e_blob[found] ** 2))),
-        "centroid_vs_centre_rms_px": float(np.sqrt(np.nanmean(e_centre[found] ** 2))),
-        "render_ms": frame.meta["render_ms"],
-    }
-
-
-def run(scene: Scene, out_dir: str | Path, *, n_views: int = 16, spp: int = 16,
-        render: bool = True, rng: Any = 0) -> dict[str, Any]:
-    """Run the whole validation and write charts and summaries into ``out_dir``.
-
-    Parameters
-    ----------
-    scene : the scene
-    out_dir : output folder (created)
-    n_views, spp : calibration boards and their samples per pixel (``n_views = 0`` skips the
-        OpenCV calibration)
-    render : also render the rest pose and check its centroids
-    rng : seed of the board poses and noise
-
-    Returns
-    -------
-    the summary (also written as ``summary.json`` and ``summary.md``)
-    """
-    import tactip_sim
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    pad = build_pad(scene)
-    rep = marker_report(scene, pad)
-    crit = Layers.from_scene(scene).critical_angle_gel_rad
-    lens = Lens.from_scene(scene)
-    summary: dict[str, Any] = {
-        "scene": scene.name, "scene_hash": scene_hash(scene),
-        "tactip_sim": tactip_sim.__version__,
-        "lens": {"model": lens.model, "focal_length_mm": lens.focal_length_mm,
-                 "fov_deg": lens.fov_deg, "focal_px": lens.focal_px,
-                 "image_circle_px": lens.image_circle_px},
-        "gel_critical_angle_deg": float(np.rad2deg(crit)),
-        "markers": rep.summary(),
-    }
-    base = {"tilt_deg": scene.camera.tilt_deg, "shift_mm": scene.camera.shift_mm,
-            "distance_mm": scene.camera.distance_mm, "fov_deg": scene.lens.fov_deg}
-    sweeps = {name: sweep(scene, name, pad=pad) for name in SWEEPS}
-    summary["sweeps"] = sweeps
-    _plot_sweeps(sweeps, base, len(rep.visible), out / "optics_sweeps.png")
-    _plot_markers(rep, scene, out / "optics_markers.png")
-    np.savetxt(out / "markers.csv", np.column_stack([
-        np.arange(len(rep.visible)), rep.px, rep.diameter_px, rep.spacing_px, rep.gap_px,
-        rep.visible, rep.resolvable, rep.gel_angle_deg]), delimiter=",", fmt="%.4f",
-        header="marker,x_px,y_px,diameter_px,spacing_px,gap_px,visible,resolvable,"
-        "gel_angle_deg", comments="")
-    if n_views > 0:
-        from .calibrate import calibrate_lens
-
-        cal = calibrate_lens(scene, n_views=n_views, spp=spp, rng=rng)
-        summary["calibration"] = cal.summary()
-    if render:
-        summary["render_check"] = _render_check(scene, pad, out)
-    summary["seconds"] = round(time.perf_counter() - t0, 2)
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
-    (out / "scene.toml").write_text(scene_to_toml(scene))
-    (out / "summary.md").write_text(markdown(summary))
-    return summary
-
-
-def markdown(summary: dict[str, Any]) -> str:
-    """A short Markdown report of :func:`run`'s summary."""
-    m = summary["markers"]
-    lines = [
-        f"# Lens and camera-mount validation: {summary['scene']} ({summary['scene_hash']})",
-        "",
-        f"Lens: {summary['lens']['model']}, f = {summary['lens']['focal_length_mm']:.3g} mm "
-        f"({summary['lens']['focal_px']:.1f} px), FOV {summary['lens']['fov_deg']:g} deg, "
-        f"image circle {summary['lens']['image_circle_px']:.0f} px. Gel critical angle "
-        f"{summary['gel_critical_angle_deg']:.1f} deg.",
-        "",
-        f"Markers: {m['visible']} of {m['markers']} visible, {m['resolvable']} resolvable. "
-        f"Apparent diameter {m['diameter_px']['min']:.1f}-{m['diameter_px']['max']:.1f} px, "
-        f"nearest-neighbour spacing {m['spacing_px']['min']:.1f}-{m['spacing_px']['max']:.1f}"
-        f" px, smallest gap between blobs {m['gap_px']['min']:.2f} px, largest ray angle in "
-        f"the gel {m['gel_angle_deg']['max']:.1f} deg.",
-        "",
-        "| sweep | range | all visible for | most resolvable (at) |",
-        "|---|---|---|---|",
-    ]
-    for name, s in summary["sweeps"].items():
-        vals = np.array(s["values"])
-        n = m["markers"]
-
-        def span(counts: list[int], vals: np.ndarray = vals, n: int = n) -> str:
-            ok = np.array(counts) == n
-            if not ok.any():
-                return "never"
-            runs, start = [], None
-            for i, good in enumerate([*ok, False]):
-                if good and start is None:
-                    start = i
-                elif not good and start is not None:
-                    a, b = vals[start], vals[i - 1]
-                    runs.append(f"{a:g}" if a == b else f"{a:g} to {b:g}")
-                    start = None
-            return ", ".join(runs)
-
-        rng = f"{vals.min():g} to {vals.max():g}" if len(vals) else "-"
-        res = np.array(s["resolvable"])
-        best = (f"{res.max()} ({span(list(res), n=int(res.max()))})" if len(res) else "-")
-        lines.append(f"| {name} | {rng} | {span(s['visible'])} | {best} |")
-    if "calibration" in summary:
-        c = summary["calibration"]
-        lines += [
-            "",
-            "OpenCV fisheye calibration of checkerboards rendered through the bare lens (no "
-            f"window, no gel): {c['n_detected']} of {c['n_views']} boards detected; "
-            f"f = {c['fx_px']:.2f} / {c['fy_px']:.2f} px (truth {c['true_f_px']:.2f}, error "
-            f"{100 * c['focal_error_rel']:+.2f} %), principal point error "
-            f"{c['principal_error_px']:.2f} px, k = "
-            + ", ".join(f"{k:+.4f}" for k in c["kb_coeffs"])
-            + " (truth " + ", ".join(f"{k:+.4f}" for k in c["true_kb_coeffs"]) + "), "
-            f"RMS reprojection {c['rms_reprojection_px']:.3f} px.",
-        ]
-    if "render_check" in summary:
-        r = summary["render_check"]
-        lines += [
-            "",
-            f"Rendered rest frame: {r['markers_found']} of {r['visible']} visible markers "
-            f"found; centroid error vs the analytic blob centre "
-            f"{r['centroid_vs_blob_rms_px']:.3f} px RMS, vs the projected marker centre "
-            f"{r['centroid_vs_centre_rms_px']:.3f} px RMS.",
-        ]
-    lines += ["", "Charts: optics_sweeps.png, optics_markers.png.", ""]
-    return "\n".join(lines)

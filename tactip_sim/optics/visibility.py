@@ -1,7 +1,8 @@
 """Which markers the camera sees, and how large and far apart they appear.
 
-A marker is *visible* when the camera ray to its centre (found exactly through the window
-layers, :func:`~tactip_sim.optics.project.sightlines`)
+A marker is *visible* to a :class:`~tactip_sim.optics.Camera` when the camera ray to its centre
+(found exactly through the window layers, :meth:`Camera.sightlines
+<tactip_sim.optics.Camera.sightlines>`)
 
 * leaves the lens within its field of view and lands inside the image,
 * passes the distal protrusion (an axis-aligned box in the body) in air,
@@ -21,11 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import CameraMount, Pad
+from ..geometry import Pad
 from ..scene import Scene
-from .lens import Lens
-from .project import Sightlines, sightlines
-from .refraction import Layers
+from .camera import Camera, Sightlines
 
 
 @dataclass(frozen=True)
@@ -112,122 +111,80 @@ def _blocked_by_discs(start: np.ndarray, end: np.ndarray, centres: np.ndarray,
     return hit.any(axis=1)
 
 
-def _footprints(scene: Scene, pad: Pad | None) -> tuple[np.ndarray, np.ndarray]:
+def _footprints(pad: Pad) -> tuple[np.ndarray, np.ndarray]:
     """Semi-axes (mm) of the rim's opening (the pad footprint) and of the gel cavity."""
+    scene = pad.scene
     foot = np.array([scene.pad.footprint_length_mm, scene.pad.footprint_width_mm]) / 2
-    if pad is not None and pad.inner is not None:
+    if pad.inner is not None:
         return foot, np.array([pad.inner.a, pad.inner.b])
     t = 0.0 if scene.is_block else scene.skin.thickness_mm
     return foot, foot - t
 
 
-def visibility(scene: Scene, points_mm: np.ndarray | None = None, *, pad: Pad | None = None,
-               directions: np.ndarray | None = None, refraction: str | None = None,
-               mount: CameraMount | None = None, lens: Lens | None = None,
+def visibility(camera: Camera, pad: Pad, points_mm: np.ndarray | None = None,
+               directions: np.ndarray | None = None, *, refraction: str | None = None,
                lines: Sightlines | None = None) -> Visibility:
     """Visibility of marker caps (see the module docstring for the conditions).
 
     Parameters
     ----------
-    scene : the scene
+    camera : the camera (lens, mount, window layers)
+    pad : the pad: the occluders (protrusion, rim opening, gel cavity), the cap size and, by
+        default, the markers; its window must be the camera's
     points_mm : (n, 3) marker centres (sensor frame, mm); default: the pad's rest markers
-    pad : the pad (default: built from ``scene``); gives the protrusion and the gel footprint
     directions : (n, 3) unit pin axes (root to tip) orienting each cap; default: the pad's
-    refraction : "none", "analytic", "path" or None (scene default)
-    mount, lens : override the scene's camera pose and lens (design sweeps)
-    lines : precomputed :func:`sightlines` of ``points_mm`` (saves a solve)
-    """
-    if pad is None:
-        from ..geometry import build_pad
+    refraction : "none", "analytic", "path" or None (the camera's default)
+    lines : precomputed ``camera.sightlines(points_mm)`` (saves a solve)
 
-        pad = build_pad(scene)
+    Raises
+    ------
+    ValueError
+        The camera looks through another window than the pad's.
+    """
+    if camera.layers.thickness_mm != pad.scene.window.thickness_mm:
+        raise ValueError(
+            f"the camera's window is {camera.layers.thickness_mm:g} mm thick but the pad's "
+            f"window.thickness_mm={pad.scene.window.thickness_mm:g}: build both from one scene"
+        )
     pts = pad.markers_mm if points_mm is None else np.asarray(points_mm, dtype=float)
     pts = pts.reshape(-1, 3)
     dirs = pad.pins.directions if directions is None else np.asarray(directions, dtype=float)
-    mount = pad.camera if mount is None else mount
-    lens = Lens.from_scene(scene) if lens is None else lens
+    lens = camera.lens
     if lines is None:
-        lines = sightlines(scene, pts, refraction=refraction, mount=mount, lens=lens)
+        lines = camera.sightlines(pts, refraction=refraction)
     w, h = lens.resolution
     in_fov = np.isfinite(lines.px[:, 0]) & (lines.theta_rad <= lens.theta_max_rad)
     with np.errstate(invalid="ignore"):
         in_frame = in_fov & np.all((lines.px >= -0.5) & (lines.px <= [w - 0.5, h - 0.5]), axis=1)
-    centre = np.broadcast_to(mount.centre_mm, pts.shape)
+    centre = np.broadcast_to(camera.centre_mm, pts.shape)
     clear = ~_segment_hits_box(centre, lines.window_entry_mm, pad.protrusion_box_mm)
-    foot, cavity = _footprints(scene, pad)
-    below = pts[:, 2] < -scene.window.thickness_mm
+    foot, cavity = _footprints(pad)
+    below = pts[:, 2] < camera.layers.window_bottom_mm
     through = below | (np.sum((lines.window_entry_mm[:, :2] / foot) ** 2, axis=1) <= 1.0)
     into = (pts[:, 2] <= 0.0) | (np.sum((lines.gel_entry_mm[:, :2] / cavity) ** 2, axis=1) <= 1.0)
     if len(dirs) == len(pts):
-        r = scene.pins.marker_diameter_mm / 2
+        r = pad.scene.pins.marker_diameter_mm / 2
         unblocked = ~_blocked_by_discs(lines.gel_entry_mm, pts, pts, dirs, r)
     else:
         unblocked = np.ones(len(pts), dtype=bool)
-    crit = Layers.from_scene(scene).critical_angle_gel_rad
+    crit = camera.layers.critical_angle_gel_rad
     within = (pts[:, 2] <= 0.0) | (lines.gel_angle_rad < crit) | (lines.refraction == "none")
     vis = in_fov & in_frame & clear & through & into & unblocked & within
     return Visibility(vis, in_fov, in_frame, clear, through, into, unblocked, within, lines.px,
                       np.rad2deg(lines.gel_angle_rad))
 
 
-def visible(scene: Scene, points_mm: np.ndarray | None = None, *, pad: Pad | None = None,
-            directions: np.ndarray | None = None, refraction: str | None = None) -> np.ndarray:
-    """(n,) bool visibility mask of marker caps; see :func:`visibility`."""
-    return visibility(scene, points_mm, pad=pad, directions=directions,
-                      refraction=refraction).visible
-
-
-def cap_outline(centres: np.ndarray, normals: np.ndarray, radius_mm: float,
-                n_edge: int = 48) -> np.ndarray:
-    """(n, n_edge, 3) points on the rim of each disc cap (regular polygon, counter-clockwise
-    seen from the side its normal points to)."""
-    nrm = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-    helper = np.where(np.abs(nrm[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    u = np.cross(helper, nrm)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = np.cross(nrm, u)
-    phi = np.linspace(0.0, 2 * np.pi, n_edge, endpoint=False)
-    ring = np.cos(phi)[None, :, None] * u[:, None] + np.sin(phi)[None, :, None] * v[:, None]
-    return centres[:, None, :] + radius_mm * ring
-
-
-def cap_images(scene: Scene, centres: np.ndarray, normals: np.ndarray, *,
-               refraction: str | None = None, mount: CameraMount | None = None,
-               lens: Lens | None = None, n_edge: int = 48
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Images of the disc caps: outline polygons projected exactly.
-
-    Returns
-    -------
-    centroid_px : (n, 2) area centroid of each projected outline (OpenCV px)
-    diameter_px : (n,) diameter of the circle of equal area (px)
-    outline_px : (n, n_edge, 2) projected outline
-    """
-    r = scene.pins.marker_diameter_mm / 2
-    ring = cap_outline(np.asarray(centres, float), np.asarray(normals, float), r, n_edge)
-    n = len(ring)
-    px = sightlines(scene, ring.reshape(-1, 3), refraction=refraction, mount=mount,
-                    lens=lens).px.reshape(n, n_edge, 2)
-    x, y = px[..., 0], px[..., 1]
-    xn, yn = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
-    cross = x * yn - xn * y
-    area = 0.5 * cross.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cx = ((x + xn) * cross).sum(axis=1) / (6 * area)
-        cy = ((y + yn) * cross).sum(axis=1) / (6 * area)
-    return np.column_stack([cx, cy]), 2 * np.sqrt(np.abs(area) / np.pi), px
-
-
-def resolvable(scene: Scene, vis: Visibility, diameter_px: np.ndarray, outline_px: np.ndarray,
-               criteria: Criteria | None = None) -> tuple[np.ndarray, np.ndarray]:
+def resolvable(camera: Camera, vis: Visibility, diameter_px: np.ndarray,
+               outline_px: np.ndarray, criteria: Criteria) -> tuple[np.ndarray, np.ndarray]:
     """Which visible markers can be told apart in the image.
 
     Parameters
     ----------
-    scene : the scene (image size)
+    camera : the camera (its image size)
     vis : :func:`visibility` of the markers
-    diameter_px, outline_px : from :func:`cap_images`
-    criteria : thresholds (default :meth:`Criteria.from_scene`)
+    diameter_px, outline_px : from :meth:`Camera.cap_images
+        <tactip_sim.optics.Camera.cap_images>`
+    criteria : thresholds (:meth:`Criteria.from_scene` for a scene's blur)
 
     Returns
     -------
@@ -235,8 +192,8 @@ def resolvable(scene: Scene, vis: Visibility, diameter_px: np.ndarray, outline_p
     gap_px : (n,) free space (px) between the blob and its nearest visible neighbour, along
         the line of their centres; inf with fewer than two visible markers
     """
-    crit = Criteria.from_scene(scene) if criteria is None else criteria
-    w, h = scene.camera.resolution
+    crit = criteria
+    w, h = camera.resolution
     with np.errstate(invalid="ignore"):
         inside = np.all((outline_px >= -0.5) & (outline_px <= [w - 0.5, h - 0.5]), axis=(1, 2))
     px = vis.px
@@ -258,9 +215,10 @@ def resolvable(scene: Scene, vis: Visibility, diameter_px: np.ndarray, outline_p
     return ok, gap
 
 
-def check_view(scene: Scene, pad: Pad, vis: Visibility | None = None) -> Visibility:
-    """Raise ValueError naming the fix when the camera sees none of the markers."""
-    vis = visibility(scene, pad=pad) if vis is None else vis
+def check_view(camera: Camera, pad: Pad, vis: Visibility | None = None) -> Visibility:
+    """The visibility of the pad's rest markers (or ``vis``); raise ValueError naming the fix
+    when the camera sees none of them."""
+    vis = visibility(camera, pad) if vis is None else vis
     if len(vis.visible) and not vis.visible.any():
         counts = vis.summary()
         why = ", ".join(f"{k}: {v}" for k, v in counts.items() if k != "visible")

@@ -17,7 +17,8 @@ class Frame:
 
     image : (H, W) or (H, W, 3) uint8
     markers_px : (n, 2) float, analytic image of each marker's centre through the window and
-        lens (OpenCV pixel coordinates; NaN beyond the field of view) = ``tactip_sim.project``
+        lens (OpenCV pixel coordinates; NaN beyond the field of view):
+        :meth:`tactip_sim.optics.Camera.project`
     visible : (n,) bool, :func:`tactip_sim.optics.visibility`
     blobs_px : (n, 2) float, analytic centroid of each cap's image (the outline projected
         exactly): where an unbiased blob detector's centroid lands. It differs from

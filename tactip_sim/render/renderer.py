@@ -18,10 +18,8 @@ import numpy as np
 
 from ..geometry import Pad, build_pad
 from ..llvm import import_mitsuba
-from ..optics.lens import Lens
-from ..optics.project import check_mount, resolve_refraction, sightlines
-from ..optics.refraction import Layers
-from ..optics.visibility import cap_images, check_view, visibility
+from ..optics.camera import Camera
+from ..optics.visibility import check_view, visibility
 from ..scene import Scene, scene_hash
 from ..scene.schema import SHADINGS
 from . import integrator as _integrator
@@ -73,6 +71,13 @@ class Renderer:
         ``imaging.shading``
     albedo : the materials' reflectances (default :class:`~tactip_sim.render.scene.Albedo`)
 
+    Attributes
+    ----------
+    optics : the :class:`~tactip_sim.optics.Camera` (lens, mount, window layers), built once
+        from ``scene``: every ray the sensor traces and every ground-truth pixel comes from it
+    camera : the :class:`~tactip_sim.render.CameraModel` (exposure, blur, vignetting, noise)
+    crop : (x0, y0, width, height) of the image of the gel cavity, where caps can appear
+
     Raises
     ------
     ValueError
@@ -89,13 +94,12 @@ class Renderer:
             raise ValueError(f"shading={shading!r} is not allowed: expected one of {SHADINGS}")
         self.scene = scene
         self.pad = build_pad(scene) if pad is None else pad
-        self.lens = Lens.from_scene(scene)
+        self.optics = Camera.from_scene(scene)
         self.camera = CameraModel.from_scene(scene)
         self.pins = pins
         self.shading = shading
         self.albedo = Albedo() if albedo is None else albedo
-        check_mount(scene, self.pad.camera)
-        check_view(scene, self.pad)
+        check_view(self.optics, self.pad)
         w, h = scene.camera.resolution
         self._vignette = self.camera.vignette(h, w)
         self.crop = self._cavity_crop()
@@ -121,8 +125,7 @@ class Renderer:
         w, h = self.scene.camera.resolution
         surf = self.pad.interface if self.pad.interface is not None else self.pad.surface
         px = np.concatenate([  # with and without refraction: one crop serves both modes
-            sightlines(self.scene, np.asarray(surf.vertices), refraction=mode,
-                       mount=self.pad.camera, lens=self.lens).px
+            self.optics.project(np.asarray(surf.vertices), refraction=mode)
             for mode in ("analytic", "none")])
         px = px[np.all(np.isfinite(px), axis=1)]
         if len(px) == 0:
@@ -132,12 +135,12 @@ class Renderer:
         return int(lo[0]), int(lo[1]), int(hi[0] - lo[0]), int(hi[1] - lo[1])
 
     def _config(self, refraction: str, crop: tuple[int, int, int, int]) -> _sensor.SensorConfig:
-        sc, pad = self.scene, self.pad
+        sc, pad, cam = self.scene, self.pad, self.optics
         foot = np.array([sc.pad.footprint_length_mm, sc.pad.footprint_width_mm]) / 2
         cavity = np.array([pad.inner.a, pad.inner.b]) if pad.inner is not None else foot
         return _sensor.SensorConfig(
-            lens=self.lens, centre_mm=pad.camera.centre_mm, rotation=pad.camera.rotation,
-            refraction=refraction, layers=Layers.from_scene(sc), opening_mm=foot,
+            lens=cam.lens, centre_mm=cam.centre_mm, rotation=cam.rotation,
+            refraction=refraction, layers=cam.layers, opening_mm=foot,
             cavity_mm=cavity, crop_offset=crop[:2], crop_size=crop[2:])
 
     def sensor_dict(self, refraction: str, spp: int, *, crop: tuple[int, int, int, int] | None
@@ -232,7 +235,7 @@ class Renderer:
         """(h, w) sensor weight at the crop's pixel centres (converts layer coverage)."""
         if refraction not in self._weight:
             x0, y0, cw, ch = self.crop
-            cx, cy = self.lens.principal_point_px
+            cx, cy = self.optics.lens.principal_point_px
             v, u = np.mgrid[y0:y0 + ch, x0:x0 + cw].astype(float)
             _, _, wt = _sensor.pixel_rays(self._config(refraction, self.crop), u - cx, v - cy)
             self._weight[refraction] = np.asarray(wt, dtype=np.float32)
@@ -262,7 +265,7 @@ class Renderer:
         -------
         (H, W) or (H, W, 3) float32
         """
-        mode = resolve_refraction(self.scene, refraction)
+        mode = self.optics.refraction_mode(refraction)
         shade = self.shading if shading is None else shading
         if mode == "path":
             shade = "diffused"
@@ -297,14 +300,13 @@ class Renderer:
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Analytic marker centres (n, 2), visibility (n,) and blob centroids (n, 2) in OpenCV
         pixels (see :class:`Frame`)."""
-        mode = resolve_refraction(self.scene, refraction)
+        cam = self.optics
+        mode = cam.refraction_mode(refraction)
         m, d = self._markers(markers_mm, directions)
-        lines = sightlines(self.scene, m, refraction=mode, mount=self.pad.camera,
-                           lens=self.lens)
-        vis = visibility(self.scene, m, pad=self.pad, directions=d, refraction=mode,
-                         lens=self.lens, lines=lines)
-        blobs = cap_images(self.scene, m, d, refraction=mode, mount=self.pad.camera,
-                           lens=self.lens, n_edge=TRUTH_EDGES)[0]
+        lines = cam.sightlines(m, refraction=mode)
+        vis = visibility(cam, self.pad, m, d, lines=lines)
+        blobs = cam.cap_images(m, d, self.scene.pins.marker_diameter_mm / 2, refraction=mode,
+                               n_edge=TRUTH_EDGES)[0]
         return lines.px, vis.visible, blobs
 
     def render(self, markers_mm: np.ndarray | None = None, directions: np.ndarray | None = None,
@@ -330,7 +332,7 @@ class Renderer:
         """
         gen = np.random.default_rng(rng)
         seed = int(gen.integers(0, 2**31 - 1))
-        mode = resolve_refraction(self.scene, refraction)
+        mode = self.optics.refraction_mode(refraction)
         spp = self.scene.imaging.spp if spp is None else int(spp)
         m, d = self._markers(markers_mm, directions)
         t0 = time.perf_counter()
@@ -342,7 +344,7 @@ class Renderer:
         meta = {
             "scene": self.scene.name, "scene_hash": self._hash, "refraction": mode,
             "shading": "diffused" if mode == "path" else self.shading, "spp": spp,
-            "sampler_seed": seed, "noise": bool(noise), "lens": self.lens.model,
+            "sampler_seed": seed, "noise": bool(noise), "lens": self.optics.lens.model,
             "render_ms": round(1e3 * (t1 - t0), 2), "camera_ms": round(1e3 * (t2 - t1), 2),
         }
         return Frame(image, px, vis, blobs, meta)

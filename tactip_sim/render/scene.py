@@ -42,7 +42,7 @@ import numpy as np
 import trimesh
 
 from ..geometry import Pad
-from ..optics.visibility import cap_outline
+from ..optics.camera import cap_outline
 from ..scene import Scene
 
 CAP_SEGMENTS = 48

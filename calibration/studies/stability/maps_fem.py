@@ -49,7 +49,7 @@ def map_mesh(st: _Study) -> MapResult:
                 t0 = time.perf_counter()
                 sim = ts.Simulator(sc, pad=pad, mesh=mesh, element_order=order)
                 states = sim.press_many(poses)
-                markers[(e, order)] = np.stack([ts.project(sc, s.markers_mm, pad=pad)
+                markers[(e, order)] = np.stack([ts.project(sc, s.markers_mm)
                                                 for s in states])
                 force[(e, order)] = np.array([s.force_N for s in states])
                 info[f"{e:g}"][f"P{order}_seconds"] = round(time.perf_counter() - t0, 2)
@@ -135,7 +135,7 @@ def map_large_depth(st: _Study) -> MapResult:
                 force[i, j] = s.force_N
                 iters[i, j] = s.iterations
                 with np.errstate(invalid="ignore"):
-                    px[(i, j)] = ts.project(rig.scene, s.markers_mm, pad=rig.pad)
+                    px[(i, j)] = ts.project(rig.scene, s.markers_mm)
                 if zmin[i, j] < WINDOW_Z_MM:
                     notes[i, j] = "win"
                 bar.update()

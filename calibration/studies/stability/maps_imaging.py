@@ -202,7 +202,6 @@ def _remove_markers(radiance: np.ndarray, background: np.ndarray, blobs: np.ndar
 
 def map_missing_markers(st: _Study) -> MapResult:
     import perception as pc
-    from tactip_sim.optics.project import resolve_refraction
 
     from ...fit import FeatureTable, score
     from ...protocol import evaluation_sets
@@ -211,7 +210,7 @@ def map_missing_markers(st: _Study) -> MapResult:
     model = st.models()[2]
     test = evaluation_sets(ts.replace_in(st.scene, protocol={
         "test_depth_offsets_mm": [0.0], "test_poses": g.missing_poses}))[0]
-    background = rig.renderer.background(resolve_refraction(rig.scene, None))
+    background = rig.renderer.background(rig.renderer.optics.refraction)
     states = [None] + [rig.press(p) for p in test.poses]
     rads, blobs, vis = _imaging_inputs(st, rig.renderer, states, "missing_markers")
     radius = 0.5 * rig.diameter_px + 2.0  # the cap's image plus blur

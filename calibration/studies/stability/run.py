@@ -125,7 +125,7 @@ def _display_path(path: str) -> str:
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
-    from tactip_sim.cli import add_scene_argument
+    from tactip_sim.commands import add_scene_argument
 
     add_scene_argument(p, optional=True)
     p.add_argument("--out", required=True, help="output folder (PNGs, summary.json, report.md)")
@@ -136,7 +136,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from tactip_sim.cli import load_scene_args
+    from tactip_sim.commands import load_scene_args
 
     scene = load_scene_args(args)
     maps = [m.strip() for m in args.maps.split(",") if m.strip()] if args.maps else None

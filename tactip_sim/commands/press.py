@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 
+from .args import add_scene_argument, load_scene_args
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``press`` subcommand to the ``tactip`` command line."""
-    from ..cli import add_scene_argument
-
     p = subparsers.add_parser(
         "press",
         help="press the pad with a rigid indenter and print force, area, centre of pressure",
@@ -51,7 +51,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _indenter(args: argparse.Namespace, scene):
-    from . import indenters as ind
+    from ..fem import indenters as ind
 
     kind = args.indenter or scene.indenter.kind
     radius = scene.indenter.radius_mm if args.radius is None else args.radius
@@ -73,10 +73,9 @@ def _indenter(args: argparse.Namespace, scene):
 
 
 def _cmd_press(args: argparse.Namespace) -> int:
-    from ..cli import load_scene_args
+    from ..fem.contact import ContactError
+    from ..fem.pose import Pose
     from ..simulator import Simulator
-    from .contact import ContactError
-    from .pose import Pose
 
     scene = load_scene_args(args)
     depth = scene.protocol.training_depth_mm if args.depth is None else args.depth

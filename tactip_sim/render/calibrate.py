@@ -5,6 +5,7 @@ recovers are then the lens's own) in many poses spread over the field of view, p
 the camera model (blur, noise, quantisation), their inner corners found with
 ``cv2.findChessboardCornersSB`` and fed to ``cv2.fisheye.calibrate`` (Kannala-Brandt model).
 The recovered focal length, principal point and ``k1..k4`` are compared with the truth.
+This is step 1 of ``tactip validate-lens`` (:mod:`tactip_sim.commands.validate_lens`).
 """
 
 from __future__ import annotations
@@ -14,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from ..optics.lens import Lens
 from ..scene import Scene
-from .lens import Lens
 
 
 def _flag(name: str) -> int:
@@ -149,8 +150,8 @@ def calibrate_lens(scene: Scene, *, n_views: int = 16, spp: int = 16, rng: Any =
     """
     import cv2
 
-    from ..render.noise import CameraModel
-    from ..render.targets import Board, TargetRenderer
+    from .noise import CameraModel
+    from .targets import Board, TargetRenderer
 
     lens = Lens.from_scene(scene)
     board = Board()

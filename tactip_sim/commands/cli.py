@@ -1,8 +1,10 @@
-"""The ``tactip`` command line.
+"""The ``tactip`` command line: :func:`main` and :func:`build_parser`.
 
-Subcommands of this package are defined here; the other packages add theirs through the
-``tactip.commands`` entry-point group (``register(subparsers)``), so ``tactip_sim`` never
-imports ``perception`` or ``calibration``.
+The top floor of ``tactip_sim``: it may import every layer below, nothing below imports it.
+Its own subcommands are ``scene``, ``mesh`` and ``cache`` (here), ``press``
+(:mod:`.press`), ``render`` (:mod:`.render`) and ``validate-lens`` (:mod:`.validate_lens`); the
+other packages add theirs through the ``tactip.commands`` entry-point group
+(``register(subparsers)``), so ``tactip_sim`` never imports ``perception`` or ``calibration``.
 """
 
 from __future__ import annotations
@@ -11,85 +13,20 @@ import argparse
 import json
 import sys
 from collections.abc import Callable, Sequence
-from importlib import import_module
 from importlib.metadata import entry_points
-from pathlib import Path
 
 import numpy as np
 
-from .scene import SceneError
+from ..scene import SceneError
+from . import press, render, validate_lens
+from .args import add_scene_argument, load_scene_args
 
-# subcommand modules of this package; each has ``register(subparsers)``
-_INTERNAL_COMMANDS = ("tactip_sim.fem.cli", "tactip_sim.optics.cli")
-
-DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "scenes" / "shadow_fingertip.toml"
-
-
-def parse_overrides(pairs: Sequence[str]) -> dict[str, object]:
-    """``["camera.tilt_deg=6", "pins.model=\\"embedded\\""]`` -> ``{"camera.tilt_deg": 6.0, ...}``.
-    Values are parsed as TOML (bare words are taken as strings)."""
-    import tomllib
-
-    out: dict[str, object] = {}
-    for pair in pairs:
-        key, sep, raw = pair.partition("=")
-        if not sep or "." not in key:
-            raise SceneError(f"--set {pair!r} must look like section.key=value")
-        try:
-            out[key.strip()] = tomllib.loads(f"v = {raw}")["v"]
-        except tomllib.TOMLDecodeError:
-            out[key.strip()] = raw
-    return out
-
-
-def add_scene_argument(p: argparse.ArgumentParser, *, optional: bool = False,
-                       auto: bool = False) -> None:
-    """The SCENE positional, ``--fidelity`` and ``--set`` overrides, shared by every
-    scene-reading command. ``auto``: the command also accepts ``--fidelity auto``."""
-    if optional:
-        p.add_argument("scene", nargs="?", default=str(DEFAULT_SCENE),
-                       help=f"scene file (default: {DEFAULT_SCENE.relative_to(Path.cwd())})"
-                       if DEFAULT_SCENE.is_relative_to(Path.cwd()) else "scene file")
-    else:
-        p.add_argument("scene", help="scene file (.toml), e.g. scenes/shadow_fingertip.toml")
-    p.add_argument("--fidelity", metavar="PRESET",
-                   help="apply a fidelity preset of the scene: fast, balanced, reference or one "
-                   "the scene defines" + (", or auto (the cheapest level of a fidelity study "
-                   "that meets the tolerance)" if auto else "") + "; --set overrides it")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a scene key, e.g. --set camera.tilt_deg=6 (repeatable)")
-
-
-def load_scene_args(args: argparse.Namespace):
-    """The scene of a command's arguments: the file, then ``--fidelity``, then ``--set``
-    overrides on top."""
-    from .scene import apply_preset, load_scene
-
-    overrides = parse_overrides(args.overrides)
-    scene = load_scene(args.scene, overrides)
-    name = getattr(args, "fidelity", None)
-    if name is None:
-        return scene
-    if name == "auto":
-        raise SceneError("--fidelity auto is only accepted by the calibration commands "
-                         "(calibrate, sweep), which read a fidelity study")
-    return with_overrides(apply_preset(scene, name), overrides)
-
-
-def with_overrides(scene, overrides: dict[str, object]):
-    """``scene`` with ``{"section.key": value}`` overrides applied on top (validated), e.g. to
-    let ``--set`` win over a fidelity level applied after the file was read."""
-    from .scene import replace_in
-
-    by_section: dict[str, dict[str, object]] = {}
-    for dotted, value in overrides.items():
-        section, _, key = dotted.partition(".")
-        by_section.setdefault(section, {})[key] = value
-    return replace_in(scene, **by_section) if by_section else scene
+_OWN_COMMANDS = (press, render, validate_lens)
+"""Modules of this floor with ``register(subparsers)``, in the order of ``tactip --help``."""
 
 
 def _cmd_scene(args: argparse.Namespace) -> int:
-    from .scene import scene_hash, scene_to_toml
+    from ..scene import scene_hash, scene_to_toml
 
     scene = load_scene_args(args)
     print(f"# scene {scene.name!r} from {scene.source} (hash {scene_hash(scene)})")
@@ -98,15 +35,15 @@ def _cmd_scene(args: argparse.Namespace) -> int:
 
 
 def _cmd_mesh(args: argparse.Namespace) -> int:
-    from .geometry import build_pad
-    from .mesh import tetrahedralise
+    from ..geometry import build_pad
+    from ..mesh import tetrahedralise
 
     scene = load_scene_args(args)
     pad = build_pad(scene)
     mesh = tetrahedralise(scene, use_cache=not args.no_cache)
     s = mesh.summary()
     if args.bundle:
-        from .mesh.tetra import bundled_path
+        from ..mesh.tetra import bundled_path
 
         target = bundled_path(mesh.key)
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -131,7 +68,7 @@ def _cmd_mesh(args: argparse.Namespace) -> int:
 
 
 def _cmd_cache(args: argparse.Namespace) -> int:
-    from . import cache
+    from .. import cache
 
     if args.action == "clear":
         d, n = cache.clear()
@@ -145,6 +82,7 @@ def _cmd_cache(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``tactip`` parser with every subcommand (this floor's and the registered ones)."""
     parser = argparse.ArgumentParser(
         prog="tactip",
         description="Simulate, render and calibrate an optical TacTip fingertip.",
@@ -172,14 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("action", choices=["info", "clear"], help="info: size; clear: delete all")
     p.set_defaults(func=_cmd_cache)
 
-    for module in _INTERNAL_COMMANDS:
-        try:
-            mod = import_module(module)
-        except ModuleNotFoundError as exc:  # a stage not built yet in this checkout
-            if not module.startswith(str(exc.name)):
-                raise
-            continue
-        mod.register(sub)
+    for module in _OWN_COMMANDS:
+        module.register(sub)
     for ep in sorted(entry_points(group="tactip.commands"), key=lambda e: e.name):
         register: Callable[[argparse._SubParsersAction], None] = ep.load()
         register(sub)
@@ -187,6 +119,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``tactip`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code: 0, 1
+    (an error, printed), 2 (a scene error, printed) or 130 (interrupted)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -203,6 +137,3 @@ def main(argv: Sequence[str] | None = None) -> int:
               "the same command again continues from there", file=sys.stderr)
         return 130  # 128 + SIGINT, as a shell reports it
 
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

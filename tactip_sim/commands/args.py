@@ -1,0 +1,72 @@
+"""The scene arguments every scene-reading command shares: the SCENE positional, ``--fidelity``
+and ``--set`` overrides (used by this floor's commands and by the subcommands that
+``calibration`` and ``perception`` register)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+
+from ..scene import Scene, SceneError, apply_preset, load_scene, replace_in
+
+DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "shadow_fingertip.toml"
+
+
+def parse_overrides(pairs: Sequence[str]) -> dict[str, object]:
+    """``["camera.tilt_deg=6", "pins.model=\\"embedded\\""]`` -> ``{"camera.tilt_deg": 6.0, ...}``.
+    Values are parsed as TOML (bare words are taken as strings)."""
+    import tomllib
+
+    out: dict[str, object] = {}
+    for pair in pairs:
+        key, sep, raw = pair.partition("=")
+        if not sep or "." not in key:
+            raise SceneError(f"--set {pair!r} must look like section.key=value")
+        try:
+            out[key.strip()] = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key.strip()] = raw
+    return out
+
+
+def add_scene_argument(p: argparse.ArgumentParser, *, optional: bool = False,
+                       auto: bool = False) -> None:
+    """The SCENE positional, ``--fidelity`` and ``--set`` overrides, shared by every
+    scene-reading command. ``auto``: the command also accepts ``--fidelity auto``."""
+    if optional:
+        p.add_argument("scene", nargs="?", default=str(DEFAULT_SCENE),
+                       help=f"scene file (default: {DEFAULT_SCENE.relative_to(Path.cwd())})"
+                       if DEFAULT_SCENE.is_relative_to(Path.cwd()) else "scene file")
+    else:
+        p.add_argument("scene", help="scene file (.toml), e.g. scenes/shadow_fingertip.toml")
+    p.add_argument("--fidelity", metavar="PRESET",
+                   help="apply a fidelity preset of the scene: fast, balanced, reference or one "
+                   "the scene defines" + (", or auto (the cheapest level of a fidelity study "
+                   "that meets the tolerance)" if auto else "") + "; --set overrides it")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene key, e.g. --set camera.tilt_deg=6 (repeatable)")
+
+
+def load_scene_args(args: argparse.Namespace) -> Scene:
+    """The scene of a command's arguments: the file, then ``--fidelity``, then ``--set``
+    overrides on top."""
+    overrides = parse_overrides(args.overrides)
+    scene = load_scene(args.scene, overrides)
+    name = getattr(args, "fidelity", None)
+    if name is None:
+        return scene
+    if name == "auto":
+        raise SceneError("--fidelity auto is only accepted by the calibration commands "
+                         "(calibrate, sweep), which read a fidelity study")
+    return with_overrides(apply_preset(scene, name), overrides)
+
+
+def with_overrides(scene: Scene, overrides: dict[str, object]) -> Scene:
+    """``scene`` with ``{"section.key": value}`` overrides applied on top (validated), e.g. to
+    let ``--set`` win over a fidelity level applied after the file was read."""
+    by_section: dict[str, dict[str, object]] = {}
+    for dotted, value in overrides.items():
+        section, _, key = dotted.partition(".")
+        by_section.setdefault(section, {})[key] = value
+    return replace_in(scene, **by_section) if by_section else scene
