@@ -511,7 +511,7 @@ def compare_levels(scene: ts.Scene, level: Level, reference: Level, poses: np.nd
 
 # --------------------------------------------------------------------------- CLI
 def configure_parser(p: argparse.ArgumentParser) -> None:
-    from tactip_sim.cli import add_scene_argument
+    from tactip_sim.commands import add_scene_argument
 
     add_scene_argument(p, optional=True)
     p.add_argument("--out", help="output folder (required unless --list)")
@@ -526,7 +526,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from tactip_sim.cli import load_scene_args
+    from tactip_sim.commands import load_scene_args
 
     scene = load_scene_args(args)
     if args.list:
