@@ -80,6 +80,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     train = frames.features(feature, keep_flagged=args.keep_flagged)
     model = fit_model(train, args.order)
     out = Path(args.out) if args.out else Path(args.dataset) / f"model_order{args.order}.json"
+    _check_overwrite(out)
     save_model(model, out, feature=feature,
                fitted_on={"data": str(Path(args.dataset).resolve()), "rows": len(frames.folder),
                           "used": len(train.cop_px), **frames.summary()})
@@ -100,6 +101,19 @@ def _cmd_fit(args: argparse.Namespace) -> int:
               f"{cv['rmse_pitch_deg']:.2f}°)")
     _write_json(args.json, report)
     return 0
+
+
+def _check_overwrite(out: Path) -> None:
+    """A model file may replace a model file, never anything else (a user's file)."""
+    if not out.exists():
+        return
+    try:
+        is_model = json.loads(out.read_text()).get("format") == "perception.PoseRegressor"
+    except (OSError, ValueError, UnicodeDecodeError, AttributeError):
+        is_model = False
+    if out.is_dir() or not is_model:
+        raise ValueError(f"--out {out} exists and is not a model file: refusing to overwrite it "
+                         "(choose another path)")
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:

@@ -177,3 +177,18 @@ def test_a_model_of_another_image_format_is_refused(folder, tmp_path, capsys):
     assert main(["evaluate", str(model), str(root), "--no-progress"]) != 0
     assert "fitted on 128x128 frames" in capsys.readouterr().err
     assert main(["evaluate", str(model), str(root), "--rescale", "--no-progress"]) == 0
+
+
+def test_fit_never_overwrites_a_file_that_is_not_a_model(folder, tmp_path, capsys):
+    from tactip_sim.commands import main
+
+    root, _ = folder
+    thesis = tmp_path / "thesis.txt"
+    thesis.write_text("three years of work")
+    assert main(["fit", str(root), "--order", "1", "--out", str(thesis), "--no-progress"]) != 0
+    assert "is not a model file" in capsys.readouterr().err
+    assert thesis.read_text() == "three years of work"
+    model = tmp_path / "m.json"
+    for _ in range(2):  # a model may replace a model
+        assert main(["fit", str(root), "--order", "1", "--out", str(model),
+                     "--no-progress"]) == 0
