@@ -109,7 +109,7 @@ def _stages(lib, rest_image: np.ndarray, image: np.ndarray, expected: int) -> di
 
     def cop():
         lib.centre_of_pressure(tracked, areas, on_empty="nan")
-        lib.centre_of_pressure(tracked, areas, weighting="area_change",
+        lib.centre_of_pressure(tracked, areas, weighting="growth",
                                rest_areas=pipe.rest_areas, on_empty="nan")
 
     def total():
@@ -118,7 +118,7 @@ def _stages(lib, rest_image: np.ndarray, image: np.ndarray, expected: int) -> di
         p = tracker.update(d.points, areas=d.areas_px)
         a = areas_of(np.where(np.isnan(p), tracker.last_known, p))
         lib.centre_of_pressure(p, a, on_empty="nan")
-        lib.centre_of_pressure(p, a, weighting="area_change", rest_areas=pipe.rest_areas,
+        lib.centre_of_pressure(p, a, weighting="growth", rest_areas=pipe.rest_areas,
                                on_empty="nan")
 
     def process():  # the next frame of a sequence (e.g. the noisy frames of one contact)

@@ -301,8 +301,8 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
         except pc.PerceptionError as exc:
             reasons[i] = f"not perceived: {exc}"
             continue
-        cop["area"][i] = f.cop
-        cop["growth"][i] = f.cop_area_change
+        cop["area"][i] = f.cop_area
+        cop["growth"][i] = f.cop_growth
         cop["hull"][i] = f.cop_hull
         detected[i] = f.n_detected
         reliable[i] = bool(f.reliable)

@@ -172,10 +172,10 @@ def perceive(pipeline: Any, images: Sequence[np.ndarray]) -> Perceived:
         counts.append(f.n_detected)
         reliable += int(f.reliable)
         pts.append(f.points)
-        if np.all(np.isfinite(f.cop)):
-            cops.append(f.cop)
-        if np.all(np.isfinite(f.cop_area_change)):
-            cops_growth.append(f.cop_area_change)
+        if np.all(np.isfinite(f.cop_area)):
+            cops.append(f.cop_area)
+        if np.all(np.isfinite(f.cop_growth)):
+            cops_growth.append(f.cop_growth)
         if np.all(np.isfinite(f.cop_hull)):
             cops_hull.append(f.cop_hull)
     nan2 = np.full(2, np.nan)

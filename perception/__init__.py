@@ -63,7 +63,7 @@ from .pipeline import FeaturePipeline, FrameFeatures
 from .region import as_polygon, fit_region, mask_to_polygon, points_inside
 from .regression import PoseRegressor, RegressionScore, average_frames
 from .track import LOST, MERGED, TRACKED, MarkerTracker
-from .voronoi import ClippedVoronoi, area_change, voronoi_areas, voronoi_cells
+from .voronoi import ClippedVoronoi, cell_growth, voronoi_areas, voronoi_cells
 
 #: Version of the numbers perception produces from a frame (marker positions, cell areas,
 #: centres of pressure). Raised whenever they change, even in the last bits: calibration
@@ -94,7 +94,7 @@ __all__ = [
     "RegionError",
     "RegressionScore",
     "TrackingParams",
-    "area_change",
+    "cell_growth",
     "as_grey",
     "as_polygon",
     "average_frames",

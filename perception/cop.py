@@ -9,7 +9,7 @@ Two definitions:
     contact moves it by only a fraction of a pixel to a few pixels - enough for regression,
     since the offset at rest is a constant that the intercept absorbs.
 
-``"area_change"`` - the positions weighted by the growth of their cells against the rest
+``"growth"`` - the positions weighted by the growth of their cells against the rest
     frame, ``w_i = max(a_i - a_rest_i - deadband, 0)``. Indentation grows the cells over the
     contact, so this CoP sits on the contact itself and moves across the pad with it (far
     more sensitive), but it is undefined at rest (no cell has grown) and noisy at light
@@ -27,7 +27,7 @@ from .geometry import as_points
 
 __all__ = ["COP_WEIGHTINGS", "centre_of_pressure"]
 
-COP_WEIGHTINGS = ("area", "area_change")
+COP_WEIGHTINGS = ("area", "growth")
 
 
 def centre_of_pressure(
@@ -47,16 +47,16 @@ def centre_of_pressure(
         Marker positions; NaN rows are ignored.
     areas : (m,) float, px²
         Clipped Voronoi cell areas (:func:`perception.voronoi.voronoi_areas`); NaN ignored.
-    weighting : {"area", "area_change"}
+    weighting : {"area", "growth"}
         ``"area"``: weights ``a_i`` (the seed paper's definition, default).
-        ``"area_change"``: weights ``max(a_i - rest_areas_i - deadband_px2, 0)``.
+        ``"growth"``: weights ``max(a_i - rest_areas_i - deadband_px2, 0)``.
     rest_areas : (m,) float, px², optional
-        Rest-frame cell areas, required for ``"area_change"``.
+        Rest-frame cell areas, required for ``"growth"``.
     deadband_px2 : float, px², >= 0
-        Growth ignored per cell in ``"area_change"`` (suppresses noise at light contact).
+        Growth ignored per cell in ``"growth"`` (suppresses noise at light contact).
     on_empty : {"raise", "nan"}
         What to do when no marker has a finite position and a positive weight (e.g. the
-        ``"area_change"`` CoP of a rest frame): raise :class:`PerceptionError`, or return
+        ``"growth"`` CoP of a rest frame): raise :class:`PerceptionError`, or return
         ``[nan, nan]`` so the caller can flag the frame.
 
     Returns
@@ -75,7 +75,7 @@ def centre_of_pressure(
         w = a
     else:
         if rest_areas is None:
-            raise PerceptionError("weighting='area_change' needs rest_areas")
+            raise PerceptionError("weighting='growth' needs rest_areas")
         r = np.asarray(rest_areas, dtype=np.float64)
         if r.shape != a.shape:
             raise PointsError(f"rest_areas must have shape {a.shape}, got {r.shape}")

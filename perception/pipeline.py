@@ -21,7 +21,7 @@ from .image import as_grey, full_scale
 from .params import ContactParams, DetectionParams, TrackingParams
 from .region import RegionLike, as_polygon, fit_region
 from .track import MarkerTracker
-from .voronoi import ClippedVoronoi, area_change
+from .voronoi import ClippedVoronoi, cell_growth
 
 __all__ = ["FeaturePipeline", "FrameFeatures"]
 
@@ -43,13 +43,13 @@ class FrameFeatures:
     areas : (m,) float64, px²
         Voronoi cell areas clipped to the sensor region; NaN for lost markers. A lost marker
         still seeds a cell at its last sighting, so its neighbours' areas are not inflated.
-    area_change : (m,) float64, px²
+    growth : (m,) float64, px²
         ``areas - rest_areas``.
-    cop : (2,) float64, px
+    cop_area : (2,) float64, px
         Centre of pressure, the seed definition (cell-area-weighted positions). NaN only when
         no marker is tracked.
-    cop_area_change : (2,) float64, px
-        Centre of pressure weighted by cell growth, ``max(area_change, 0)``; NaN when no cell
+    cop_growth : (2,) float64, px
+        Centre of pressure weighted by cell growth, ``max(growth, 0)``; NaN when no cell
         has grown (no contact).
     cop_hull : (2,) float64, px
         The lab's centre of pressure (:func:`perception.hull_cop.hull_cop`) of the frame's
@@ -75,9 +75,9 @@ class FrameFeatures:
 
     points: np.ndarray
     areas: np.ndarray
-    area_change: np.ndarray
-    cop: np.ndarray
-    cop_area_change: np.ndarray
+    growth: np.ndarray
+    cop_area: np.ndarray
+    cop_growth: np.ndarray
     cop_hull: np.ndarray
     deformation_px: float
     n_detected: int
@@ -89,7 +89,7 @@ class FrameFeatures:
     detection_reliable: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("points", "areas", "area_change", "cop", "cop_area_change", "cop_hull"):
+        for name in ("points", "areas", "growth", "cop_area", "cop_growth", "cop_hull"):
             object.__setattr__(self, name, _ro(getattr(self, name)))
 
 
@@ -228,9 +228,9 @@ class FeaturePipeline:
         seeds = np.where(lost[:, None], self.tracker.last_known, points)
         areas = self.voronoi.areas(seeds)
         areas[lost] = np.nan
-        change = area_change(areas, self.rest_areas)
+        change = cell_growth(areas, self.rest_areas)
         cop = centre_of_pressure(points, areas, on_empty="nan")
-        cop_change = centre_of_pressure(points, areas, weighting="area_change",
+        cop_change = centre_of_pressure(points, areas, weighting="growth",
                                         rest_areas=self.rest_areas, on_empty="nan")
         cop_hull = hull_cop(det.points) if det.reliable else np.full(2, np.nan)
         deformation = surface_deformation(points, self.rest_points)
@@ -248,7 +248,7 @@ class FeaturePipeline:
         else:
             reliable, reason = True, f"{m - n_lost} of {m} markers tracked"
         return FrameFeatures(
-            points=points, areas=areas, area_change=change, cop=cop, cop_area_change=cop_change,
+            points=points, areas=areas, growth=change, cop_area=cop, cop_growth=cop_change,
             cop_hull=cop_hull, deformation_px=deformation, n_detected=det.count, n_lost=n_lost,
             reliable=reliable,
             reason=reason, contact=in_contact, frame_index=self.tracker.frame_index,

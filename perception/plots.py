@@ -300,14 +300,14 @@ def plot_features(pipeline: FeaturePipeline, image: np.ndarray, features: FrameF
     pts = features.points
     plot_detections(axs[0, 0], image, pts[np.isfinite(pts).all(axis=1)],
                     title=f"(a) {features.n_detected} detected, {features.n_lost} lost")
-    plot_voronoi(axs[0, 1], pts, pipeline.region, values=features.area_change, image=image)
-    plot_deformation_map(axs[1, 0], pts, features.area_change, pipeline.region,
-                         pipeline.image_shape, cop=features.cop_area_change,
+    plot_voronoi(axs[0, 1], pts, pipeline.region, values=features.growth, image=image)
+    plot_deformation_map(axs[1, 0], pts, features.growth, pipeline.region,
+                         pipeline.image_shape, cop=features.cop_growth,
                          label="cell area change (px²)", cmap="coolwarm", symmetric=True,
                          title="(c) area change, CoP weighted by growth")
     disp = np.hypot(*(pts - pipeline.rest_points).T)
     plot_deformation_map(axs[1, 1], pts, disp, pipeline.region, pipeline.image_shape,
-                         cop=features.cop, label="marker displacement (px)",
+                         cop=features.cop_area, label="marker displacement (px)",
                          title="(d) displacement, CoP weighted by area (seed)")
     if suptitle:
         fig.suptitle(suptitle)

@@ -31,7 +31,7 @@ from .geometry import as_points
 from .region import RegionLike, as_polygon, convex_ring
 from .voronoi_convex import ConvexVoronoi
 
-__all__ = ["VORONOI_METHODS", "ClippedVoronoi", "area_change", "voronoi_areas", "voronoi_cells"]
+__all__ = ["VORONOI_METHODS", "ClippedVoronoi", "cell_growth", "voronoi_areas", "voronoi_cells"]
 
 #: Seeds closer than this (px) are one seed: they share one cell, split equally in area.
 DUPLICATE_TOL_PX = 1e-6
@@ -251,7 +251,7 @@ def voronoi_areas(points: np.ndarray, region: RegionLike, *, method: str = "auto
     return ClippedVoronoi(region, method=method).areas(points)
 
 
-def area_change(areas: np.ndarray, rest_areas: np.ndarray, *, relative: bool = False
+def cell_growth(areas: np.ndarray, rest_areas: np.ndarray, *, relative: bool = False
                 ) -> np.ndarray:
     """Change of cell area against the rest frame.
 

@@ -94,8 +94,8 @@ def test_press_and_release_sequence():
         contact.append(f.contact)
         if load == 1.0:
             # growth-weighted CoP on the indentation; seed CoP moved towards it
-            assert np.hypot(*(f.cop_area_change - PRESS)) < SPACING
-            assert np.hypot(*(f.cop - PRESS)) < np.hypot(*(a_rest_cop - PRESS))
+            assert np.hypot(*(f.cop_growth - PRESS)) < SPACING
+            assert np.hypot(*(f.cop_area - PRESS)) < np.hypot(*(a_rest_cop - PRESS))
     assert contact == [False, False, False, True, True, True, True, False, False]
 
 
@@ -103,10 +103,10 @@ def test_features_are_frozen_and_consistent(pipe):
     pipe.reset()
     f = pipe.process(_image(_pressed(0.5)[_track_order(pipe)], seed=3))
     assert f.points.shape == (97, 2) and f.areas.shape == (97,)
-    assert np.allclose(f.area_change, f.areas - pipe.rest_areas)
-    assert np.allclose(f.cop, pc.centre_of_pressure(f.points, f.areas))
+    assert np.allclose(f.growth, f.areas - pipe.rest_areas)
+    assert np.allclose(f.cop_area, pc.centre_of_pressure(f.points, f.areas))
     with pytest.raises(ValueError, match="read-only"):
-        f.cop[0] = 0.0
+        f.cop_area[0] = 0.0
 
 
 def test_merged_markers_are_flagged_not_duplicated(pipe):
@@ -229,7 +229,7 @@ def test_features_after_reset_do_not_depend_on_earlier_frames():
     for k, s in enumerate([0.57, 0.19]):
         image = _image(sheared(s)[order], seed=200 + k)
         a, b = used.process(image), fresh.process(image)
-        for name in ("points", "areas", "cop", "cop_area_change"):
+        for name in ("points", "areas", "cop_area", "cop_growth"):
             assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
 
 

@@ -99,13 +99,13 @@ def test_cells_are_ordered_like_the_seeds():
     assert (share == 1).all()
 
 
-def test_area_change():
+def test_cell_growth():
     a = np.array([10.0, 12.0, np.nan])
     r = np.array([10.0, 10.0, 10.0])
-    assert np.allclose(pc.area_change(a, r)[:2], [0.0, 2.0])
-    assert np.allclose(pc.area_change(a, r, relative=True)[:2], [0.0, 0.2])
+    assert np.allclose(pc.cell_growth(a, r)[:2], [0.0, 2.0])
+    assert np.allclose(pc.cell_growth(a, r, relative=True)[:2], [0.0, 0.2])
     with pytest.raises(pc.PointsError):
-        pc.area_change(a, r[:2])
+        pc.cell_growth(a, r[:2])
 
 
 # -- centre of pressure -----------------------------------------------------------------------
@@ -122,7 +122,7 @@ def test_cop_definition_by_hand():
     assert np.allclose(pc.centre_of_pressure(pts, areas), [7.5, 0.0])
     rest = np.array([1.0, 1.0, 1.0])
     # growth weights: max(a - a_rest, 0) = (0, 2, .) -> all on the second marker
-    assert np.allclose(pc.centre_of_pressure(pts, areas, weighting="area_change",
+    assert np.allclose(pc.centre_of_pressure(pts, areas, weighting="growth",
                                              rest_areas=rest), [10.0, 0.0])
 
 
@@ -137,22 +137,22 @@ def test_radial_expansion_moves_cop_towards_its_centre(offset):
     a = pc.voronoi_areas(moved, disc)
     cop0 = pc.centre_of_pressure(rest, a_rest)
     for cop in (pc.centre_of_pressure(moved, a),
-                pc.centre_of_pressure(moved, a, weighting="area_change", rest_areas=a_rest)):
+                pc.centre_of_pressure(moved, a, weighting="growth", rest_areas=a_rest)):
         assert np.hypot(*(cop - centre)) < np.hypot(*(cop0 - centre))
         assert np.dot(cop - cop0, centre - cop0) > 0
     # the growth-weighted CoP lands on the expansion itself (within one marker spacing)
-    cop_change = pc.centre_of_pressure(moved, a, weighting="area_change", rest_areas=a_rest)
+    cop_change = pc.centre_of_pressure(moved, a, weighting="growth", rest_areas=a_rest)
     assert np.hypot(*(cop_change - centre)) < 36.0
 
 
 def test_cop_errors_and_nan_mode():
     pts = np.array([[0.0, 0.0], [10.0, 0.0]])
     with pytest.raises(pc.PerceptionError, match="rest_areas"):
-        pc.centre_of_pressure(pts, [1.0, 1.0], weighting="area_change")
+        pc.centre_of_pressure(pts, [1.0, 1.0], weighting="growth")
     with pytest.raises(pc.PerceptionError, match="weighting"):
         pc.centre_of_pressure(pts, [1.0, 1.0], weighting="mass")
     with pytest.raises(pc.PerceptionError, match="undefined"):
-        pc.centre_of_pressure(pts, [1.0, 1.0], weighting="area_change", rest_areas=[2.0, 2.0])
+        pc.centre_of_pressure(pts, [1.0, 1.0], weighting="growth", rest_areas=[2.0, 2.0])
     cop = pc.centre_of_pressure(np.full((2, 2), np.nan), [1.0, 1.0], on_empty="nan")
     assert np.isnan(cop).all()
     with pytest.raises(pc.PointsError, match="areas"):
