@@ -21,7 +21,10 @@ Detect the bright markers of an optical tactile sensor (TacTip) in camera frames
 For each IMAGE, writes DIR/<stem>_markers.csv (x_px, y_px, area_px2, diameter_px, peak;
 OpenCV pixel convention, pixel centres at integer coordinates) and DIR/<stem>_overlay.png
 (accepted markers green; rejected glints yellow, rim blobs orange, wrong size red, wrong
-shape magenta), and prints the marker count and whether it is reliable.
+shape magenta), and prints the marker count and whether it is reliable. Two images of one
+name (a/frame.png, b/frame.png) get distinct files (<stem>_2_markers.csv, ...): nothing is
+overwritten. --csv OUT.csv also writes every image's markers into one table (image, x_px,
+y_px, area_px2, diameter_px, peak, count, reliable, reason).
 Exit status: 0 all reliable, 1 some detection unreliable, 2 some image could not be read."""
 
 
@@ -50,6 +53,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="marker diameter in pixels (default: estimated from the blob sizes)")
     p.add_argument("--out", metavar="DIR", type=Path, default=Path("out/detect"),
                    help="output folder, created if needed (default: %(default)s)")
+    p.add_argument("--csv", metavar="OUT.csv", type=Path, default=None,
+                   help="also write every image's markers and verdict into this one CSV")
     p.set_defaults(func=run_detect)
     return p
 
@@ -70,6 +75,8 @@ def run_detect(args: argparse.Namespace) -> int:
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     status = 0
+    used: set[str] = set()
+    table: list[list[str]] = []
     for path in args.images:
         try:
             image = read_image(path)
@@ -79,7 +86,7 @@ def run_detect(args: argparse.Namespace) -> int:
             print(f"{path}: error: {exc}", file=sys.stderr)  # noqa: T201
             status = 2
             continue
-        stem = Path(path).stem
+        stem = _unique_stem(Path(path).stem, used)
         csv_path = out_dir / f"{stem}_markers.csv"
         with csv_path.open("w", newline="", encoding="utf-8") as fh:
             writer = csv.writer(fh)
@@ -87,6 +94,13 @@ def run_detect(args: argparse.Namespace) -> int:
             for (x, y), a, d, pk in zip(det.points, det.areas_px, det.diameters_px, det.peaks,
                                         strict=True):
                 writer.writerow([f"{x:.4f}", f"{y:.4f}", f"{a:.1f}", f"{d:.3f}", f"{pk:.4f}"])
+        verdict_cells = [str(det.count), str(int(det.reliable)), det.reason]
+        table += [[str(path), f"{x:.4f}", f"{y:.4f}", f"{a:.1f}", f"{d:.3f}", f"{pk:.4f}",
+                   *verdict_cells]
+                  for (x, y), a, d, pk in zip(det.points, det.areas_px, det.diameters_px,
+                                              det.peaks, strict=True)]
+        if det.count == 0:  # a frame with no marker still gets its verdict row
+            table.append([str(path), "", "", "", "", "", *verdict_cells])
         png_path = out_dir / f"{stem}_overlay.png"
         cv2.imwrite(str(png_path), draw_detections(image, det))
         verdict = "reliable" if det.reliable else "UNRELIABLE"
@@ -94,7 +108,25 @@ def run_detect(args: argparse.Namespace) -> int:
               f"{png_path}")
         if not det.reliable:
             status = max(status, 1)
+    if args.csv is not None:
+        args.csv.parent.mkdir(parents=True, exist_ok=True)
+        with args.csv.open("w", newline="", encoding="utf-8") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(["image", "x_px", "y_px", "area_px2", "diameter_px", "peak",
+                             "count", "reliable", "reason"])
+            writer.writerows(table)
+        print(f"all markers -> {args.csv}")  # noqa: T201
     return status
+
+
+def _unique_stem(stem: str, used: set[str]) -> str:
+    """``stem``, or ``stem_2``, ``stem_3``... if an earlier image of this run took it."""
+    name, k = stem, 1
+    while name in used:
+        k += 1
+        name = f"{stem}_{k}"
+    used.add(name)
+    return name
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -96,3 +96,25 @@ def test_telling_the_count_never_makes_noise_reliable():
     told = pc.detect_markers_detailed(noise, expected_count=free.count)  # the count it found
     assert not free.reliable
     assert not told.reliable and "irregular" in told.reason
+
+
+def test_detect_command_keeps_same_named_images_apart_and_writes_one_table(tmp_path, capsys):
+    from tactip_sim.commands import main
+
+    rng = np.random.default_rng(3)
+    centres = pc.hex_lattice(331, 5.0, C) + rng.uniform(-0.3, 0.3, (331, 2))
+    paths = []
+    for sub, shift in (("a", 0.0), ("b", 1.0)):
+        (tmp_path / sub).mkdir()
+        paths.append(tmp_path / sub / "frame.png")
+        cv2.imwrite(str(paths[-1]), _binarised(centres + shift))
+    out, table = tmp_path / "out", tmp_path / "all.csv"
+    assert main(["detect", *map(str, paths), "--expected-count", "331", "--out", str(out),
+                 "--csv", str(table)]) == 0
+    assert sorted(p.name for p in out.glob("*_markers.csv")) == ["frame_2_markers.csv",
+                                                                 "frame_markers.csv"]
+    rows = table.read_text().splitlines()
+    assert rows[0].startswith("image,x_px,y_px") and len(rows) == 1 + 2 * 331
+    first = np.loadtxt(out / "frame_markers.csv", delimiter=",", skiprows=1)
+    second = np.loadtxt(out / "frame_2_markers.csv", delimiter=",", skiprows=1)
+    assert np.allclose(np.sort(second[:, 0]) - np.sort(first[:, 0]), 1.0, atol=0.35)
