@@ -27,7 +27,6 @@ from .fem.indenters import Indenter, indenter_from_scene, place
 from .fem.model import ElasticBody
 from .fem.pose import Pose
 from .fem.reduced import ReducedModel
-from .fem.snap import snap_to_pad
 from .fem.state import ContactState
 from .fem.tolerances import TOL, Tolerances, single_threaded_blas
 from .fem.window import stop_at_window, window_generalised_forces
@@ -45,31 +44,28 @@ class Simulator:
     ----------
     scene : the validated scene (materials, fidelity, pins, indenter)
     pad : an already built (e.g. perturbed) pad; default ``build_pad(scene)``
-    mesh : an already built tet mesh of that pad; default ``tetrahedralise(scene)``
+    mesh : the tet mesh to solve, taken as given; default ``tetrahedralise(scene)`` (whose
+        boundary vertices lie on the pad's analytic surfaces)
     element_order : override ``scene.fidelity.element_order`` (1 or 2)
     solver : default solver, "reduced", "full" or "neo_hookean"; default from the scene
         (``fidelity.material_model`` = "neo_hookean" selects it, else
         ``fidelity.contact_solver``)
     use_cache : read/write meshes and compliances in the on-disk cache
-    snap : move the mesh's outer and skin/gel interface vertices back onto the pad's analytic
-        surfaces (:func:`~tactip_sim.fem.snap.snap_to_pad`; pytetwild leaves them up to
-        ~0.1 mm off, the order of the contact depths)
     tol : tolerances (:class:`~tactip_sim.fem.tolerances.Tolerances`)
 
     Attributes
     ----------
-    mesh : the (snapped) tet mesh actually discretised
+    mesh : the tet mesh discretised
     body : the :class:`~tactip_sim.fem.model.ElasticBody` (space, stiffness, markers)
     surface_vertices : (k,) int32, mesh vertex ids of the outer (non-window) surface
     """
 
     def __init__(self, scene: Scene, *, pad: Pad | None = None, mesh: TetMesh | None = None,
                  element_order: int | None = None, solver: str | None = None,
-                 use_cache: bool = True, snap: bool = True, tol: Tolerances = TOL) -> None:
+                 use_cache: bool = True, tol: Tolerances = TOL) -> None:
         self.scene = scene
         self.pad = build_pad(scene) if pad is None else pad
-        mesh = tetrahedralise(scene, use_cache=use_cache) if mesh is None else mesh
-        self.mesh = snap_to_pad(mesh, self.pad) if snap else mesh
+        self.mesh = tetrahedralise(scene, use_cache=use_cache) if mesh is None else mesh
         if solver is None:
             f = scene.fidelity
             solver = "neo_hookean" if f.material_model == "neo_hookean" else f.contact_solver

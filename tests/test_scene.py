@@ -162,10 +162,23 @@ def test_overrides_are_checked_too(tmp_path):
     (96, r"pins\.count=96 cannot be reached .* nearest achievable counts"),
     (400, r"pins\.count=400 does not fit on the dome"),
 ])
-def test_pins_that_do_not_fit_are_geometrys_error_where_the_pad_is_built(count, pattern):
+def test_pins_that_do_not_fit_are_geometrys_error_where_the_pad_is_built(count, pattern,
+                                                                        capsys):
     """Parsing checks each value; laying the pins out is geometry's job, and building the pad
-    raises the same clear SceneError (so does every command that builds it)."""
-    scene = ts.load_scene(SCENES / "shadow_fingertip.toml", {"pins.count": count})
+    raises the same clear SceneError, so does every command that builds it."""
+    from tactip_sim.commands import main
+
+    path = str(SCENES / "shadow_fingertip.toml")
+    scene = ts.load_scene(path, {"pins.count": count})  # the file itself is valid
     with pytest.raises(ts.SceneError, match=pattern):
         ts.build_pad(scene)
+    with pytest.raises(ts.SceneError, match=pattern):
+        ts.Simulator(scene)
+    assert main(["scene", path, "--set", f"pins.count={count}"]) == 0
+    capsys.readouterr()
+    for command in (["mesh", path], ["press", path, "--roll", "0", "--pitch", "0",
+                                     "--depth", "1"]):
+        assert main([*command, "--set", f"pins.count={count}"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("tactip: scene error: ") and re.search(pattern, err), err
 

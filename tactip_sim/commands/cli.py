@@ -15,8 +15,6 @@ import sys
 from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 
-import numpy as np
-
 from ..scene import SceneError
 from . import press, render, validate_lens
 from .args import add_scene_argument, load_scene_args
@@ -45,9 +43,7 @@ def _cmd_mesh(args: argparse.Namespace) -> int:
     if args.bundle:
         from ..mesh.tetra import bundled_path
 
-        target = bundled_path(mesh.key)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(target, nodes=mesh.nodes, tets=mesh.tets, regions=mesh.regions)
+        target = mesh.save(bundled_path(mesh.key))  # the stored form tetrahedralise reads
         print(f"bundled {target}")
     s["pins"] = len(pad.markers_mm)
     s["surface_watertight"] = int(pad.surface.is_watertight)

@@ -15,8 +15,6 @@ from __future__ import annotations
 import numpy as np
 
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
-# face k is opposite vertex k, oriented outward for a positively oriented tet
-TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
 
 
 def n_local(order: int) -> int:

@@ -13,10 +13,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from ..mesh import TetMesh
+from ..mesh import TET_FACES, TetMesh
 from .elements import (
     TET_EDGES,
-    TET_FACES,
     barycentric_gradients,
     n_local,
     shape_gradients,

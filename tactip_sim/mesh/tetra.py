@@ -1,10 +1,12 @@
-"""Tetrahedral meshing of the pad with pytetwild, region tagging, quality, and a disk cache."""
+"""Tetrahedral meshing of the pad with pytetwild, region tagging, snapping onto the analytic
+surfaces, quality, and a disk cache."""
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -17,10 +19,13 @@ import numpy as np
 from .. import cache
 from ..geometry import build_pad
 from ..scene import Scene
+from .snap import snap_nodes
+from .topology import REGION_GEL, REGION_SKIN, TET_FACES, tet_volumes
+
+__all__ = ["REGION_GEL", "REGION_SKIN", "TET_FACES", "MeshQuality", "TetMesh", "bundled_path",
+           "mesh_key", "mesh_quality", "sizing_field", "tet_volumes", "tetrahedralise"]
 
 BUNDLED_DIR = Path(__file__).resolve().parents[2] / "scenes" / "meshes"
-REGION_SKIN = 1
-REGION_GEL = 2
 MESHER_VERSION = 3  # bump when the meshing recipe changes: invalidates cached meshes
 
 
@@ -42,11 +47,18 @@ class MeshQuality:
 
 @dataclass(frozen=True)
 class TetMesh:
-    """A linear tetrahedral mesh of the pad.
+    """A linear tetrahedral mesh of the pad: the mesh the FEM solves, as given.
 
-    nodes : (n, 3) float64, mm, sensor frame
+    nodes : (n, 3) float64, mm, sensor frame (from :func:`tetrahedralise`: boundary vertices on
+        the pad's analytic surfaces, window-face vertices on z = 0)
     tets : (m, 4) int32, positively oriented
     regions : (m,) int8, REGION_SKIN or REGION_GEL
+    key : :func:`mesh_key` of the scene it was built for
+    build_seconds : time to build, or to load and snap
+    from_cache : loaded from ``scenes/meshes/`` or the cache rather than built
+    mesher_nodes : (n, 3) the mesher's node positions before snapping (what the bundle and the
+        cache store, :meth:`save`); None for a mesh made from arrays, whose ``nodes`` are then
+        its stored form
     """
 
     nodes: np.ndarray
@@ -55,23 +67,48 @@ class TetMesh:
     key: str
     build_seconds: float
     from_cache: bool = False
+    mesher_nodes: np.ndarray | None = field(default=None, repr=False, compare=False)
     quality: MeshQuality = field(init=False)
 
     def __post_init__(self) -> None:
-        for name, dtype in (("nodes", np.float64), ("tets", np.int32), ("regions", np.int8)):
+        for name, dtype in (("nodes", np.float64), ("tets", np.int32), ("regions", np.int8),
+                            ("mesher_nodes", np.float64)):
+            if getattr(self, name) is None:
+                continue
             arr = np.ascontiguousarray(getattr(self, name), dtype=dtype)
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
+        if self.mesher_nodes is not None and self.mesher_nodes.shape != self.nodes.shape:
+            raise ValueError(f"mesher_nodes has shape {self.mesher_nodes.shape}: allowed only "
+                             f"the shape of nodes, {self.nodes.shape}")
         object.__setattr__(self, "quality", mesh_quality(self.nodes, self.tets))
+
+    @property
+    def stored_nodes(self) -> np.ndarray:
+        """The node positions :meth:`save` writes: the mesher's, before snapping."""
+        return self.nodes if self.mesher_nodes is None else self.mesher_nodes
 
     @cached_property
     def digest(self) -> str:
-        """Content hash of nodes, tets and regions. ``key`` names the scene a mesh was built
-        for; pytetwild gives a different mesh on every build, and this tells them apart."""
+        """Content hash of the stored mesh (:attr:`stored_nodes`, tets and regions): ``key``
+        names the scene a mesh was built for; pytetwild gives a different mesh on every build,
+        and this tells them apart. ``nodes`` follow from the stored arrays and the scene's
+        analytic surfaces (:func:`~tactip_sim.mesh.snap.snap_nodes`, deterministic), so this
+        names them too, and it is the digest sweeps recorded before snapping moved into the
+        mesher. A change to the snapping that moves nodes must change this digest too (hash a
+        snapping version here)."""
         h = hashlib.sha256()
-        for a in (self.nodes, self.tets, self.regions):
+        for a in (self.stored_nodes, self.tets, self.regions):
             h.update(np.ascontiguousarray(a).tobytes())
         return h.hexdigest()[:16]
+
+    def save(self, path: str | Path) -> Path:
+        """Write the mesh as :func:`tetrahedralise` reads it from ``scenes/meshes/`` (the
+        mesher's nodes, tets, regions); e.g. ``mesh.save(bundled_path(mesh.key))``."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(path, nodes=self.stored_nodes, tets=self.tets, regions=self.regions)
+        return path
 
     @property
     def volumes(self) -> np.ndarray:
@@ -100,23 +137,15 @@ class TetMesh:
         }
 
 
-def tet_volumes(nodes: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """(m,) signed volumes (mm³)."""
-    p = nodes[tets]
-    return np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]),
-                     p[:, 3] - p[:, 0]) / 6.0
-
-
 _EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
 # the two faces (by opposite vertex) that share each edge
 _EDGE_FACES = np.array([[2, 3], [1, 3], [1, 2], [0, 3], [0, 2], [0, 1]])
-_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])  # face k is opposite vertex k
 
 
 def mesh_quality(nodes: np.ndarray, tets: np.ndarray) -> MeshQuality:
     """Dihedral angles and volume ratios, vectorised over tets."""
     p = nodes[tets]  # (m, 4, 3)
-    f = p[:, _FACES]  # (m, 4, 3, 3)
+    f = p[:, TET_FACES]  # (m, 4, 3, 3)
     n = np.cross(f[:, :, 1] - f[:, :, 0], f[:, :, 2] - f[:, :, 0])
     n /= np.linalg.norm(n, axis=2, keepdims=True)
     cos = np.einsum("mej,mej->me", n[:, _EDGE_FACES[:, 0]], n[:, _EDGE_FACES[:, 1]])
@@ -177,48 +206,60 @@ def sizing_field(scene: Scene, lo: np.ndarray, hi: np.ndarray,
     return grid, tets.astype(np.int32), values
 
 
-@contextlib.contextmanager
-def _in_tempdir():
-    """pytetwild writes ``__tracked_surface.stl`` into the cwd: run it somewhere disposable."""
-    old = os.getcwd()
-    with tempfile.TemporaryDirectory(prefix="tactip-tetwild-") as tmp:
-        os.chdir(tmp)
-        try:
-            yield
-        finally:
-            os.chdir(old)
-
-
 def bundled_path(key: str) -> Path:
     """Where a mesh shipped with the project would be (``scenes/meshes/mesh-KEY.npz``)."""
     return BUNDLED_DIR / f"mesh-{key}.npz"
 
 
 def tetrahedralise(scene: Scene, *, use_cache: bool = True) -> TetMesh:
-    """Tetrahedralise the pad (skin and gel tagged), cached on disk by :func:`mesh_key`.
+    """The pad's tet mesh (skin and gel tagged) as the FEM solves it, cached on disk by
+    :func:`mesh_key`.
 
     The outer surface and the skin/gel interface go to pytetwild together, so the interface is
     kept conforming; each tet is tagged by whether its centroid lies inside the interface.
+    pytetwild keeps the surfaces only within its envelope, so the outer and interface vertices
+    are then put back on the pad's analytic surfaces and the window face's on z = 0
+    (:func:`~tactip_sim.mesh.snap.snap_nodes`): the mesh returned conforms to the pad.
 
     pytetwild is not deterministic (the same input gives slightly different meshes from run to
     run), so meshes are cached, and the bundled scenes' meshes ship in ``scenes/meshes/``: a
-    fresh machine then computes with the very same mesh. Lookup: bundled, cache, build - a
+    fresh machine then computes with the very same mesh. Both store the mesher's output
+    (:meth:`TetMesh.save`); snapping it is deterministic. Lookup: bundled, cache, build - a
     bundled mesh is the project's mesh for its key, and wins over a cache entry that a build
     on this machine left under the same key (which would otherwise shadow it, silently).
+
+    Raises
+    ------
+    SceneError
+        Building the mesh builds the pad: the pins do not fit (naming ``pins.*``).
+    ValueError
+        Snapping would invert an element (mesh finer or lower ``fidelity.tetwild_epsilon``).
     """
     key = mesh_key(scene)
     path = bundled_path(key)
     if not path.is_file():
         path = cache.path_for("mesh", key, ".npz")
-    if use_cache and path.is_file():
-        t0 = time.perf_counter()
-        with np.load(path) as data:
-            nodes, tets, regions = data["nodes"], data["tets"], data["regions"]
-        return TetMesh(nodes, tets, regions, key, time.perf_counter() - t0, from_cache=True)
-
-    import pytetwild
-
     t0 = time.perf_counter()
+    from_cache = use_cache and path.is_file()
+    if from_cache:
+        with np.load(path) as data:
+            raw, tets, regions = data["nodes"], data["tets"], data["regions"]
+    else:
+        raw, tets, regions = _build(scene)
+    raw = np.ascontiguousarray(raw, dtype=np.float64)
+    tets = np.ascontiguousarray(tets, dtype=np.int32)
+    regions = np.ascontiguousarray(regions, dtype=np.int8)
+    if not from_cache and use_cache:
+        cache.save_npz(path, nodes=raw, tets=tets, regions=regions,
+                       build_seconds=np.float64(time.perf_counter() - t0))
+    nodes = snap_nodes(raw, tets, regions, scene, label=key)
+    return TetMesh(nodes, tets, regions, key, time.perf_counter() - t0, from_cache=from_cache,
+                   mesher_nodes=raw)
+
+
+def _build(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mesh the pad with pytetwild: nodes (unreferenced ones dropped), positively oriented tets
+    and their regions."""
     pad = build_pad(scene)
     surfaces = [pad.surface] + ([pad.interface] if pad.interface is not None else [])
     offsets = np.cumsum([0] + [len(s.vertices) for s in surfaces])
@@ -228,16 +269,15 @@ def tetrahedralise(scene: Scene, *, use_cache: bool = True) -> TetMesh:
     if scene.fidelity.refine_edge_mm > 0:
         bg_nodes, bg_tets, bg_values = sizing_field(scene, verts.min(0), verts.max(0))
         sizing = {"bg_vertices": bg_nodes, "bg_tets": bg_tets, "bg_values": bg_values}
-    with _in_tempdir():
-        nodes, tets = pytetwild.tetrahedralize(
-            verts.astype(np.float64),
-            faces.astype(np.int32),
-            edge_length_abs=scene.fidelity.mesh_edge_mm,
-            epsilon=scene.fidelity.tetwild_epsilon,
-            num_threads=1,
-            quiet=True,
-            **sizing,
-        )
+    nodes, tets = _run_tetwild(
+        vertices=verts.astype(np.float64),
+        faces=faces.astype(np.int32),
+        edge_length_abs=scene.fidelity.mesh_edge_mm,
+        epsilon=scene.fidelity.tetwild_epsilon,
+        num_threads=1,
+        quiet=True,
+        **sizing,
+    )
     nodes = np.asarray(nodes, dtype=np.float64)
     tets = np.asarray(tets, dtype=np.int64)
     # drop unreferenced nodes, orient positively
@@ -250,9 +290,24 @@ def tetrahedralise(scene: Scene, *, use_cache: bool = True) -> TetMesh:
     else:
         centroids = nodes[tets].mean(axis=1)
         regions = np.where(pad.inner.contains(centroids), REGION_GEL, REGION_SKIN).astype(np.int8)
-    seconds = time.perf_counter() - t0
-    mesh = TetMesh(nodes, tets, regions, key, seconds)
-    if use_cache:
-        cache.save_npz(path, nodes=mesh.nodes, tets=mesh.tets, regions=mesh.regions,
-                       build_seconds=np.float64(seconds))
-    return mesh
+    return nodes, tets, regions
+
+
+def _run_tetwild(**kwargs: object) -> tuple[np.ndarray, np.ndarray]:
+    """``pytetwild.tetrahedralize(**kwargs)`` in a child process started in a temporary
+    directory (:mod:`tactip_sim.mesh._tetwild`): pytetwild writes ``__tracked_surface.stl``
+    into the current directory, and this process's own stays as it is."""
+    root = str(Path(__file__).resolve().parents[2])  # the child imports this very package
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+    with tempfile.TemporaryDirectory(prefix="tactip-tetwild-") as tmp:
+        src, dst = Path(tmp) / "input.npz", Path(tmp) / "output.npz"
+        np.savez(src, **{k: np.asarray(v) for k, v in kwargs.items()})
+        res = subprocess.run([sys.executable, "-m", "tactip_sim.mesh._tetwild", str(src),
+                              str(dst)], cwd=tmp, env=env, capture_output=True, text=True,
+                             check=False)
+        if res.returncode != 0 or not dst.is_file():
+            raise RuntimeError(f"pytetwild failed (exit status {res.returncode}): "
+                               f"{res.stderr.strip()[-2000:]}")
+        with np.load(dst) as data:
+            return data["nodes"], data["tets"]

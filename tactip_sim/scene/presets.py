@@ -23,6 +23,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from ._spec import SceneError
+from .schema import SECTIONS
 
 PRESET_KEYS: dict[str, tuple[str, ...]] = {
     "fidelity": ("mesh_edge_mm", "tetwild_epsilon", "surface_resolution", "refine_edge_mm",
@@ -68,8 +69,6 @@ BUILTIN_PRESETS: dict[str, dict[str, dict[str, Any]]] = {
 
 
 def _spec_of(section: str, key: str):
-    from .schema import SECTIONS
-
     for f in dataclasses.fields(SECTIONS[section]):
         if f.name == key:
             return f.metadata["spec"]
