@@ -147,6 +147,28 @@ def test_mesh_sphere_matches_the_analytic_sphere():
     np.testing.assert_allclose(mesh.lower_z(xy), sphere.lower_z(xy), atol=0.1)
 
 
+def test_mesh_indenter_sides_a_nanometre_from_its_surface_and_survives_pickling():
+    import pickle
+
+    ind = ts.MeshIndenter(OBJECTS / "icosphere_r10.stl")
+    tm = ind.mesh
+    on = tm.triangles_center
+    for offset, sign in ((1e-9, 1.0), (-1e-9, -1.0)):  # just outside / just inside
+        d, n = ind.sdf(on + offset * tm.face_normals)
+        np.testing.assert_allclose(d, sign * 1e-9, rtol=1e-3)
+        # the normal is the indenter's outward one on both sides (it pushes the pad out)
+        assert np.all(np.einsum("ij,ij->i", n, tm.face_normals) > 0.999)
+    # a copy sent to a worker after use answers the same (trimesh's cached rtree index
+    # does not survive pickling)
+    rng = np.random.default_rng(3)
+    q = rng.uniform([-12, -12, -2], [12, 12, 22], (300, 3))
+    xy = rng.uniform(-9, 9, (100, 2))
+    before = (*ind.sdf(q), ind.lower_z(xy))
+    copy = pickle.loads(pickle.dumps(ind))
+    for a, b in zip(before, (*copy.sdf(q), copy.lower_z(xy)), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_placement_first_contact_and_depth_limit():
     scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" / "shadow_fingertip.toml")
     pad = ts.build_pad(scene)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .meshgeom import closest_points, lowest_hit_z, winding_number
+from .meshgeom import winding_number
 from .pose import Pose, PoseError
 
 
@@ -169,7 +169,10 @@ class MeshIndenter:
     """Any watertight triangle mesh (a path trimesh can load, or a ``trimesh.Trimesh``).
 
     The mesh is used in its own axes, translated so that the centre of its bounding box's lowest
-    face is the local origin (so its lowest point along local z is at z = 0).
+    face is the local origin (so its lowest point along local z is at z = 0). Closest points
+    and the vertical ray casts are trimesh's; inside/outside is the generalised winding number
+    (:func:`~tactip_sim.fem.meshgeom.winding_number`: ``trimesh.Trimesh.contains`` calls points
+    a nanometre inside the surface outside, where contact needs the side right).
     """
 
     mesh: object
@@ -204,13 +207,40 @@ class MeshIndenter:
         tris.setflags(write=False)
         object.__setattr__(self, "triangles", tris)
 
+    def __getstate__(self) -> dict:
+        """Pickle the mesh without trimesh's cached spatial index (an rtree index does not
+        survive pickling: the copy's queries fail); it is rebuilt on first use."""
+        import trimesh
+
+        state = self.__dict__.copy()
+        state["mesh"] = trimesh.Trimesh(self.mesh.vertices, self.mesh.faces, process=False)
+        return state
+
     def lower_z(self, xy: np.ndarray) -> np.ndarray:
-        return lowest_hit_z(xy, self.triangles)
+        """Lowest hit of an upward ray from below the mesh through each (x, y) (NaN: a miss)."""
+        from trimesh.ray.ray_triangle import RayMeshIntersector
+
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        if len(xy) == 0:
+            return np.zeros(0)
+        origins = np.column_stack([xy, np.full(len(xy), self.mesh.bounds[0, 2] - 1.0)])
+        up = np.broadcast_to([0.0, 0.0, 1.0], origins.shape)
+        # trimesh's own intersector (never embree's float32 one, were it installed)
+        hits, ray, _ = RayMeshIntersector(self.mesh).intersects_location(
+            origins, up, multiple_hits=True)
+        z = np.full(len(xy), np.inf)
+        np.minimum.at(z, ray, hits[:, 2])
+        return np.where(np.isfinite(z), z, np.nan)
 
     def sdf(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        import trimesh
+
+        q = np.asarray(q, dtype=np.float64).reshape(-1, 3)
+        if len(q) == 0:
+            return np.zeros(0), np.zeros((0, 3))
         lo, hi = self.mesh.bounds
         near = np.all((q > lo - 1e-3) & (q < hi + 1e-3), axis=1)
-        closest, face = closest_points(q, self.triangles)
+        closest, _, face = trimesh.proximity.closest_point(self.mesh, q)
         v = q - closest
         dist = np.linalg.norm(v, axis=1)
         inside = np.zeros(len(q), dtype=bool)
