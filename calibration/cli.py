@@ -165,6 +165,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     register_fit(sub)
 
+    from .recognition.cli import register as register_recognition
+
+    register_recognition(sub)
+
     from .studies.cli import register as register_studies
 
     register_studies(sub)

@@ -296,6 +296,7 @@ def run_chunk(spec: ContactSpec, indices: Sequence[int]) -> tuple[dict, list[dic
     """Compute contacts ``indices`` (runs in a worker): the chain's rest data and records."""
     chain, sim = chain_for(spec)
     rest = {"rest_image": downsample(chain.rest_image, spec.image_size),
+            "rest_full": downsample(chain.rest_image, chain.rest_image.shape[1::-1]),
             "rest_pins_px": rest_pins_px(chain),
             "image_shape": list(chain.rest_image.shape[:2])}
     return rest, [contact(chain, sim, spec, int(i)) for i in indices]
@@ -313,6 +314,7 @@ class ContactSet:
     pad_depth_mm, force_N : (n,)
     names, groups : per object; actions_mm : per action
     rest_pins_px : (p, 2) pins at rest (NaN: not seen)
+    rest_full : (H, W) uint8 the rest frame at the camera's resolution (grey)
     meta : the manifest
     """
 
@@ -330,6 +332,7 @@ class ContactSet:
     groups: tuple[str, ...]
     actions_mm: tuple[float, ...]
     rest_pins_px: np.ndarray
+    rest_full: np.ndarray
     meta: dict[str, Any] = field(default_factory=dict, compare=False)
 
     def __len__(self) -> int:
@@ -436,8 +439,8 @@ class ContactDataset:
 
     def write_rest(self, rest: dict[str, Any]) -> None:
         buf = io.BytesIO()
-        np.savez(buf, rest_image=rest["rest_image"], rest_pins_px=rest["rest_pins_px"],
-                 image_shape=np.asarray(rest["image_shape"]))
+        np.savez(buf, rest_image=rest["rest_image"], rest_full=rest["rest_full"],
+                 rest_pins_px=rest["rest_pins_px"], image_shape=np.asarray(rest["image_shape"]))
         atomic_write_bytes(self.root / "rest.npz", buf.getvalue())
 
     def finalise(self, n: int) -> None:
@@ -479,7 +482,7 @@ class ContactDataset:
             pad_depth_mm=d["pad_depth_mm"].astype(float), force_N=d["force_N"].astype(float),
             names=tuple(ident["objects"]), groups=tuple(meta.get("groups", [])),
             actions_mm=tuple(ident["actions_mm"]), rest_pins_px=d["rest_pins_px"],
-            meta=meta)
+            rest_full=d["rest_full"], meta=meta)
 
 
 def generate(spec: ContactSpec, out: str | Path, *, workers: int = 1,

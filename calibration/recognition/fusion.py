@@ -92,12 +92,14 @@ class ActionModel:
 @dataclass(frozen=True)
 class TrialResult:
     """``correct`` (trials, T) bool: MAP right after each contact; ``truth`` (trials,);
-    ``predicted`` (trials,) MAP object after the last contact; ``actions`` (trials, T)."""
+    ``predicted`` (trials,) MAP object after the last contact; ``actions`` (trials, T) and
+    ``observations`` (trials, T) the test observations used (-1: none left)."""
 
     correct: np.ndarray
     truth: np.ndarray
     predicted: np.ndarray
     actions: np.ndarray
+    observations: np.ndarray
 
     @property
     def accuracy_by_contacts(self) -> np.ndarray:
@@ -136,6 +138,7 @@ def run_trials(lik_test: np.ndarray, test_labels: np.ndarray, test_actions: np.n
     log_lik = np.log(np.maximum(lik_test, 1e-300))
     correct = np.zeros((trials, contacts), dtype=bool)
     chosen = np.full((trials, contacts), -1)
+    used_obs = np.full((trials, contacts), -1)
     predicted = np.zeros(trials, dtype=np.int64)
     for k, o in enumerate(objects):
         left = [list(rng.permutation(p)) for p in pools[o]]
@@ -160,9 +163,20 @@ def run_trials(lik_test: np.ndarray, test_labels: np.ndarray, test_actions: np.n
             used[a] = True
             logp = logp + log_lik[z]
             chosen[k, t] = a
+            used_obs[k, t] = z
             correct[k, t] = int(np.argmax(logp)) == o
         predicted[k] = int(np.argmax(logp))
-    return TrialResult(correct, np.asarray(objects), predicted, chosen)
+    return TrialResult(correct, np.asarray(objects), predicted, chosen, used_obs)
+
+
+def fuse_sequences(log_scores: np.ndarray, sequences: np.ndarray, truth: np.ndarray
+                   ) -> np.ndarray:
+    """(trials, T) bool: is the MAP of the summed ``log_scores`` (n, C) of each trial's first
+    t observations ``sequences`` (trials, T) (-1: none) its ``truth``? (naive-Bayes fusion of
+    any classifier's log-probabilities over the same contacts as a trial)."""
+    seq = np.asarray(sequences)
+    rows = np.where(seq[..., None] >= 0, log_scores[np.maximum(seq, 0)], 0.0)
+    return np.argmax(np.cumsum(rows, axis=1), axis=2) == np.asarray(truth)[:, None]
 
 
 def confusion(truth: np.ndarray, predicted: np.ndarray, n_classes: int) -> np.ndarray:
@@ -173,4 +187,4 @@ def confusion(truth: np.ndarray, predicted: np.ndarray, n_classes: int) -> np.nd
 
 
 __all__ = ["STRATEGIES", "ActionModel", "TrialResult", "confusion", "entropy", "fuse",
-           "normalise", "run_trials"]
+           "fuse_sequences", "normalise", "run_trials"]
