@@ -263,10 +263,9 @@ def load_library(folder: str | Path) -> Library:
     if not isinstance(entries, list) or len(entries) < 2:
         raise LibraryError(f"{path}: at least two [[object]] tables are needed, found "
                            f"{len(entries) if isinstance(entries, list) else 0}")
-    objects, files = [], [path]
-    for k, e in enumerate(entries):
-        obj = _parse_object(e, k, path, folder, round_mm)
-        objects.append(obj)
+    objects = [_parse_object(e, k, path, folder, round_mm) for k, e in enumerate(entries)]
+    files = [path]
+    for obj in objects:
         for key in ("outline", "mesh"):
             if key in obj.params:
                 f = folder / obj.params[key]

@@ -21,13 +21,6 @@ from pathlib import Path
 import numpy as np
 
 
-def cuboid():
-    """A 14 x 9 mm face of a block (extruded 8 mm, face down)."""
-    from shapely.geometry import box
-
-    return box(-7.0, -4.5, 7.0, 4.5)
-
-
 def triangular_prism():
     """An equilateral triangle with 10 mm sides, one corner down (section in (y, z))."""
     from shapely.geometry import Polygon
@@ -94,7 +87,6 @@ def textured_plate():
 
 
 OUTLINES: dict[str, Callable] = {
-    "cuboid.wkt": cuboid,
     "triangular_prism.wkt": triangular_prism,
     "t_shape.wkt": t_shape,
     "key.wkt": key,
