@@ -165,6 +165,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     register_fit(sub)
 
+    from .servo.cli import register as register_servo
+
+    register_servo(sub)
+
     from .recognition.cli import register as register_recognition
 
     register_recognition(sub)
