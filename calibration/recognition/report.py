@@ -46,9 +46,9 @@ def _plt():
     return plt
 
 
-def save_figure(fig, path: Path) -> None:
+def save_figure(fig, path: Path, dpi: int = 110) -> None:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     _plt().close(fig)
     atomic_write_bytes(Path(path), buf.getvalue())
 
@@ -223,7 +223,7 @@ def chart_observations(path: Path, cs, per_object: list[int]) -> None:
     fig.suptitle("one contact per object (centre action): frame - rest (top); marker "
                  "displacement x4 and cell growth (bottom)", fontsize=8)
     fig.tight_layout()
-    save_figure(fig, path)
+    save_figure(fig, path, dpi=70)
 
 
 # -------------------------------------------------------------------- marker selection
@@ -248,7 +248,7 @@ def chart_markers(path: Path, rest_full: np.ndarray, rest_px: np.ndarray,
         ax.set_xticks([])
         ax.set_yticks([])
     fig.tight_layout()
-    save_figure(fig, path)
+    save_figure(fig, path, dpi=90)
 
 
 __all__ = ["PAPER_BOF", "PAPER_FULL_HAND", "PAPER_MATSUO", "chart_confusions",
