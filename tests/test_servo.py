@@ -370,3 +370,66 @@ def test_batch_is_reproducible_and_reports(servo_setup, scene, tmp_path):
     assert agg["all"]["runs"] == 6 and agg["all"]["unflagged_failures"] == 0
     write_batch(rows, agg, tmp_path, manifest={"calibrated_range_deg": [[-16, 16], [-11, 3]]})
     assert (tmp_path / "batch.md").read_text().count("|") > 20
+
+
+# --------------------------------------------------------------------------- verdicts
+
+
+def _controller(**kw):
+    """A controller on a linear regressor fitted to synthetic CoPs (1 px = 0.1°), for the
+    verdict logic alone (the loop's behaviour is tested end to end above)."""
+    import perception as pc
+    from calibration.servo import FingerController
+
+    rng = np.random.default_rng(0)
+    cop = rng.uniform((200, 150), (440, 330), (40, 2))
+    model = pc.PoseRegressor(order=1, image_size=(640, 480)).fit(
+        cop, 0.1 * (cop - (319.5, 239.5)))
+    params = ServoParams(**kw)
+    return FingerController(model, params, contact_on_px=1.0, contact_off_px=0.6,
+                            calibrated_range_deg=((-16, 16), (-11, 3))), params
+
+
+def _obs(k, cop=(329.5, 249.5), deformation=2.0, joints=(0.0, 0.0)):
+    from calibration.servo.plant import Observation
+
+    return Observation(k, k * 0.05, np.asarray(cop, float), deformation, True,
+                       np.asarray(joints, float))
+
+
+def test_controller_phases_and_failure_verdicts():
+    ctl, p = _controller()
+    k = 0
+    while ctl.phase == "closing":  # nothing touches: gives up after max_closing_mm
+        assert ctl.step(_obs(k, deformation=0.0)).close or ctl.phase == "done"
+        k += 1
+    assert ctl.outcome == "no_contact" and k == round(p.max_closing_mm
+                                                      / (p.closing_speed_mm_s * p.dt)) + 1
+    ctl, p = _controller()
+    assert ctl.step(_obs(0), hand_ready=False).joints_deg is None
+    assert ctl.phase == "waiting" and ctl.contact_frame == 0
+    for k in range(1, 7):  # the squeeze settles before the joints move
+        cmd = ctl.step(_obs(k))
+    assert ctl.phase == "adjust" and cmd.joints_deg is not None
+    np.testing.assert_allclose(ctl.predicted_deg, (1.0, 1.0), atol=1e-9)
+    for k in range(7, 7 + p.contact_lost_frames):
+        ctl.step(_obs(k, deformation=0.1))
+    assert ctl.outcome == "contact_lost"
+
+    ctl, p = _controller()
+    for k in range(7):
+        ctl.step(_obs(k))
+    for k in range(7, 7 + p.lost_frames):
+        ctl.step(_obs(k, cop=(np.nan, np.nan)))
+    assert ctl.outcome == "perception_failed" and ctl.n_unusable == p.lost_frames
+
+    ctl, p = _controller()
+    for k in range(7 + p.limit_frames):
+        ctl.step(_obs(k, joints=(p.joint_limit_deg, 0.0)))
+    assert ctl.outcome == "joint_limit"
+
+    ctl, p = _controller(timeout_s=1.0)
+    for k in range(40):  # a prediction that stays at 1° never settles: time-out
+        ctl.step(_obs(k))
+    assert ctl.outcome == "timed_out"
+    assert ctl.end_frame - ctl.adjust_frame == p.frames(p.timeout_s)

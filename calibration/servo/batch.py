@@ -153,7 +153,8 @@ def aggregate(rows: list[dict[str, Any]], params: ServoParams) -> dict[str, Any]
         outcomes: dict[str, int] = {}
         for r in sel:
             outcomes[r["outcome"]] = outcomes.get(r["outcome"], 0) + 1
-        misaligned = [r for r in conv if r.get("initial_roll_error_deg") is not None
+        misaligned = [r for r in sel if r.get("initial_roll_error_deg") is not None
+                      and r.get("area_gain") is not None
                       and np.hypot(r["initial_roll_error_deg"], r["initial_pitch_error_deg"])
                       > 2 * params.success_angle_deg]
         out[cat] = {

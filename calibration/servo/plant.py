@@ -192,8 +192,9 @@ class FingerPlant:
             self.chain.sim.press(self.pose(), self.contact.indenter)
         except PoseError as exc:
             raise ValueError(f"{self.contact.label}: the pad cannot be pressed "
-                             f"{self.squeeze_depth_mm:g} mm into it at its closing posture "
-                             f"({exc})") from None
+                             f"{self.squeeze_depth_mm:g} mm into it at its closing posture: "
+                             "the object is not ahead of the finger, or the pad cannot take "
+                             f"that depth there ({exc})") from None
         finally:
             self.depth_mm = saved
 
