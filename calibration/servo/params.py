@@ -41,7 +41,8 @@ class ServoParams:
     squeeze_depth_mm : assumed model of the torque: it holds the indentation at this depth
         beyond first contact at every orientation. None: the scene's
         ``protocol.training_depth_mm``, where the regressor was calibrated (at 1 mm a tilt of
-        12° changes the plate's force by -13 % at equal depth, measured: docs/servo.md).
+        12° changes the plate's force by -10 % to -18 % at equal depth, measured:
+        docs/servo.md).
     squeeze_speed_mm_s : assumed speed at which the squeeze reaches that depth.
     squeeze_settle_s : assumed: the base and distal joints wait this long after the squeeze
         starts before they are servoed, so the area at the start of the adjustment is
@@ -65,8 +66,8 @@ class ServoParams:
     The controller's own verdicts (from its predictions only)
     ----------------------------------------------------------
     settle_tol_deg : assumed: both predicted angles within this of 0 ...
-    settle_time_s : ... for this long = settled (3x the per-frame prediction noise, measured
-        ~0.1°: docs/servo.md).
+    settle_time_s : ... for this long = settled (assumed; the per-frame prediction noise of
+        a static contact is ~0.006°, measured: docs/servo.md, so it is not what sets it).
     stop_when_settled : stop servoing once settled (the paper runs to the time-out).
     diverge_ratio, diverge_floor_deg, diverge_frames : the predicted error's norm above
         max(diverge_ratio x its value when the adjustment started, diverge_floor_deg) for
