@@ -201,6 +201,49 @@ def test_neo_hookean_reduces_to_linear_at_small_depth(sim):
     assert nh.max_penetration_mm < 1e-8
 
 
+def test_neo_hookean_tangent_is_linear_at_rest_and_the_residual_derivative(sim):
+    """At u = 0 the tangent is the linear stiffness; elsewhere it is the derivative of the
+    internal force (central differences along a random direction)."""
+    from tactip_sim.fem.neohookean import NeoHookeanBody
+
+    nh = NeoHookeanBody(sim.body)
+    k0 = nh.tangent_matrix(np.zeros(sim.body.space.n_dofs))
+    k_lin = sim.body.stiffness
+    assert abs(k0 - k_lin).max() < 1e-10 * abs(k_lin).max()
+    rng = np.random.default_rng(7)
+    u = 0.05 * rng.standard_normal(sim.body.space.n_dofs)  # strains of a few per cent
+    v = rng.standard_normal(sim.body.space.n_dofs)
+    h = 1e-6
+    fd = (nh.residual(u + h * v)[0] - nh.residual(u - h * v)[0]) / (2 * h)
+    kv = nh.tangent_matrix(u) @ v
+    assert np.abs(fd - kv).max() < 1e-6 * np.abs(kv).max()
+
+
+@pytest.mark.parametrize("indenter", [None, ts.Sphere(8.0)], ids=["plate", "sphere"])
+def test_neo_hookean_answer_does_not_depend_on_the_load_path(sim, indenter):
+    """A hyperelastic, frictionless press has one equilibrium: reached in one load step or in
+    three of 0.5 mm (two different Newton paths), the answer is the same; and it is an
+    equilibrium: no out-of-balance force off the contact, contact forces push, gaps closed."""
+    from tactip_sim.fem.indenters import place
+    from tactip_sim.fem.neohookean import NeoHookeanBody, solve_neo_hookean
+
+    body = sim.body
+    pose = ts.Pose(3, -2, 1.5)
+    pl = place(sim.indenter if indenter is None else indenter, pose,
+               body.space.nodes[body.space.candidates],
+               skin_thickness_mm=body.skin_thickness_mm)
+    one = solve_neo_hookean(body, pl, pose.depth_mm)
+    steps = solve_neo_hookean(body, pl, pose.depth_mm, load_step_mm=0.5)
+    assert one.load_steps == 1 and steps.load_steps == 3
+    assert np.abs(one.u - steps.u).max() < 1e-8 * np.abs(one.u).max()
+    f_int, _ = NeoHookeanBody(body).residual(one.u)
+    ext = np.zeros_like(f_int).reshape(-1, 3)
+    ext[body.space.candidates[one.contact.active]] = one.contact.forces
+    out_of_balance = (f_int - ext.ravel())[body.free]
+    assert np.abs(out_of_balance).max() < 1e-7 * np.abs(one.contact.forces).max()
+    assert one.contact.pressures.min() > 0 and one.contact.gap.min() > -1e-9
+
+
 def test_bad_depth_and_non_convergence_are_reported(scene, sim):
     with pytest.raises(PoseError, match="depth_mm=7 is out of range"):
         sim.press(ts.Pose(0, 0, 7.0))

@@ -1,0 +1,114 @@
+"""Benchmark of the neo-Hookean reference solve on the default pad (P2, the reference fidelity):
+seconds per pose, Newton iterations and load steps, and how far it moves the markers from the
+linear solve, optionally against the solver of another git revision in the same run.
+
+Usage::
+
+    python benchmarks/bench_neohookean.py                    # P2, four poses
+    python benchmarks/bench_neohookean.py --order 1          # quick
+    python benchmarks/bench_neohookean.py --baseline abb2079 # also time revision abb2079
+
+With ``--baseline REF`` the package at git revision REF is exported to a temporary folder and
+the same poses are solved there in a second process, one pose at a time in alternation with
+this checkout (both see the same load on a shared machine); the ratio of the medians and the
+largest displacement difference between the two answers are printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
+# (roll, pitch, depth mm, sphere radius mm or None for the scene's plate)
+POSES = ((2.0, -3.0, 1.0, None), (-5.0, 4.0, 1.0, 8.0), (0.0, 0.0, 2.0, None),
+         (10.0, -10.0, 1.5, None))
+
+
+def worker(order: int, index: int, out: str) -> None:
+    """Solve pose ``index`` with the package on ``sys.path``; write times and u to ``out``."""
+    import tactip_sim as ts
+
+    scene = ts.load_scene(SCENE)
+    sim = ts.Simulator(scene, element_order=order, solver="full")
+    roll, pitch, depth, radius = POSES[index]
+    pose = ts.Pose(roll, pitch, depth)
+    indenter = None if radius is None else ts.Sphere(radius)
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    nh = sim.press(pose, indenter, solver="neo_hookean", full_field=True)
+    dt = time.perf_counter() - t0
+    np.savez(out, u=nh.vertex_displacements_mm, seconds=dt, iterations=nh.iterations,
+             markers=nh.marker_displacements_mm, load=load)
+
+
+def run(python_path: Path, order: int, index: int, tmp: Path, tag: str) -> dict:
+    out = tmp / f"{tag}_{index}.npz"
+    env = dict(os.environ, PYTHONPATH=str(python_path))
+    subprocess.run([sys.executable, __file__, "--worker", str(index), "--order", str(order),
+                    "--out", str(out)], env=env, check=True)
+    with np.load(out) as z:
+        return {k: z[k] for k in z.files}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--order", type=int, default=2, choices=(1, 2), help="element order")
+    ap.add_argument("--baseline", metavar="REF", help="also time the package at git revision REF")
+    ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--out", help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.worker is not None:
+        worker(a.order, a.worker, a.out)
+        return
+    import tactip_sim as ts
+
+    with tempfile.TemporaryDirectory(prefix="bench-nh-") as tmpdir:
+        tmp = Path(tmpdir)
+        base = None
+        if a.baseline:
+            base = tmp / "baseline"
+            base.mkdir()
+            archive = subprocess.run(["git", "-C", str(ROOT), "archive", a.baseline,
+                                      "tactip_sim", "scenes"], check=True,
+                                     capture_output=True).stdout
+            subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
+        scene = ts.load_scene(SCENE)
+        sim = ts.Simulator(scene, element_order=a.order)
+        print(f"P{a.order}, {sim.body.space.n_dofs} dofs; seconds per pose: one press in a fresh "
+              "process (its first solve, so once-per-body set-up included)")
+        rows, ratios = [], []
+        for i, (roll, pitch, depth, radius) in enumerate(POSES):
+            now = run(ROOT, a.order, i, tmp, "now")
+            pose = ts.Pose(roll, pitch, depth)
+            lin = sim.press(pose, None if radius is None else ts.Sphere(radius))
+            dl = lin.marker_displacements_mm
+            rms = 100 * np.linalg.norm(now["markers"] - dl) / np.linalg.norm(dl)
+            row = (f"{pose!s:40s} {'plate' if radius is None else f'sphere {radius:g}':10s} "
+                   f"{float(now['seconds']):7.1f} s {int(now['iterations']):3d} its  "
+                   f"vs linear {rms:4.1f} % RMS  load {float(now['load']):.1f}")
+            if base is not None:
+                old = run(base, a.order, i, tmp, "old")
+                ratio = float(old["seconds"]) / float(now["seconds"])
+                ratios.append(ratio)
+                diff = float(np.abs(old["u"] - now["u"]).max())
+                row += (f" | {a.baseline}: {float(old['seconds']):7.1f} s "
+                        f"{int(old['iterations']):3d} its, x{ratio:.1f}, max |du| {diff:.1e} mm")
+            rows.append(float(now["seconds"]))
+            print(row, flush=True)
+        print(f"median {np.median(rows):.1f} s per pose (neo-Hookean, P{a.order})")
+        if ratios:
+            print(f"median speed-up over {a.baseline}: x{np.median(ratios):.1f}")
+
+
+if __name__ == "__main__":
+    main()
