@@ -148,10 +148,10 @@ class Simulator:
             from .fem.neohookean import solve_neo_hookean
 
             result = solve_neo_hookean(self.body, placement, pose.depth_mm, label=str(pose),
-                                       tol=self.tol)
+                                       tol=self.tol, markers=self.body.markers)
             markers, dirs = self.body.markers.from_field(result.u, finite=True)
             return self._state(pose, indenter, solver, result.contact, markers, dirs,
-                               result.u, result.iterations, t0)
+                               result.u, result.iterations, t0, result.window_forces)
         window = None
         if solver == "reduced":
             op = self.reduced

@@ -244,6 +244,46 @@ def test_neo_hookean_answer_does_not_depend_on_the_load_path(sim, indenter):
     assert one.contact.pressures.min() > 0 and one.contact.gap.min() > -1e-9
 
 
+def test_neo_hookean_pins_stop_at_the_window(sim):
+    """A flat press deep enough for the pins to reach the window (3.7 mm on the P1 pad): with
+    the pins in the solve no tip ends below the window, the held tips rest on it, the pad
+    pushes back harder, and the window's forces balance the body (virtual work along a random
+    direction, the tips' heights differentiated by finite differences of the finite-rotation
+    marker kinematics, not the solver's own derivative)."""
+    from tactip_sim.fem.indenters import place
+    from tactip_sim.fem.neohookean import NeoHookeanBody, solve_neo_hookean
+
+    body = sim.body
+    pose = ts.Pose(0, 0, 3.7)
+    pl = place(sim.indenter, pose, body.space.nodes[body.space.candidates],
+               skin_thickness_mm=body.skin_thickness_mm)
+    free = solve_neo_hookean(body, pl, pose.depth_mm)
+    tips_free = body.markers.from_field(free.u, finite=True)[0]
+    assert tips_free[:, 2].min() < -0.05  # without the window the pins pass through it
+    held = solve_neo_hookean(body, pl, pose.depth_mm, markers=body.markers)
+    q = held.window_forces
+    tips = body.markers.from_field(held.u, finite=True)[0]
+    assert (q > 0).sum() > 10 and q.min() >= 0
+    assert tips[:, 2].min() >= -1e-6
+    np.testing.assert_allclose(tips[q > 0, 2], 0.0, atol=1e-6)
+    assert held.contact.pressures.sum() > 1.05 * free.contact.pressures.sum()
+
+    f_int, _ = NeoHookeanBody(body).residual(held.u)
+    ext = np.zeros_like(f_int).reshape(-1, 3)
+    ext[body.space.candidates[held.contact.active]] = held.contact.forces
+    v = np.zeros_like(f_int)
+    v[body.free] = np.random.default_rng(5).standard_normal(len(body.free))
+    h = 1e-6
+    dz = (body.markers.from_field(held.u + h * v, finite=True)[0][:, 2]
+          - body.markers.from_field(held.u - h * v, finite=True)[0][:, 2]) / (2 * h)
+    work = (f_int - ext.ravel()) @ v
+    assert work == pytest.approx(q @ dz, rel=1e-5)
+
+    state = sim.press(pose, solver="neo_hookean")
+    assert state.window_modelled and state.pins_on_window == int((q > 0).sum())
+    assert state.tips_below_window == 0
+
+
 def test_bad_depth_and_non_convergence_are_reported(scene, sim):
     with pytest.raises(PoseError, match="depth_mm=7 is out of range"):
         sim.press(ts.Pose(0, 0, 7.0))

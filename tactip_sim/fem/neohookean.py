@@ -34,19 +34,23 @@ from .contact import ContactError, ContactSolution
 from .elasticity import Factor, element_dofs
 from .elements import quadrature, shape_gradients
 from .indenters import Placement
+from .markers import Markers
 from .model import ElasticBody
 from .tolerances import TOL, Tolerances, single_threaded_blas
+from .window import WINDOW_Z_MM
 
 
 @dataclass(frozen=True)
 class NeoHookeanResult:
     """u : (n_dofs,) mm; contact : the final contact on the candidates; iterations : Newton
-    iterations over all load steps; load_steps : steps used."""
+    iterations over all load steps; load_steps : steps used; window_forces : see below."""
 
     u: np.ndarray
     contact: ContactSolution
     iterations: int
     load_steps: int
+    window_forces: np.ndarray | None = None
+    """(p,) mN, the window's force on each pin tip along +z (None when solved without pins)."""
 
 
 class NeoHookeanBody:
@@ -109,7 +113,8 @@ class NeoHookeanBody:
 
 def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, *,
                       label: str = "", tol: Tolerances = TOL,
-                      load_step_mm: float | None = None) -> NeoHookeanResult:
+                      load_step_mm: float | None = None,
+                      markers: Markers | None = None) -> NeoHookeanResult:
     """Press the neo-Hookean pad with a placed indenter (load-stepped Newton).
 
     Parameters
@@ -122,6 +127,9 @@ def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, 
     tol : tolerances
     load_step_mm : the first load step (default: the whole depth at once); halved whenever
         Newton fails (an element would invert, or no convergence in ``tol.newton_max_iter``)
+    markers : the pins; given, their tips stop at the window's inner face (unilateral
+        contact, the tip heights under the finite rod rotation linearised in each Newton
+        iteration like the indenter's gaps); None leaves the pins out of the solve
 
     Raises
     ------
@@ -129,16 +137,20 @@ def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, 
         Newton did not converge even with ``tol.max_load_steps`` load steps.
     """
     with single_threaded_blas():  # threaded BLAS on a busy machine: factorisations ~10x slower
-        return _load_steps(NeoHookeanBody(body), placement, depth_mm, label, tol, load_step_mm)
+        tips = None if markers is None or markers.count == 0 else _Tips(markers)
+        return _load_steps(NeoHookeanBody(body), placement, depth_mm, label, tol, load_step_mm,
+                           tips)
 
 
 def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label: str,
-                tol: Tolerances, load_step_mm: float | None) -> NeoHookeanResult:
+                tol: Tolerances, load_step_mm: float | None, tips: _Tips | None
+                ) -> NeoHookeanResult:
     body = nh.body
     m = placement.approach
     origin_first = placement.origin_mm + depth_mm * m  # the indenter at first contact
     u = np.zeros(body.space.n_dofs)
     active = np.zeros(0, dtype=np.int64)
+    window = None if tips is None else np.zeros(tips.count)
     contact = None
     first = depth_mm if load_step_mm is None else load_step_mm
     if not first > 0:
@@ -149,7 +161,8 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
         trial = Placement(placement.indenter, placement.rotation, origin_first - target * m,
                           placement.contact_point_mm, placement.max_depth_mm)
         try:
-            u_new, contact_new, its = _newton(nh, trial, u, active, label, tol)
+            u_new, contact_new, window_new, its = _newton(nh, trial, u, active, tips, window,
+                                                          tol)
         except _NoConvergence:
             step /= 2
             steps += 1
@@ -163,12 +176,13 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
         steps += 1
         u, contact, done = u_new, contact_new, target
         active = contact.active
+        window = window_new
     if contact is None:  # depth 0: touching, no force
         cand = body.space.candidates
         g, _ = placement.gap(body.space.nodes[cand])
         contact = ContactSolution(np.zeros((len(cand), 3)), np.zeros(0, dtype=np.int64),
                                   np.zeros((0, 3)), np.zeros(0), g, 0.0, 0, 0)
-    return NeoHookeanResult(u, contact, iterations, steps)
+    return NeoHookeanResult(u, contact, iterations, steps, window)
 
 
 class _NoConvergence(Exception):
@@ -192,6 +206,7 @@ class _BlockPattern:
         n = space.n_nodes
         pair = (nodes[:, :, None] * n + nodes[:, None, :]).ravel()  # (m nl nl,)
         keys, self.block_of = np.unique(pair, return_inverse=True)
+        self.keys = keys
         self.bi, self.bj = keys // n, keys % n
         self.n_blocks, self.n_nodes, self.nl = len(keys), n, nl
         self.diag = np.flatnonzero(self.bi == self.bj)
@@ -220,6 +235,20 @@ class _BlockPattern:
         data = np.bincount(self.slot, weights=ke.ravel(), minlength=9 * self.n_blocks)
         return data.reshape(-1, 3, 3)
 
+    def add_dofs(self, blocks: np.ndarray, dofs_a: np.ndarray, dofs_b: np.ndarray,
+                 values: np.ndarray) -> np.ndarray:
+        """``blocks`` plus the entries ``values`` at dof pairs (``dofs_a``, ``dofs_b``), which
+        must lie in the pattern (nodes of one element)."""
+        na, ca = np.divmod(np.asarray(dofs_a), 3)
+        nb, cb = np.divmod(np.asarray(dofs_b), 3)
+        key = na * self.n_nodes + nb
+        block = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
+        if not np.array_equal(self.keys[block], key):
+            raise ValueError("add_dofs: a dof pair outside the tangent's pattern")
+        slot = 9 * block + 3 * ca + cb
+        extra = np.bincount(slot, weights=values, minlength=9 * self.n_blocks)
+        return blocks + extra.reshape(-1, 3, 3)
+
     def rotate(self, blocks: np.ndarray, basis: np.ndarray, moved: np.ndarray) -> np.ndarray:
         """``Q_i' B_ij Q_j`` for the blocks touching the nodes ``moved`` (others unchanged)."""
         out = blocks.copy()
@@ -238,7 +267,8 @@ class _BlockPattern:
 
     def factor(self, blocks: np.ndarray, fixed: np.ndarray):
         """Factorise the blocks with the dofs ``fixed`` (n_nodes, 3) replaced by identity rows
-        and columns; returns a solver ``b -> x`` for (3 n_nodes,) right-hand sides."""
+        and columns; returns a solver ``b -> x`` for (3 n_nodes,) or (3 n_nodes, k) right-hand
+        sides. Raises ``LinAlgError`` if the matrix is not positive definite."""
         keep = ~fixed
         b = blocks * keep[self.bi][:, :, None] * keep[self.bj][:, None, :]
         b[self.diag] += np.eye(3) * fixed[self.bi[self.diag]][:, :, None]
@@ -253,10 +283,9 @@ class _BlockPattern:
         try:
             if self.symbolic is None:
                 self.symbolic = analyze(mat, ordering_method="metis", mode="supernodal")
-            numeric = self.symbolic.cholesky(mat)
+            return self.symbolic.cholesky(mat)
         except CholmodError as exc:
             raise np.linalg.LinAlgError(f"CHOLMOD: {exc}") from exc
-        return numeric
 
 
 def _tangent_blocks(nh: NeoHookeanBody, pattern: _BlockPattern, u: np.ndarray
@@ -275,16 +304,20 @@ def _normal_basis(normals: np.ndarray) -> np.ndarray:
 
 
 def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: np.ndarray,
-            label: str, tol: Tolerances) -> tuple[np.ndarray, ContactSolution, int]:
+            tips: _Tips | None, window0: np.ndarray | None, tol: Tolerances
+            ) -> tuple[np.ndarray, ContactSolution, np.ndarray | None, int]:
     """Semi-smooth Newton on equilibrium and the contact conditions together.
 
     Each iteration linearises both: the active candidates' normal gaps close exactly
     (``g + n·du = 0``, imposed by a change of basis to (normal, tangent, tangent) at those
     nodes and the elimination of the normal dof), the rest are free, and the tangent system
     is one sparse factorisation with a fixed pattern (CHOLMOD's symbolic analysis is reused).
-    The contact pressures are the normal reactions. The active set then keeps the nodes
-    pushed (``p > 0``) and takes in the nodes that penetrate; the iteration stops when the set
-    repeats and the increment is below ``tol.geometry_mm``.
+    The contact pressures are the normal reactions. Pin tips held by the window (``tips``)
+    add one linearised equation each, ``z + C du = 0``, with its force ``q`` as unknown: the
+    Schur complement ``C K^-1 C'`` (a few solves with the same factor) gives ``q``. The
+    active sets then keep the nodes and tips pushed (``p > 0``, ``q > 0``) and take in those
+    that penetrate; the iteration stops when the sets repeat and the increment is below
+    ``tol.geometry_mm``.
     """
     body = nh.body
     space = body.space
@@ -298,6 +331,12 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     x = rest + u.reshape(-1, 3)[cand]
     g, _ = placement.gap(x)
     active = np.union1d(active0, np.flatnonzero(g < -tol.gap_mm))
+    held = np.zeros(0, dtype=np.int64)
+    last_q = None
+    if tips is not None:
+        held = np.union1d(np.flatnonzero(window0 > 0) if window0 is not None else held,
+                          np.flatnonzero(tips.heights(u) < -tol.gap_mm))
+        last_q = np.zeros(tips.count) if window0 is None else window0.copy()
     for it in range(1, tol.newton_max_iter + 1):
         x = rest + u.reshape(-1, 3)[cand]
         g, nu = placement.gap(x)
@@ -305,6 +344,10 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             f_int, blocks = _tangent_blocks(nh, pattern, u)
         except FloatingPointError:
             raise _NoConvergence from None
+        if tips is not None and np.any(last_q[held] > 0):
+            # the window's forces turn with the rods: their second-order term in the tangent
+            rows_a, rows_b, vals = tips.curvature(u, held, last_q[held])
+            blocks = pattern.add_dofs(blocks, rows_a, rows_b, -vals)
         basis = np.broadcast_to(np.eye(3), (space.n_nodes, 3, 3)).copy()
         moved = np.zeros(space.n_nodes, dtype=bool)
         nodes_a = cand[active]
@@ -324,7 +367,19 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             raise _NoConvergence from None
         a = np.asarray(solve(rhs.ravel())).reshape(-1, 3)
         a[fixed] = a_fixed[fixed]
-        pressures = (pattern.matvec(rot, a) - r)[nodes_a, 0]
+        window_rot = np.zeros((space.n_nodes, 3))  # the window's generalised force, rotated
+        q = np.zeros(len(held))
+        if len(held):
+            c_rot = np.einsum("knj,nji->kni", tips.jacobian(u, held), basis)  # (h, nodes, 3)
+            c_free = c_rot * ~fixed[None]
+            w = np.asarray(solve(np.ascontiguousarray(c_free.reshape(len(held), -1).T)))
+            w = w.reshape(3 * space.n_nodes, len(held))  # K^-1 C' (zero at the fixed dofs)
+            schur = c_free.reshape(len(held), -1) @ w
+            z = tips.heights(u)[held]
+            q = np.linalg.solve(schur, -z - c_rot.reshape(len(held), -1) @ a.ravel())
+            a = a + (w @ q).reshape(-1, 3)
+            window_rot = np.einsum("kni,k->ni", c_rot, q)
+        pressures = (pattern.matvec(rot, a) - r - window_rot)[nodes_a, 0]
         du = np.einsum("nij,nj->ni", basis, a).ravel()
         alpha = 1.0
         while nh.min_jacobian(u + alpha * du) <= 0:
@@ -338,14 +393,107 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         enter = np.setdiff1d(np.flatnonzero(g_new < -tol.gap_mm), active)
         new_active = np.union1d(keep, enter)
         same = np.array_equal(new_active, active)
+        if tips is not None:
+            z_new = tips.heights(u)
+            new_held = np.union1d(held[q > 0.0],
+                                  np.setdiff1d(np.flatnonzero(z_new < -tol.gap_mm), held))
+            same = same and np.array_equal(new_held, held)
         if alpha == 1.0 and same and change <= max(tol.geometry_mm, 1e-9):
             forces = pressures[:, None] * nu_new[active]
             comp = float(np.max(np.abs(pressures * g_new[active]), initial=0.0))
             final = ContactSolution(u.reshape(-1, 3)[cand], active, forces, pressures, g_new,
                                     comp, it, it)
-            return u, final, it
+            window = None
+            if tips is not None:
+                window = np.zeros(tips.count)
+                window[held] = q
+            return u, final, window, it
         active = new_active
+        if tips is not None:
+            last_q = np.zeros(tips.count)
+            last_q[held] = q
+            held = new_held
     raise _NoConvergence
+
+
+class _Tips:
+    """The pin tips' heights above the window's inner face under finite kinematics (the rods
+    turned by the polar decomposition of ``F``, as :meth:`~.markers.Markers.from_field` with
+    ``finite=True``) and their derivatives with respect to the nodal displacements."""
+
+    def __init__(self, markers: Markers) -> None:
+        self.markers = markers
+        self.count = markers.count
+        op = markers.operator.tocsr()
+        self.tip_z = op[6 * np.arange(self.count) + 2]  # root z (rod) or tip z (embedded)
+        self.gradient = markers.gradient.tocsr()
+
+    def heights(self, u: np.ndarray) -> np.ndarray:
+        """(p,) mm above the window (negative: below it)."""
+        return self.markers.from_field(u, finite=True)[0][:, 2] - WINDOW_Z_MM
+
+    def jacobian(self, u: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """(len(rows), n_nodes, 3) dense derivative of the heights of the tips ``rows``."""
+        jac = self.tip_z[rows]
+        if self.markers.model == "rod":
+            m = self.markers
+            grad = (self.gradient @ u).reshape(self.count, 9)[rows]
+            dz = _height_gradient(grad, m.directions[rows], m.length_mm)
+            cols = (9 * rows[:, None] + np.arange(9)[None]).ravel()
+            mix = sp.csr_matrix((dz.ravel(), (np.repeat(np.arange(len(rows)), 9), cols)),
+                                shape=(len(rows), 9 * self.count))
+            jac = jac + mix @ self.gradient
+        return np.asarray(jac.todense()).reshape(len(rows), -1, 3)
+
+    def curvature(self, u: np.ndarray, rows: np.ndarray, forces: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Dof pairs and values of ``sum_j q_j d2 z_j / du2`` for tips ``rows`` with forces
+        ``q`` (rods only: the height is linear in ``u`` for embedded markers). Each tip's
+        gradient point lies in one element, so the pairs are within the tangent's pattern."""
+        empty = np.zeros(0, dtype=np.int64)
+        if self.markers.model != "rod" or len(rows) == 0:
+            return empty, empty, np.zeros(0)
+        m = self.markers
+        grad = (self.gradient @ u).reshape(self.count, 9)[rows]
+        dirs = m.directions[rows]
+        h = 1e-6  # central differences of the exact gradient
+        hess = np.zeros((len(rows), 9, 9))
+        for k in range(9):
+            e = np.zeros(9)
+            e[k] = h
+            hess[:, k] = (_height_gradient(grad + e, dirs, m.length_mm)
+                          - _height_gradient(grad - e, dirs, m.length_mm)) / (2 * h)
+        hess = 0.5 * (hess + hess.transpose(0, 2, 1))
+        out_a, out_b, out_v = [], [], []
+        for i, tip in enumerate(rows):
+            g = self.gradient[9 * tip:9 * tip + 9]
+            cols = np.unique(g.indices)
+            dense = np.asarray(g[:, cols].todense())  # (9, k)
+            block = forces[i] * dense.T @ hess[i] @ dense
+            out_a.append(np.repeat(cols, len(cols)))
+            out_b.append(np.tile(cols, len(cols)))
+            out_v.append(block.ravel())
+        return np.concatenate(out_a), np.concatenate(out_b), np.concatenate(out_v)
+
+
+def _height_gradient(grad: np.ndarray, dirs: np.ndarray, length: float) -> np.ndarray:
+    """(k, 9) derivative of a rod tip's height ``length (R d)_z`` with respect to the
+    displacement gradient ``H`` (k, 9; ``F = I + H``, ``R`` its polar rotation).
+
+    With ``F = R U``, a change ``dF`` turns the rod by ``w = A^-1 axial(R' dF - dF' R)``,
+    ``A = tr(U) I - U``; so ``dz = length b . axial(R' dF - dF' R)`` with
+    ``b = A^-1 (d x R' e_z)``, i.e. ``dz/dF = length R [b]x``.
+    """
+    f = np.eye(3) + grad.reshape(-1, 3, 3)
+    w, sig, vt = np.linalg.svd(f)
+    rot = w @ vt
+    stretch = np.einsum("kji,kj,kjl->kil", vt, sig, vt)  # V diag(s) V'
+    a = np.trace(stretch, axis1=1, axis2=2)[:, None, None] * np.eye(3) - stretch
+    b = np.linalg.solve(a, np.cross(dirs, rot[:, 2, :])[..., None])[..., 0]
+    cross = np.zeros((len(b), 3, 3))
+    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -b[:, 2], b[:, 1], -b[:, 0]
+    cross[:, 1, 0], cross[:, 2, 0], cross[:, 2, 1] = b[:, 2], -b[:, 1], b[:, 0]
+    return length * (rot @ cross).reshape(-1, 9)
 
 
 def _pattern(nh: NeoHookeanBody) -> _BlockPattern:

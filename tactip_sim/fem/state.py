@@ -46,8 +46,10 @@ class ContactState:
     iterations : active-set iterations (reduced/full) or Newton iterations (neo-Hookean)
     seconds : wall time of the solve
     window_forces_N : (p,) force of the window on each pin tip (N, along +z); NaN where the
-        solver does not model the pins stopping at the window (only the reduced solve with a
-        flat indenter does: :mod:`~tactip_sim.fem.window`), so tips may then pass below it
+        solver does not model the pins stopping at the window (the reduced solve with a flat
+        indenter does, :mod:`~tactip_sim.fem.window`, and the neo-Hookean solve with any
+        indenter; the full solver and curved indenters in the reduced solve do not), so tips
+        may then pass below it
     """
 
     pose: Pose
