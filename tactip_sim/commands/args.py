@@ -129,13 +129,21 @@ def float_in(lo: float | None = None, hi: float | None = None, *,
 def scene_key_type(dotted: str) -> Callable[[str], float]:
     """An argparse ``type`` checking a value against scene key ``dotted``'s allowed range
     (e.g. ``--spp`` against ``imaging.spp``): one range for the key and the option."""
-    import dataclasses
+    from ..scene.load import key_spec
 
-    from ..scene import SECTIONS
-
-    section, _, key = dotted.partition(".")
-    spec = {f.name: f.metadata["spec"] for f in dataclasses.fields(SECTIONS[section])}[key]
+    spec = key_spec(dotted)
     if spec.kind == "int":
         return int_in(None if spec.lo is None else int(spec.lo),
                       None if spec.hi is None else int(spec.hi))
     return float_in(spec.lo, spec.hi, lo_open=spec.lo_open)
+
+
+def png_path(value: str) -> Path:
+    """An argparse ``type`` for a frame's output: a name ending in ``.png`` (or none), so the
+    file written is the one named (``-o x.jpg`` used to write ``x.png``)."""
+    path = Path(value)
+    if path.suffix.lower() not in ("", ".png"):
+        raise argparse.ArgumentTypeError(
+            f"{value!r}: a frame is written as PNG, with its ground truth beside it (.json, "
+            ".csv); give a name ending in .png")
+    return path

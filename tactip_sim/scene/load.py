@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ._spec import SceneError
+from ._spec import SceneError, Spec
 from .names import check_name
 from .presets import parse_presets, preset_names
 from .schema import SECTIONS, Scene
@@ -137,6 +137,16 @@ def preset_of(scene: Scene) -> str | None:
         if all(d[s][k] == v for s, kv in scene.presets[name].items() for k, v in kv.items()):
             return name
     return None
+
+
+def key_spec(dotted: str) -> Spec:
+    """The :class:`Spec` (type and allowed range) of scene key ``"section.key"``, e.g. to
+    check an argument that stands for that key with the key's own range."""
+    section, _, key = dotted.partition(".")
+    if section not in SECTIONS:
+        raise KeyError(f"{dotted!r}: no section {section!r}")
+    specs = {f.name: f.metadata["spec"] for f in dataclasses.fields(SECTIONS[section])}
+    return specs[key]
 
 
 def scene_to_dict(scene: Scene) -> dict[str, Any]:
