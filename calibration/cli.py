@@ -66,8 +66,11 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     _check_scale(args)
     if args.quick:
         args.overrides = [f"{k}={v}" for k, v in QUICK.items()] + list(args.overrides)
+    tips = None if args.tips is None else [t.strip() for t in args.tips.split(",")]
+    if tips is not None and not all(tips):
+        raise ValueError(f"--tips {args.tips!r} holds an empty name: give comma-separated "
+                         "names of protocol.tips, e.g. A,B")
     scene, fidelity = _scene_and_fidelity(args)
-    tips = None if args.tips is None else [t.strip() for t in args.tips.split(",") if t.strip()]
     from .rig import RigModel
 
     rig = RigModel.from_file(args.rig) if args.rig else None

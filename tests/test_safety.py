@@ -150,3 +150,41 @@ def test_render_spp_checked_with_the_key_range(scene, pad, spp):
     r = Renderer(scene, pad)
     with pytest.raises(ValueError, match="spp"):
         r.render(pad.markers_mm, pad.pins.directions, spp=spp)
+
+
+# --- item 10: a file that is not a mesh as the indenter ----------------------------------
+
+@pytest.mark.parametrize("payload", [b"hello\n", bytes(range(256)) * 4])
+def test_non_mesh_indenter_file_says_so(tmp_path, payload):
+    from tactip_sim.fem import IndenterError
+    from tactip_sim.fem.indenters import MeshIndenter
+
+    path = tmp_path / "part.stl"
+    path.write_bytes(payload)
+    with pytest.raises(IndenterError, match="part.stl.*(no triangles|cannot be read)") as err:
+        MeshIndenter(path)
+    assert "watertight" not in str(err.value)
+
+
+def test_non_watertight_mesh_still_named_so():
+    import trimesh
+
+    from tactip_sim.fem import IndenterError
+    from tactip_sim.fem.indenters import MeshIndenter
+
+    box = trimesh.creation.box((1, 1, 1))
+    open_box = trimesh.Trimesh(box.vertices, box.faces[:-2])
+    with pytest.raises(IndenterError, match="not watertight"):
+        MeshIndenter(open_box)
+
+
+# --- item 10: calibrate --tips with an empty name ran every tip / skipped it -------------
+
+@pytest.mark.parametrize("tips", ["", "A,,B", " , "])
+def test_calibrate_empty_tip_name_refused(tmp_path, tips):
+    proc = subprocess.run([sys.executable, "-m", "tactip_sim.commands", "calibrate", str(SCENE),
+                           "--tips", tips, "--out", str(tmp_path / "cal")], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    assert "--tips" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "cal").exists()
