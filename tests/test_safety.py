@@ -188,3 +188,52 @@ def test_calibrate_empty_tip_name_refused(tmp_path, tips):
     assert proc.returncode != 0
     assert "--tips" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "cal").exists()
+
+
+# --- item 12: Dr.Jit's kernel cache under the tool's cache, not ~/.drjit -----------------
+
+_RENDER_TINY = """
+from tactip_sim.llvm import import_mitsuba
+mi = import_mitsuba()
+scene = mi.load_dict({"type": "scene", "integrator": {"type": "direct"},
+    "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4}},
+    "s": {"type": "sphere", "center": [0, 0, 3.25]}, "e": {"type": "constant"}})
+mi.render(scene, spp=2)
+"""
+
+
+def _run_tiny_render(tmp_path, **env_extra):
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "DRJIT_CACHE_DIR"}
+    env.update(HOME=str(tmp_path / "home"), PYTHONPATH=str(ROOT),
+               TACTIP_CACHE_DIR=str(tmp_path / "cache"), **env_extra)
+    (tmp_path / "home").mkdir(exist_ok=True)
+    proc = subprocess.run([sys.executable, "-c", _RENDER_TINY], env=env, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_drjit_kernels_go_to_the_tool_cache_and_clear_removes_only_them(tmp_path):
+    import os
+
+    _run_tiny_render(tmp_path)
+    assert not (tmp_path / "home" / ".drjit").exists()
+    kernels = list((tmp_path / "cache" / "drjit").glob("*.llvm.*.bin"))
+    assert kernels
+    user_file = tmp_path / "cache" / "drjit" / "notes.txt"
+    user_file.write_text("mine")
+    env = {**os.environ, "TACTIP_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, "-m", "tactip_sim.commands", "cache", "clear"],
+                          env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert not any(p.exists() for p in kernels)
+    assert user_file.read_text() == "mine"
+
+
+def test_a_users_drjit_cache_dir_is_kept(tmp_path):
+    mine = tmp_path / "my_kernels"
+    _run_tiny_render(tmp_path, DRJIT_CACHE_DIR=str(mine))
+    assert list(mine.glob("*.llvm.*.bin"))
+    assert not (tmp_path / "cache" / "drjit").exists()
+    assert not (tmp_path / "home" / ".drjit").exists()
