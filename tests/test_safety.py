@@ -237,3 +237,57 @@ def test_a_users_drjit_cache_dir_is_kept(tmp_path):
     assert list(mine.glob("*.llvm.*.bin"))
     assert not (tmp_path / "cache" / "drjit").exists()
     assert not (tmp_path / "home" / ".drjit").exists()
+
+
+# --- items 8 and 11: an interrupted or terminated mesh leaves nothing behind -------------
+
+def _processes_mentioning(text: str) -> list[int]:
+    pids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                if text in (d / "cmdline").read_bytes().decode(errors="replace"):
+                    pids.append(int(d.name))
+            except OSError:
+                pass
+    return pids
+
+
+@pytest.mark.parametrize("sig, rc", [("SIGTERM", 143), ("SIGINT", 130)])
+def test_interrupted_mesher_removes_its_folder_and_child(tmp_path, sig, rc):
+    import os
+    import signal
+    import time
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp), "TACTIP_CACHE_DIR": str(tmp_path / "cache"),
+           "PYTHONPATH": str(ROOT)}
+    # an edge the cache and the bundle do not hold, so pytetwild runs (for tens of seconds)
+    proc = subprocess.Popen([sys.executable, "-m", "tactip_sim.commands", "mesh", str(SCENE),
+                             "--set", "fidelity.mesh_edge_mm=15.5"], env=env, cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(tmp.glob("tactip-tetwild-*/input.npz")):
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "pytetwild never started"
+            time.sleep(0.2)
+        time.sleep(1.0)  # the child is running
+        assert _processes_mentioning(str(tmp))
+        proc.send_signal(getattr(signal, sig))
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == rc, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert list(tmp.iterdir()) == []              # the temporary folder is gone
+    assert _processes_mentioning(str(tmp)) == []  # and so is the mesher
+
+
+def test_mesh_edge_that_hung_is_refused_naming_the_range():
+    # 100 mm was allowed and ran pytetwild for > 300 s (docs/robustness.md)
+    with pytest.raises(SceneError, match=r"fidelity\.mesh_edge_mm=100.*allowed \[0\.2, 16\]"):
+        ts.load_scene(SCENE, {"fidelity.mesh_edge_mm": 100.0})
+    assert ts.load_scene(SCENE, {"fidelity.mesh_edge_mm": 16.0}).fidelity.mesh_edge_mm == 16.0
