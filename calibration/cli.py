@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from tactip_sim.commands import add_scene_argument, load_scene_args, parse_overrides, with_overrides
+from tactip_sim.commands.args import int_in, scene_key_type
 
 QUICK = {  # a reduced protocol for a first look (and for tests): same ranges, coarser grids
     "protocol.roll_step_deg": 8.0,
@@ -18,11 +19,11 @@ QUICK = {  # a reduced protocol for a first look (and for tests): same ranges, c
 
 
 def _scale_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--workers", type=int, default=1,
+    p.add_argument("--workers", type=int_in(1), default=1,
                    help="local worker processes (a Dask LocalCluster when > 1; default 1)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
-    p.add_argument("--frames", type=int,
+    p.add_argument("--frames", type=scene_key_type("protocol.frames_per_sample"),
                    help="noisy frames averaged per sample (default: protocol.frames_per_sample)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -65,8 +66,11 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     _check_scale(args)
     if args.quick:
         args.overrides = [f"{k}={v}" for k, v in QUICK.items()] + list(args.overrides)
+    tips = None if args.tips is None else [t.strip() for t in args.tips.split(",")]
+    if tips is not None and not all(tips):
+        raise ValueError(f"--tips {args.tips!r} holds an empty name: give comma-separated "
+                         "names of protocol.tips, e.g. A,B")
     scene, fidelity = _scene_and_fidelity(args)
-    tips = None if args.tips is None else [t.strip() for t in args.tips.split(",") if t.strip()]
     from .rig import RigModel
 
     rig = RigModel.from_file(args.rig) if args.rig else None
@@ -149,14 +153,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="dataset folder")
     p.add_argument("--poses", default="train",
                    help="'train' or a test set name such as test+0p0mm (default train)")
-    p.add_argument("--random", type=int, metavar="N", help="N random poses instead of --poses")
+    p.add_argument("--random", type=scene_key_type("protocol.test_poses"), metavar="N",
+                   help="N random poses instead of --poses")
     p.add_argument("--depth", type=float, help="depth for --random (default training depth)")
-    p.add_argument("--seed", type=int, help="seed for --random (default protocol.seed)")
+    p.add_argument("--seed", type=int_in(0), help="seed for --random (default protocol.seed)")
     p.add_argument("--tip", help="tip name (default: the first of protocol.tips)")
     p.add_argument("--nominal", action="store_true", help="the unperturbed design")
     p.add_argument("--indenter", choices=["plate", "sphere", "cylinder", "edge", "mesh"],
                    help="indenter kind (default: the scene's)")
-    p.add_argument("--radius", type=float, help="indenter radius (mm)")
+    p.add_argument("--radius", type=scene_key_type("indenter.radius_mm"),
+                   help="indenter radius (mm)")
     _scale_args(p)
     add_tolerance_arguments(p)
     p.set_defaults(func=_cmd_sweep)

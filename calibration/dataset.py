@@ -22,7 +22,6 @@ import csv
 import io
 import json
 import os
-import re
 import tempfile
 import zipfile
 from collections.abc import Iterable
@@ -31,6 +30,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from tactip_sim.scene.names import check_name
 
 MANIFEST = "manifest.json"
 DATASET_KIND = "tactip-sim dataset"
@@ -68,22 +69,17 @@ class DatasetError(ValueError):
     """A dataset folder cannot be used as asked (e.g. it holds a different scene)."""
 
 
-_SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_+-]{0,31}$")
-
-
 def safe_name(value: str, key: str) -> str:
-    """``value`` if it can become part of a file or folder name: 1-32 letters, digits, ``_``,
-    ``+`` or ``-``, starting with a letter or digit (no separators, no ``..``).
+    """``value`` if it can become part of a file or folder name
+    (:func:`tactip_sim.scene.names.check_name`: 1-32 letters, digits, ``_``, ``+`` or ``-``,
+    starting with a letter or digit; no separators, no ``..``).
 
     Raises
     ------
     ValueError
         Naming ``key`` and the allowed form.
     """
-    if not isinstance(value, str) or not _SAFE_NAME.match(value):
-        raise ValueError(f"{key}={value!r} is not allowed: it names folders, so 1-32 letters, "
-                         "digits, '_', '+' or '-', starting with a letter or digit")
-    return value
+    return check_name(value, key)
 
 
 def _umask() -> int:

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import tactip_sim as ts
+from tactip_sim.commands.args import float_in
 from tactip_sim.scene import replace_in, scene_hash
 
 TOLERANCE_METRICS = {
@@ -77,13 +78,14 @@ def add_tolerance_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("--fidelity auto: tolerances (from a fidelity study's summary)")
     g.add_argument("--study", metavar="DIR",
                    help="fidelity study folder (its summary.json) for --fidelity auto")
-    g.add_argument("--max-marker-error-px", type=float, metavar="PX",
+    g.add_argument("--max-marker-error-px", type=float_in(0, lo_open=True), metavar="PX",
                    help="perceived-marker error against the reference, 95th percentile (px)")
-    g.add_argument("--max-marker-error-mm", type=float, metavar="MM",
+    g.add_argument("--max-marker-error-mm", type=float_in(0, lo_open=True), metavar="MM",
                    help="largest FEM marker-position error against the reference (mm)")
-    g.add_argument("--max-cop-error-px", type=float, metavar="PX",
+    g.add_argument("--max-cop-error-px", type=float_in(0, lo_open=True), metavar="PX",
                    help="largest centre-of-pressure error against the reference (px)")
-    g.add_argument("--min-r2", type=float, metavar="R2", help="least downstream roll/pitch R²")
+    g.add_argument("--min-r2", type=float_in(None, 1), metavar="R2",
+                   help="least downstream roll/pitch R²")
 
 
 def resolve_auto(scene: ts.Scene, args: argparse.Namespace) -> tuple[ts.Scene, dict[str, Any]]:

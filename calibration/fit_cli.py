@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from tactip_sim.commands.args import int_in
+
 
 def _folder_arguments(p: argparse.ArgumentParser) -> None:
     from .fit import DEFAULT_FEATURE, FEATURES
@@ -31,7 +33,7 @@ def _folder_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--pitch-sign", type=float, default=1.0, choices=[1.0, -1.0],
                    help="multiply pitch by this (default 1)")
     g.add_argument("--image-column", help="image column (default sensor_image, else image)")
-    g.add_argument("--expected-count", type=int, metavar="N",
+    g.add_argument("--expected-count", type=int_in(1), metavar="N",
                    help="markers on the sensor (checked on every frame); default: not checked")
     g.add_argument("--perceive", action="store_true",
                    help="perceive this project's own datasets from their saved frames instead "
@@ -198,8 +200,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("dataset", help="labelled folder: targets.csv + images (in it or images/)")
     p.add_argument("--order", type=int, default=2, choices=[1, 2, 3], help="polynomial order")
     p.add_argument("--out", help="model file (default DATASET/model_orderN.json)")
-    p.add_argument("--cv", type=int, metavar="K", help="K-fold cross-validation (K >= 2)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the cross-validation folds")
+    p.add_argument("--cv", type=int_in(2), metavar="K", help="K-fold cross-validation (K >= 2)")
+    p.add_argument("--seed", type=int_in(0), default=0,
+                   help="seed of the cross-validation folds")
     p.add_argument("--json", metavar="OUT.json",
                    help="write the figures (r2_roll, r2_pitch, n_used, n_flagged...) as JSON; "
                    "'-' prints them")

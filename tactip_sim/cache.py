@@ -10,6 +10,9 @@ Guarantees:
   standard tag backup tools skip). ``tactip cache clear`` removes the entries of those kinds
   (files named as the tool names them), the tag, and folders it leaves empty; any other file
   in the folder, and the folder itself if it still holds one, stays.
+* **Dr.Jit's kernel cache lives here too** (``drjit/``, through ``DRJIT_CACHE_DIR``, unless
+  the user set that variable), not in ``~/.drjit``; ``clear`` removes the files Dr.Jit names
+  as its own there.
 * **Every entry is written atomically** (temporary file + rename): an interrupted run never
   leaves a torn entry.
 * **Nothing loaded is trusted blindly.** Each ``.npz`` entry carries the SHA-256 of its arrays;
@@ -32,6 +35,11 @@ import numpy as np
 
 KINDS = ("mesh", "compliance", "marker_response")
 """Sub-folders the tool writes entries into."""
+DRJIT = "drjit"
+"""Sub-folder given to Dr.Jit as its kernel cache (``DRJIT_CACHE_DIR``), instead of
+``~/.drjit``: see :func:`drjit_cache_dir`."""
+_DRJIT_ENTRY = re.compile(r"^([0-9a-f]+\.(llvm|cuda)\.v\d+\.bin(\.\w+)?|sweep\.stamp)$")
+"""Names Dr.Jit 1.x gives its kernel cache files (``<hash>.llvm.v6.bin``, ``sweep.stamp``)."""
 FILES = ("llvm.json",)
 """Files the tool writes at the top of the cache folder."""
 TAG = "CACHEDIR.TAG"
@@ -55,6 +63,24 @@ def cache_dir() -> Path:
     if (root / "pyproject.toml").is_file() and os.access(root, os.W_OK):
         return root / ".cache" / "tactip"
     return Path.home() / ".cache" / "tactip_sim"
+
+
+def drjit_cache_dir() -> Path | None:
+    """Point Dr.Jit's kernel cache at ``<cache>/drjit`` (it is ``~/.drjit`` otherwise) by
+    setting ``DRJIT_CACHE_DIR`` (read by Dr.Jit >= 1.x when its backend starts, so this must
+    run before Mitsuba is imported). A ``DRJIT_CACHE_DIR`` the user set is kept. Returns the
+    folder in use, or None (the cache folder cannot be created: Dr.Jit's default then)."""
+    user = os.environ.get("DRJIT_CACHE_DIR")
+    if user:
+        return Path(user)
+    folder = cache_dir() / DRJIT
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        _tag(folder.parent)
+    except OSError:
+        return None
+    os.environ["DRJIT_CACHE_DIR"] = str(folder)
+    return folder
 
 
 def path_for(kind: str, key: str, suffix: str) -> Path:
@@ -134,6 +160,9 @@ def _ours(folder: Path) -> list[Path]:
         d = folder / kind
         if d.is_dir():
             out += [p for p in d.iterdir() if p.is_file() and _ENTRY.match(p.name)]
+    d = folder / DRJIT
+    if d.is_dir():
+        out += [p for p in d.iterdir() if p.is_file() and _DRJIT_ENTRY.match(p.name)]
     return out
 
 
@@ -150,7 +179,7 @@ def clear() -> tuple[Path, int]:
     files = entries()
     for p in files:
         p.unlink(missing_ok=True)
-    for kind in KINDS:
+    for kind in (*KINDS, DRJIT):
         try:
             (d / kind).rmdir()  # only if now empty
         except OSError:

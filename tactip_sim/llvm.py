@@ -101,6 +101,7 @@ def ensure_llvm() -> str:
     """
     if "drjit" in sys.modules and os.environ.get("DRJIT_LIBLLVM_PATH"):
         return os.environ["DRJIT_LIBLLVM_PATH"]
+    cache.drjit_cache_dir()  # Dr.Jit's kernels under the tool's cache, not ~/.drjit
     record = cache.cache_dir() / "llvm.json"
     known: dict[str, bool] = {}
     if record.is_file():

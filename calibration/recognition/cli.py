@@ -17,6 +17,8 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+from tactip_sim.commands.args import int_in
+
 QUICK_CAMERA = {"resolution": [320, 240], "pixel_pitch_um": 16.8}
 """--quick renders at half the default resolution (the sensor's field of view unchanged)."""
 QUICK_REPEATS = 4
@@ -112,23 +114,25 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"a first look: {QUICK_REPEATS} repeats, 320x240 camera, 1 split, "
                    "200 trials, k = 20 and a smaller k study, 8 CNN epochs")
     p.add_argument("--object", metavar="NAMES", help="comma-separated subset of the library")
-    p.add_argument("--repeats", type=int, help="contacts per object and position (default 12)")
-    p.add_argument("--frames", type=int, help="noisy frames averaged per contact (default 1)")
+    p.add_argument("--repeats", type=int_in(1),
+                   help="contacts per object and position (default 12)")
+    p.add_argument("--frames", type=int_in(1), help="noisy frames averaged per contact (default 1)")
     p.add_argument("--tip", help="tip name (default: the first of protocol.tips)")
     p.add_argument("--manufactured", action="store_true",
                    help="use the manufactured tip's perturbations (default: nominal design)")
-    p.add_argument("--k", type=int, help="vocabulary size of the bag of features (default 50)")
+    p.add_argument("--k", type=int_in(1),
+                   help="vocabulary size of the bag of features (default 50)")
     p.add_argument("--ks", help="vocabulary sizes of the k study, comma-separated")
     p.add_argument("--codebook", choices=["object", "object_action"],
                    help="headline codebook: one histogram per object (the paper's, default) "
                    "or per object and position")
-    p.add_argument("--runs", type=int, help="randomised 2-fold splits (default 3)")
-    p.add_argument("--trials", type=int, help="recognition trials per fold (default 500)")
-    p.add_argument("--contacts", type=int, help="contacts per trial (default 10)")
+    p.add_argument("--runs", type=int_in(1), help="randomised 2-fold splits (default 3)")
+    p.add_argument("--trials", type=int_in(1), help="recognition trials per fold (default 500)")
+    p.add_argument("--contacts", type=int_in(1), help="contacts per trial (default 10)")
     p.add_argument("--methods", help="comma-separated: bof, svm_markers, moments_svm, cnn")
-    p.add_argument("--cnn-epochs", type=int, help="CNN training epochs (default 30)")
-    p.add_argument("--seed", type=int, help="seed of the contacts' draws and the studies")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes for the "
+    p.add_argument("--cnn-epochs", type=int_in(1), help="CNN training epochs (default 30)")
+    p.add_argument("--seed", type=int_in(0), help="seed of the contacts' draws and the studies")
+    p.add_argument("--workers", type=int_in(1), default=1, help="local worker processes for the "
                    "contacts (a Dask LocalCluster when > 1)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler")
     p.add_argument("--limit", type=int, help=argparse.SUPPRESS)  # stop early (tests resume)
@@ -148,17 +152,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--tasks", default="object,roll,pitch",
                    help="comma-separated tasks: object, roll, pitch (default all three)")
-    p.add_argument("--task-bins", type=int, default=3,
+    p.add_argument("--task-bins", type=int_in(2), default=3,
                    help="classes of the roll and pitch tasks (quantile bins; default 3)")
-    p.add_argument("--bins", type=int, default=3,
+    p.add_argument("--bins", type=int_in(2), default=3,
                    help="levels each marker input is cut into for ID3 (default 3)")
-    p.add_argument("--min-samples-split", type=int, default=20,
+    p.add_argument("--min-samples-split", type=int_in(2), default=20,
                    help="an ID3 node needs this many contacts to split (default 20)")
-    p.add_argument("--max-depth", type=int, help="ID3 tree depth limit (default none)")
+    p.add_argument("--max-depth", type=int_in(1), help="ID3 tree depth limit (default none)")
     p.add_argument("--booster", choices=list(BOOSTERS), default="logitboost",
                    help="boosted stumps: logitboost (the paper's, default) or adaboost")
-    p.add_argument("--folds", type=int, default=4, help="cross-validation folds (default 4)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the folds")
+    p.add_argument("--folds", type=int_in(2), default=4, help="cross-validation folds (default 4)")
+    p.add_argument("--seed", type=int_in(0), default=0, help="seed of the folds")
     p.add_argument("--quick", action="store_true",
                    help="a first look: skip the nested (selection inside each fold) check")
     p.add_argument("--no-nested", action="store_true", help="skip the nested check")

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from tactip_sim.commands import add_scene_argument, load_scene_args
+from tactip_sim.commands.args import float_in, int_in
 
 
 def _params(args: argparse.Namespace):
@@ -171,25 +172,26 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="pitch of that surface (the other one defaults to 0)")
     what.add_argument("--object", metavar="NAME",
                       help="a three-finger grasp of --grasps (cube, can, bottle)")
-    what.add_argument("--batch", type=int, metavar="N",
+    what.add_argument("--batch", type=int_in(1), metavar="N",
                       help="N single-finger runs over random surfaces (some outside the "
                       "calibrated range) and curved indenters")
     p.add_argument("--grasps", default=str(GRASPS_FILE), metavar="FILE",
                    help="grasps file (default: scenes/objects/servo_grasps.toml)")
     p.add_argument("--fingers", metavar="A,B,C", help="run only these fingers of --object")
-    p.add_argument("--outside-fraction", type=float, default=0.25,
+    p.add_argument("--outside-fraction", type=float_in(0, 1), default=0.25,
                    help="--batch: fraction of surfaces outside the calibrated range (0.25)")
-    p.add_argument("--curved-fraction", type=float, default=0.25,
+    p.add_argument("--curved-fraction", type=float_in(0, 1), default=0.25,
                    help="--batch: fraction of curved indenters (0.25)")
     p.add_argument("--tip", help="tip (default: the model's)")
     p.add_argument("--nominal", action="store_true",
                    help="the unperturbed design instead of the manufactured tip")
-    p.add_argument("--seed", type=int, default=0, help="seed of the frames and the batch (0)")
+    p.add_argument("--seed", type=int_in(0), default=0, help="seed of the frames and the batch (0)")
     g = p.add_argument_group("controller (defaults: calibration/servo/params.py)")
     g.add_argument("--kp", type=float, help="proportional gain (joint ° per predicted °)")
     g.add_argument("--ki", type=float, help="integral gain (1/s)")
     g.add_argument("--kd", type=float, help="derivative gain (s)")
-    g.add_argument("--timeout", type=float, metavar="S", help="adjustment time-out (10 s)")
+    g.add_argument("--timeout", type=float_in(0, lo_open=True), metavar="S",
+                   help="adjustment time-out (10 s)")
     g.add_argument("--squeeze-depth", type=float, metavar="MM",
                    help="indentation the squeeze holds (default: the training depth)")
     g.add_argument("--joint-limit", type=float, metavar="DEG",

@@ -5,7 +5,8 @@ and ``--set`` overrides (used by this floor's commands and by the subcommands th
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ..scene import Scene, SceneError, apply_preset, load_scene, replace_in
@@ -70,3 +71,79 @@ def with_overrides(scene: Scene, overrides: dict[str, object]) -> Scene:
         section, _, key = dotted.partition(".")
         by_section.setdefault(section, {})[key] = value
     return replace_in(scene, **by_section) if by_section else scene
+
+
+def _range_text(lo: float | None, hi: float | None, lo_open: bool) -> str:
+    left = "(" if lo_open or lo is None else "["
+    right = ")" if hi is None else "]"
+    def text(v: float) -> str:
+        return str(v) if isinstance(v, int) else format(v, "g")
+
+    return (f"{left}{'-inf' if lo is None else text(lo)}, "
+            f"{'inf' if hi is None else text(hi)}{right}")
+
+
+def int_in(lo: int | None = None, hi: int | None = None) -> Callable[[str], int]:
+    """An argparse ``type``: an integer in ``[lo, hi]`` (None = unbounded). A bad value is
+    reported by argparse with the option's name and the allowed range, e.g.
+    ``argument --spp: -4 is out of range: allowed [1, 4096]`` (exit status 2)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not an integer: allowed {_range_text(lo, hi, False)}") from None
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            raise argparse.ArgumentTypeError(
+                f"{value} is out of range: allowed {_range_text(lo, hi, False)}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def float_in(lo: float | None = None, hi: float | None = None, *,
+             lo_open: bool = False) -> Callable[[str], float]:
+    """An argparse ``type``: a finite number in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``;
+    None = unbounded); NaN and infinities are refused, naming the option and the range."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not a number: allowed {_range_text(lo, hi, lo_open)}") from None
+        bad = not math.isfinite(value)
+        bad = bad or (lo is not None and (value <= lo if lo_open else value < lo))
+        bad = bad or (hi is not None and value > hi)
+        if bad:
+            raise argparse.ArgumentTypeError(
+                f"{text} is out of range: allowed {_range_text(lo, hi, lo_open)}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def scene_key_type(dotted: str) -> Callable[[str], float]:
+    """An argparse ``type`` checking a value against scene key ``dotted``'s allowed range
+    (e.g. ``--spp`` against ``imaging.spp``): one range for the key and the option."""
+    from ..scene.load import key_spec
+
+    spec = key_spec(dotted)
+    if spec.kind == "int":
+        return int_in(None if spec.lo is None else int(spec.lo),
+                      None if spec.hi is None else int(spec.hi))
+    return float_in(spec.lo, spec.hi, lo_open=spec.lo_open)
+
+
+def png_path(value: str) -> Path:
+    """An argparse ``type`` for a frame's output: a name ending in ``.png`` (or none), so the
+    file written is the one named (``-o x.jpg`` used to write ``x.png``)."""
+    path = Path(value)
+    if path.suffix.lower() not in ("", ".png"):
+        raise argparse.ArgumentTypeError(
+            f"{value!r}: a frame is written as PNG, with its ground truth beside it (.json, "
+            ".csv); give a name ending in .png")
+    return path

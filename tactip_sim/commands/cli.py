@@ -10,9 +10,10 @@ other packages add theirs through the ``tactip.commands`` entry-point group
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from importlib.metadata import entry_points
 
 from ..scene import SceneError
@@ -116,9 +117,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``tactip`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code: 0, 1
-    (an error, printed), 2 (a scene error, printed) or 130 (interrupted)."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    (an error, printed), 2 (a scene error, printed), 130 (interrupted: Ctrl-C) or 143
+    (terminated: SIGTERM, handled as an interrupt so temporary files are removed)."""
+    try:  # loading the subcommands imports their packages: a Ctrl-C may land here
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        print("\ntactip: interrupted before the command started", file=sys.stderr)
+        return 130
+    with _sigterm_interrupts() as terminated:
+        return _run(args, terminated)
+
+
+def _run(args: argparse.Namespace, terminated: list[int]) -> int:
     try:
         return int(args.func(args) or 0)
     except SceneError as exc:
@@ -127,9 +138,47 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, RuntimeError, OSError) as exc:
         print(f"tactip {args.command}: error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:
+        # a Ctrl-C inside a compiled kernel (numba) surfaces as a SystemError caused by it
+        if isinstance(exc, SystemError) and not _caused_by_interrupt(exc):
+            raise
         # every finished sample and file is already on disk (written atomically)
         print(f"\ntactip {args.command}: interrupted; what was finished is kept, and running "
               "the same command again continues from there", file=sys.stderr)
-        return 130  # 128 + SIGINT, as a shell reports it
+        return 143 if terminated else 130  # 128 + SIGTERM / SIGINT, as a shell reports it
 
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts() -> Iterator[list[int]]:
+    """While the command runs, SIGTERM (``kill``, ``timeout``, a batch system's stop)
+    interrupts like Ctrl-C, so a terminated run also removes its temporary files and stops its
+    child processes (Python's default for SIGTERM exits at once, skipping both). Yields a list
+    that holds the signal once it arrived; the previous handler is restored after."""
+    import signal
+    import threading
+
+    seen: list[int] = []
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL):
+        yield seen
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        seen.append(signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield seen
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from .args import add_scene_argument, load_scene_args
+from .args import add_scene_argument, load_scene_args, scene_key_type
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -38,9 +38,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="rotation of the indenter about its approach axis (cylinder/edge axis)")
     p.add_argument("--indenter", choices=["plate", "sphere", "cylinder", "edge", "mesh"],
                    default=None, help="indenter shape (default: the scene's [indenter].kind)")
-    p.add_argument("--radius", type=float, default=None, metavar="MM",
+    p.add_argument("--radius", type=scene_key_type("indenter.radius_mm"), default=None,
+                   metavar="MM",
                    help="sphere/cylinder radius or edge rounding radius, mm")
-    p.add_argument("--length", type=float, default=None, metavar="MM",
+    p.add_argument("--length", type=scene_key_type("indenter.length_mm"), default=None,
+                   metavar="MM",
                    help="cylinder/edge length, mm")
     p.add_argument("--mesh", default=None, metavar="PATH",
                    help="watertight mesh file for --indenter mesh")

@@ -6,7 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from .args import add_scene_argument, load_scene_args
+from .args import add_scene_argument, int_in, load_scene_args, png_path, scene_key_type
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,10 +19,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--roll", type=float, default=0.0, help="roll (deg)")
     p.add_argument("--pitch", type=float, default=0.0, help="pitch (deg)")
     p.add_argument("--depth", type=float, default=1.0, help="indentation depth (mm)")
-    p.add_argument("-o", "--output", default="frame.png",
+    p.add_argument("-o", "--output", type=png_path, default="frame.png",
                    help="image path; .json and .csv ground truth are written beside it")
-    p.add_argument("--seed", type=int, default=0, help="seed of the sampler and sensor noise")
-    p.add_argument("--spp", type=int, default=None, help="samples per pixel (scene default)")
+    p.add_argument("--seed", type=int_in(0), default=0, help="seed of the sampler and sensor noise")
+    p.add_argument("--spp", type=scene_key_type("imaging.spp"), default=None,
+                   help="samples per pixel (scene default)")
     p.add_argument("--refraction", choices=["none", "analytic", "path"], default=None,
                    help="window/gel refraction (scene default)")
     p.add_argument("--pins", action="store_true", help="also render the black pins")

@@ -22,7 +22,7 @@ from ..geometry import Pad, build_pad
 from ..optics import Camera
 from ..optics.validate import SWEEPS, MarkerReport, marker_report, sweep
 from ..scene import Scene, scene_hash, scene_to_toml
-from .args import add_scene_argument, load_scene_args
+from .args import add_scene_argument, int_in, load_scene_args, scene_key_type
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,9 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "and sweep camera tilt, shift, distance and lens FOV (PNG charts + JSON/Markdown).")
     add_scene_argument(p)
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--views", type=int, default=16, help="calibration boards (0 = skip)")
-    p.add_argument("--spp", type=int, default=16, help="samples per pixel of the boards")
-    p.add_argument("--seed", type=int, default=0, help="seed of the board poses and noise")
+    p.add_argument("--views", type=int_in(0), default=16, help="calibration boards (0 = skip)")
+    p.add_argument("--spp", type=scene_key_type("imaging.spp"), default=16,
+                   help="samples per pixel of the boards")
+    p.add_argument("--seed", type=int_in(0), default=0, help="seed of the board poses and noise")
     p.add_argument("--no-render", action="store_true", help="skip the rendered-frame check")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=_cmd_validate)

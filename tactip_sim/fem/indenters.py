@@ -164,6 +164,9 @@ class Edge:
         return _extrude(d2, g2, q[:, 0], self.length_mm / 2)
 
 
+_MESH_FORMATS = "a closed triangle mesh (.stl, .obj, .ply, .off, .glb)"
+
+
 @dataclass(frozen=True, eq=False)
 class MeshIndenter:
     """Any watertight triangle mesh (a path trimesh can load, or a ``trimesh.Trimesh``).
@@ -188,13 +191,20 @@ class MeshIndenter:
             path = Path(src)
             if not path.is_file():
                 raise IndenterError(f"mesh={str(path)!r}: no such file")
-            tm = trimesh.load(path, force="mesh")
+            try:
+                tm = trimesh.load(path, force="mesh")
+            except Exception as exc:  # trimesh raises many types for a file it cannot parse
+                raise IndenterError(f"mesh={str(path)!r} cannot be read as a mesh ({exc}); "
+                                    f"give {_MESH_FORMATS}") from None
             object.__setattr__(self, "name", self.name or path.name)
         elif isinstance(src, trimesh.Trimesh):
             tm = src.copy()
         else:
             raise IndenterError(f"mesh={src!r} must be a path or a trimesh.Trimesh")
-        if len(tm.faces) == 0 or not tm.is_watertight:
+        if len(tm.faces) == 0:
+            raise IndenterError(f"mesh {self.name or 'given'} holds no triangles: not a mesh "
+                                f"file trimesh can read? give {_MESH_FORMATS}")
+        if not tm.is_watertight:
             raise IndenterError(
                 f"mesh {self.name or 'given'} is not watertight ({len(tm.faces)} faces): a "
                 "closed, manifold surface is required to tell inside from outside")

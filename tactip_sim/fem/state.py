@@ -8,6 +8,10 @@ import numpy as np
 
 from .pose import Pose
 
+WINDOW_SLACK_MM = 1e-6
+"""A marker more than this below the window's inner face (z = 0) is inside the acrylic:
+possible only where a solve does not stop the pins at the window."""
+
 _FLOAT_ARRAYS = (
     "markers_mm", "rest_markers_mm", "marker_directions", "surface_displacements_mm",
     "contact_points_mm", "contact_forces_N", "contact_pressures_kpa", "force_vector_N",
@@ -111,7 +115,7 @@ class ContactState:
     def tips_below_window(self) -> int:
         """Pin tips below the window's inner face (z < 0): possible only where the window is
         not modelled; their images are not physical (flag or refuse such samples)."""
-        return int(np.sum(self.markers_mm[:, 2] < -1e-6))
+        return int(np.sum(self.markers_mm[:, 2] < -WINDOW_SLACK_MM))
 
     @property
     def marker_displacements_mm(self) -> np.ndarray:

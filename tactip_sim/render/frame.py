@@ -70,6 +70,9 @@ class Frame:
         import cv2
 
         path = Path(path)
+        if path.suffix.lower() not in ("", ".png"):
+            raise ValueError(f"{str(path)!r}: a frame is written as PNG, with its ground truth "
+                             "beside it (.json, .csv); give a name ending in .png")
         path.parent.mkdir(parents=True, exist_ok=True)
         png = path.with_suffix(".png")
         img = self.image if self.image.ndim == 2 else self.image[..., ::-1]  # RGB -> BGR

@@ -16,11 +16,13 @@ from typing import Any
 
 import numpy as np
 
+from ..fem.state import WINDOW_SLACK_MM
 from ..geometry import Pad, build_pad
 from ..llvm import import_mitsuba
 from ..optics.camera import Camera
 from ..optics.visibility import check_view, visibility
 from ..scene import Scene, scene_hash
+from ..scene.load import key_spec
 from ..scene.schema import SHADINGS
 from . import integrator as _integrator
 from . import sensor as _sensor
@@ -94,6 +96,10 @@ class Renderer:
             raise ValueError(f"shading={shading!r} is not allowed: expected one of {SHADINGS}")
         self.scene = scene
         self.pad = build_pad(scene) if pad is None else pad
+        if len(self.pad.markers_mm) == 0:
+            raise ValueError(f"pins.count={scene.pins.count}: the pad has no markers, so the "
+                             "camera has nothing to see; rendering needs pins.count >= 1 "
+                             "(pressing works without pins)")
         self.optics = Camera.from_scene(scene)
         self.camera = CameraModel.from_scene(scene)
         self.pins = pins
@@ -253,6 +259,14 @@ class Renderer:
         norm = np.linalg.norm(d, axis=1, keepdims=True)
         if not (np.all(np.isfinite(m)) and np.all(norm > 0)):
             raise ValueError("markers_mm must be finite and directions non-zero")
+        below = m[:, 2] < -WINDOW_SLACK_MM
+        if below.any():
+            raise ValueError(
+                f"{int(below.sum())} of {n} markers lie below the window's inner face (lowest "
+                f"z = {m[:, 2].min():.3f} mm): their pins passed through the acrylic, which this "
+                "contact solve did not stop (only fidelity.contact_solver='reduced' models the "
+                "window), and no camera could see such a frame. Use the reduced solver or a "
+                "shallower depth")
         return m, d / norm
 
     def render_radiance(self, markers_mm: np.ndarray | None = None,
@@ -270,7 +284,7 @@ class Renderer:
         if mode == "path":
             shade = "diffused"
         m, d = self._markers(markers_mm, directions)
-        spp = self.scene.imaging.spp if spp is None else int(spp)
+        spp = self.scene.imaging.spp if spp is None else _check_spp(spp)
         mi = self.mi
         if mode == "path" or shade == "lambert":
             loaded = self._scene_for("full", mode, shade)
@@ -333,7 +347,7 @@ class Renderer:
         gen = np.random.default_rng(rng)
         seed = int(gen.integers(0, 2**31 - 1))
         mode = self.optics.refraction_mode(refraction)
-        spp = self.scene.imaging.spp if spp is None else int(spp)
+        spp = self.scene.imaging.spp if spp is None else _check_spp(spp)
         m, d = self._markers(markers_mm, directions)
         t0 = time.perf_counter()
         radiance = self.render_radiance(m, d, seed=seed, spp=spp, refraction=mode)
@@ -348,3 +362,9 @@ class Renderer:
             "render_ms": round(1e3 * (t1 - t0), 2), "camera_ms": round(1e3 * (t2 - t1), 2),
         }
         return Frame(image, px, vis, blobs, meta)
+
+
+def _check_spp(spp: Any) -> int:
+    """``spp`` checked against ``imaging.spp``'s range (a SceneError, a ValueError, naming
+    ``spp`` and the range; Dr.Jit's own error for a bad count does not say which)."""
+    return key_spec("imaging.spp").check_scalar("spp", spp)

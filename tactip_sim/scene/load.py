@@ -10,7 +10,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ._spec import SceneError
+from ._spec import SceneError, Spec
+from .names import check_name
 from .presets import parse_presets, preset_names
 from .schema import SECTIONS, Scene
 
@@ -68,13 +69,21 @@ def load_scene(path: str | Path, overrides: Mapping[str, Any] | None = None) -> 
         The file is missing, is not valid TOML, or a value is out of its allowed range.
     """
     path = Path(path)
+    if path.is_dir():
+        raise SceneError(f"scene file {str(path)!r} is a folder: give a .toml scene file, "
+                         "e.g. scenes/shadow_fingertip.toml")
     if not path.is_file():
         raise SceneError(f"scene file {str(path)!r} does not exist")
     try:
         with path.open("rb") as fh:
             data = tomllib.load(fh)
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"scene file {str(path)!r} is not a text (TOML) file: byte "
+                         f"{exc.start} is not UTF-8 (an image or a binary file?)") from None
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"scene file {str(path)!r} is not valid TOML: {exc}") from exc
+    except OSError as exc:
+        raise SceneError(f"scene file {str(path)!r} cannot be read: {exc.strerror}") from None
     if overrides:
         data = apply_overrides(data, overrides)
     return scene_from_dict(data, source=str(path.resolve()))
@@ -128,6 +137,16 @@ def preset_of(scene: Scene) -> str | None:
         if all(d[s][k] == v for s, kv in scene.presets[name].items() for k, v in kv.items()):
             return name
     return None
+
+
+def key_spec(dotted: str) -> Spec:
+    """The :class:`Spec` (type and allowed range) of scene key ``"section.key"``, e.g. to
+    check an argument that stands for that key with the key's own range."""
+    section, _, key = dotted.partition(".")
+    if section not in SECTIONS:
+        raise KeyError(f"{dotted!r}: no section {section!r}")
+    specs = {f.name: f.metadata["spec"] for f in dataclasses.fields(SECTIONS[section])}
+    return specs[key]
 
 
 def scene_to_dict(scene: Scene) -> dict[str, Any]:
@@ -218,6 +237,33 @@ def _cross_checks(scene: Scene, *, base_dir: Path) -> None:
             f"camera.distance_mm={cam.distance_mm:g} puts the camera outside the body: allowed "
             f"(0, body.depth_mm={body.depth_mm:g}]"
         )
+    # the body below the window has the window's outline (footprint + rim): the camera and
+    # the LEDs it holds sit inside it (tactip_sim.geometry.build_pad builds it so)
+    half_x = pad.footprint_length_mm / 2 + scene.window.rim_width_mm
+    half_y = pad.footprint_width_mm / 2 + scene.window.rim_width_mm
+    if abs(cam.shift_mm) > half_x:
+        raise SceneError(
+            f"camera.shift_mm={cam.shift_mm:g} puts the camera outside the body: allowed "
+            f"[{-half_x:g}, {half_x:g}] (pad.footprint_length_mm / 2 + window.rim_width_mm)"
+        )
+    light = scene.lighting
+    if light.strip_y_mm > half_y:
+        raise SceneError(
+            f"lighting.strip_y_mm={light.strip_y_mm:g} puts the LEDs outside the body: allowed "
+            f"[0, {half_y:g}] (pad.footprint_width_mm / 2 + window.rim_width_mm)"
+        )
+    for i, x in enumerate(light.led_x_mm):
+        if abs(x) > half_x:
+            raise SceneError(
+                f"lighting.led_x_mm[{i}]={x:g} puts an LED outside the body: allowed "
+                f"[{-half_x:g}, {half_x:g}] (pad.footprint_length_mm / 2 + window.rim_width_mm)"
+            )
+    if -light.led_z_mm > scene.window.thickness_mm + body.depth_mm:
+        raise SceneError(
+            f"lighting.led_z_mm={light.led_z_mm:g} puts the LEDs below the body's back: allowed "
+            f"[{-(scene.window.thickness_mm + body.depth_mm):g}, 0] (window.thickness_mm + "
+            "body.depth_mm below the window's outer face)"
+        )
     if body.protrusion_height_mm > body.depth_mm:
         raise SceneError(
             f"body.protrusion_height_mm={body.protrusion_height_mm:g} is out of range: allowed "
@@ -238,6 +284,8 @@ def _cross_checks(scene: Scene, *, base_dir: Path) -> None:
             )
     if len(set(proto.tips)) != len(proto.tips) or not all(proto.tips):
         raise SceneError(f"protocol.tips={list(proto.tips)!r} must be distinct, non-empty names")
+    for i, tip in enumerate(proto.tips):  # tips name the folders of a calibration
+        check_name(tip, f"protocol.tips[{i}]")
     ind = scene.indenter
     if ind.kind == "mesh":
         if not ind.mesh:

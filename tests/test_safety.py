@@ -1,0 +1,293 @@
+"""Issue 15 (data safety and honest failures): one test per defect this branch fixed. Each
+failed on the code before its fix (the message, the exception type or the file written)."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tactip_sim as ts
+from tactip_sim.commands.args import float_in, int_in, png_path, scene_key_type
+from tactip_sim.scene import SceneError
+from tactip_sim.scene.names import check_name
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
+
+
+# --- item 10: a scene that is not a scene ------------------------------------------------
+
+def test_folder_as_scene_says_folder(tmp_path):
+    with pytest.raises(SceneError, match="is a folder"):
+        ts.load_scene(tmp_path)
+
+
+@pytest.mark.parametrize("payload", [
+    b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR",   # a PNG's signature
+    bytes(range(256)),                         # arbitrary binary
+])
+def test_binary_file_as_scene_is_a_scene_error_naming_it(tmp_path, payload):
+    path = tmp_path / "frame.png"
+    path.write_bytes(payload)
+    with pytest.raises(SceneError, match="frame.png.*not a text"):
+        ts.load_scene(path)
+
+
+# --- item 2: scene values that become paths ----------------------------------------------
+
+@pytest.mark.parametrize("tip", ["x/../../../ESCAPED", "..", "a/b", "", " A", "a\\b", "A" * 33])
+def test_unsafe_tip_names_refused_where_the_scene_is_read(tip):
+    with pytest.raises(SceneError, match=r"protocol\.tips"):
+        ts.load_scene(SCENE, {"protocol.tips": [tip]})
+
+
+@pytest.mark.parametrize("name", ["A", "tip_1", "B+C", "x-2", "9"])
+def test_safe_names_pass(name):
+    assert check_name(name, "k") == name
+
+
+# --- item 10: the camera and the LEDs outside the body -----------------------------------
+
+@pytest.mark.parametrize("key, value", [
+    ("camera.shift_mm", 100.0), ("camera.shift_mm", -100.0),
+    ("lighting.strip_y_mm", 100.0), ("lighting.led_z_mm", -500.0),
+])
+def test_camera_or_leds_outside_the_body_refused(key, value):
+    with pytest.raises(SceneError, match=key.replace(".", r"\.") + ".*outside|below"):
+        ts.load_scene(SCENE, {key: value})
+
+
+def test_bundled_scenes_still_load():
+    for path in (ROOT / "scenes").glob("*.toml"):
+        ts.load_scene(path)
+
+
+# --- item 10: numeric options name the option and the range ------------------------------
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="t", exit_on_error=False)
+    p.add_argument("--seed", type=int_in(0))
+    p.add_argument("--frac", type=float_in(0, 1, lo_open=True))
+    p.add_argument("--spp", type=scene_key_type("imaging.spp"))
+    return p
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--seed", "-1"], r"--seed: -1 is out of range: allowed \[0, inf\)"),
+    (["--seed", "1.5"], "--seed"),
+    (["--frac", "0"], r"--frac: 0 is out of range: allowed \(0, 1\]"),
+    (["--frac", "nan"], "--frac"),
+    (["--spp", "-4"], r"--spp: -4 is out of range: allowed \[1, 4096\]"),
+])
+def test_number_options_name_option_and_range(argv, needle):
+    with pytest.raises(argparse.ArgumentError, match=needle):
+        _parser().parse_args(argv)
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["render", str(SCENE), "--spp", "-4"], "--spp: -4 is out of range"),
+    (["render", str(SCENE), "--seed", "-1"], "--seed: -1 is out of range"),
+    (["validate-lens", str(SCENE), "--views", "-2"], "--views: -2 is out of range"),
+    (["render", str(SCENE), "-o", "x.jpg"], "give a name ending in .png"),
+])
+def test_cli_refuses_before_any_work(tmp_path, argv, needle):
+    proc = subprocess.run([sys.executable, "-m", "tactip_sim.commands", *argv], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert needle in proc.stderr and "Traceback" not in proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+# --- item 7: render -o x.jpg wrote x.png -------------------------------------------------
+
+def test_png_path_type():
+    assert png_path("a/b.png") == Path("a/b.png")
+    assert png_path("a/B.PNG") == Path("a/B.PNG")
+    with pytest.raises(argparse.ArgumentTypeError, match="x.jpg"):
+        png_path("x.jpg")
+
+
+def test_frame_save_refuses_another_extension(tmp_path):
+    from tactip_sim.render.frame import Frame
+
+    frame = Frame(np.zeros((4, 4), np.uint8), np.zeros((0, 2)), np.zeros(0, bool),
+                  [], {})
+    with pytest.raises(ValueError, match="ending in .png"):
+        frame.save(tmp_path / "x.jpg")
+    assert list(tmp_path.iterdir()) == []
+
+
+# --- items 4 and 10: frames no camera could see ------------------------------------------
+
+def test_renderer_refuses_a_pad_without_pins(scene):
+    zero = ts.load_scene(SCENE, {"pins.count": 0})
+    pad = ts.build_pad(zero)
+    from tactip_sim.render import Renderer
+
+    with pytest.raises(ValueError, match=r"pins\.count=0.*pins\.count >= 1"):
+        Renderer(zero, pad)
+
+
+def test_renderer_refuses_markers_below_the_window(scene, pad):
+    from tactip_sim.render import Renderer
+
+    r = Renderer(scene, pad)
+    m = pad.markers_mm.copy()
+    m[3, 2] = -0.4          # the issue's case: a tip 0.4 mm inside the acrylic
+    with pytest.raises(ValueError, match="1 of .* markers lie below the window"):
+        r.render(m, pad.pins.directions, spp=1)
+
+
+@pytest.mark.parametrize("spp", [0, -4, 10**6, 2.5])
+def test_render_spp_checked_with_the_key_range(scene, pad, spp):
+    from tactip_sim.render import Renderer
+
+    r = Renderer(scene, pad)
+    with pytest.raises(ValueError, match="spp"):
+        r.render(pad.markers_mm, pad.pins.directions, spp=spp)
+
+
+# --- item 10: a file that is not a mesh as the indenter ----------------------------------
+
+@pytest.mark.parametrize("payload", [b"hello\n", bytes(range(256)) * 4])
+def test_non_mesh_indenter_file_says_so(tmp_path, payload):
+    from tactip_sim.fem import IndenterError
+    from tactip_sim.fem.indenters import MeshIndenter
+
+    path = tmp_path / "part.stl"
+    path.write_bytes(payload)
+    with pytest.raises(IndenterError, match="part.stl.*(no triangles|cannot be read)") as err:
+        MeshIndenter(path)
+    assert "watertight" not in str(err.value)
+
+
+def test_non_watertight_mesh_still_named_so():
+    import trimesh
+
+    from tactip_sim.fem import IndenterError
+    from tactip_sim.fem.indenters import MeshIndenter
+
+    box = trimesh.creation.box((1, 1, 1))
+    open_box = trimesh.Trimesh(box.vertices, box.faces[:-2])
+    with pytest.raises(IndenterError, match="not watertight"):
+        MeshIndenter(open_box)
+
+
+# --- item 10: calibrate --tips with an empty name ran every tip / skipped it -------------
+
+@pytest.mark.parametrize("tips", ["", "A,,B", " , "])
+def test_calibrate_empty_tip_name_refused(tmp_path, tips):
+    proc = subprocess.run([sys.executable, "-m", "tactip_sim.commands", "calibrate", str(SCENE),
+                           "--tips", tips, "--out", str(tmp_path / "cal")], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    assert "--tips" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "cal").exists()
+
+
+# --- item 12: Dr.Jit's kernel cache under the tool's cache, not ~/.drjit -----------------
+
+_RENDER_TINY = """
+from tactip_sim.llvm import import_mitsuba
+mi = import_mitsuba()
+scene = mi.load_dict({"type": "scene", "integrator": {"type": "direct"},
+    "sensor": {"type": "perspective", "film": {"type": "hdrfilm", "width": 4, "height": 4}},
+    "s": {"type": "sphere", "center": [0, 0, 3.25]}, "e": {"type": "constant"}})
+mi.render(scene, spp=2)
+"""
+
+
+def _run_tiny_render(tmp_path, **env_extra):
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "DRJIT_CACHE_DIR"}
+    env.update(HOME=str(tmp_path / "home"), PYTHONPATH=str(ROOT),
+               TACTIP_CACHE_DIR=str(tmp_path / "cache"), **env_extra)
+    (tmp_path / "home").mkdir(exist_ok=True)
+    proc = subprocess.run([sys.executable, "-c", _RENDER_TINY], env=env, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_drjit_kernels_go_to_the_tool_cache_and_clear_removes_only_them(tmp_path):
+    import os
+
+    _run_tiny_render(tmp_path)
+    assert not (tmp_path / "home" / ".drjit").exists()
+    kernels = list((tmp_path / "cache" / "drjit").glob("*.llvm.*.bin"))
+    assert kernels
+    user_file = tmp_path / "cache" / "drjit" / "notes.txt"
+    user_file.write_text("mine")
+    env = {**os.environ, "TACTIP_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, "-m", "tactip_sim.commands", "cache", "clear"],
+                          env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert not any(p.exists() for p in kernels)
+    assert user_file.read_text() == "mine"
+
+
+def test_a_users_drjit_cache_dir_is_kept(tmp_path):
+    mine = tmp_path / "my_kernels"
+    _run_tiny_render(tmp_path, DRJIT_CACHE_DIR=str(mine))
+    assert list(mine.glob("*.llvm.*.bin"))
+    assert not (tmp_path / "cache" / "drjit").exists()
+    assert not (tmp_path / "home" / ".drjit").exists()
+
+
+# --- items 8 and 11: an interrupted or terminated mesh leaves nothing behind -------------
+
+def _processes_mentioning(text: str) -> list[int]:
+    pids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                if text in (d / "cmdline").read_bytes().decode(errors="replace"):
+                    pids.append(int(d.name))
+            except OSError:
+                pass
+    return pids
+
+
+@pytest.mark.parametrize("sig, rc", [("SIGTERM", 143), ("SIGINT", 130)])
+def test_interrupted_mesher_removes_its_folder_and_child(tmp_path, sig, rc):
+    import os
+    import signal
+    import time
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp), "TACTIP_CACHE_DIR": str(tmp_path / "cache"),
+           "PYTHONPATH": str(ROOT)}
+    # an edge the cache and the bundle do not hold, so pytetwild runs (for tens of seconds)
+    proc = subprocess.Popen([sys.executable, "-m", "tactip_sim.commands", "mesh", str(SCENE),
+                             "--set", "fidelity.mesh_edge_mm=15.5"], env=env, cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(tmp.glob("tactip-tetwild-*/input.npz")):
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "pytetwild never started"
+            time.sleep(0.2)
+        time.sleep(1.0)  # the child is running
+        assert _processes_mentioning(str(tmp))
+        proc.send_signal(getattr(signal, sig))
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == rc, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert list(tmp.iterdir()) == []              # the temporary folder is gone
+    assert _processes_mentioning(str(tmp)) == []  # and so is the mesher
+
+
+def test_mesh_edge_that_hung_is_refused_naming_the_range():
+    # 100 mm was allowed and ran pytetwild for > 300 s (docs/robustness.md)
+    with pytest.raises(SceneError, match=r"fidelity\.mesh_edge_mm=100.*allowed \[0\.2, 16\]"):
+        ts.load_scene(SCENE, {"fidelity.mesh_edge_mm": 100.0})
+    assert ts.load_scene(SCENE, {"fidelity.mesh_edge_mm": 16.0}).fidelity.mesh_edge_mm == 16.0
