@@ -164,7 +164,8 @@ def _check_overwrite(out: Path) -> None:
     if not out.exists():
         return
     try:
-        is_model = json.loads(out.read_text()).get("format") == "perception.PoseRegressor"
+        is_model = json.loads(out.read_text()).get("format") in (
+            "perception.PoseRegressor", "perception.VectorRegressor")
     except (OSError, ValueError, UnicodeDecodeError, AttributeError):
         is_model = False
     if out.is_dir() or not is_model:
