@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from .dataset import DATASET_KIND, MANIFEST, DatasetError
-from .fit import DEFAULT_FEATURE, FEATURES, FeatureTable, check_feature
+from .fit import DEFAULT_FEATURE, FEATURES, FOLDER_FEATURES, FeatureTable, check_feature, make_model
 
 TAP_GATE_FRACTION = 1.0
 """Tracking gate for taps, as a fraction of the rest spacing (frame-to-frame sequences use 0.5,
@@ -209,16 +209,25 @@ def _choose_rest(root: Path, rest: str | Path | None, images: list[Path], depth:
 # ---------------------------------------------------------------------------------------------
 # Features of every frame
 
+def _flow_names() -> tuple[str, ...]:
+    from perception.flow import FLOW_NAMES
+
+    return FLOW_NAMES
+
+
 PER_FRAME_COLUMNS = ("index", "image", "roll_deg", "pitch_deg", "depth_mm", *(
-    f"cop_{f}_{a}_px" for f in FEATURES for a in "xy"), "n_detected", "reliable", "reason")
+    f"cop_{f}_{a}_px" for f in FEATURES for a in "xy"), *(f"flow_{n}" for n in _flow_names()),
+    "n_detected", "n_tracked", "reliable", "reason")
 
 
 @dataclass(frozen=True)
 class FrameTable:
     """Per-frame features of a folder.
 
-    cop : {feature name: (n, 2) px} (NaN where undefined)
+    cop : {feature name: (n, 2) px, or (n, d) for a vector feature} (NaN where undefined;
+    the vector features only when perceived from the frames)
     reliable : (n,) bool, the pipeline's verdict; reason : why not
+    n_tracked : (n,) markers of the reference tracked in each frame (None: stored features)
     """
 
     folder: BristolFolder
@@ -228,6 +237,7 @@ class FrameTable:
     reason: list[str]
     rest_markers: int | None  # markers on the reference frame (None: stored features)
     detection_reliable: np.ndarray | None = None  # (n,) bool; None: as ``reliable``
+    n_tracked: np.ndarray | None = None
 
     def usable(self, feature: str) -> np.ndarray:
         """(n,) bool: frames whose verdict allows ``feature``: the lab's ``hull`` CoP needs
@@ -239,9 +249,14 @@ class FrameTable:
 
     def features(self, feature: str = DEFAULT_FEATURE, *, keep_flagged: bool = False
                  ) -> FeatureTable:
-        """The rows usable for fitting or scoring: a finite CoP, and reliable unless
+        """The rows usable for fitting or scoring: a finite feature, and reliable unless
         ``keep_flagged``."""
-        cop = self.cop[check_feature(feature)]
+        check_feature(feature, allowed=FOLDER_FEATURES)
+        if feature not in self.cop:
+            raise DatasetError(f"{self.folder.root}: the {feature!r} feature is perceived from "
+                               "the frames; this project's datasets store only the CoP features "
+                               f"({', '.join(FEATURES)}): pass --perceive")
+        cop = self.cop[feature]
         ok = np.all(np.isfinite(cop), axis=1) & (self.usable(feature) | keep_flagged)
         f = self.folder
         return FeatureTable(cop[ok], f.angles_deg[ok], f.depth_mm[ok], np.flatnonzero(~ok),
@@ -256,7 +271,10 @@ class FrameTable:
             cells = [str(i), f.images[i].name, repr(float(f.angles_deg[i, 0])),
                      repr(float(f.angles_deg[i, 1])), repr(float(f.depth_mm[i]))]
             cells += [repr(float(self.cop[name][i, k])) for name in FEATURES for k in (0, 1)]
-            cells += [str(int(self.n_detected[i])), str(int(self.reliable[i])),
+            flow = self.cop.get("flow", np.full((len(f), len(_flow_names())), np.nan))
+            cells += [repr(float(v)) for v in flow[i]]
+            tracked = "" if self.n_tracked is None else str(int(self.n_tracked[i]))
+            cells += [str(int(self.n_detected[i])), tracked, str(int(self.reliable[i])),
                       '"' + self.reason[i].replace('"', "'") + '"']
             lines.append(",".join(cells))
         atomic_write_text(Path(path), "\n".join(lines) + "\n")
@@ -289,7 +307,9 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
         raise DatasetError(f"{folder.rest}: the reference frame cannot be used ({exc})") from None
     n = len(folder)
     cop = {name: np.full((n, 2), np.nan) for name in FEATURES}
+    cop["flow"] = np.full((n, len(_flow_names())), np.nan)
     detected = np.zeros(n, dtype=np.int64)
+    tracked = np.zeros(n, dtype=np.int64)
     reliable = np.zeros(n, dtype=bool)
     detection_ok = np.zeros(n, dtype=bool)
     reasons = [""] * n
@@ -304,12 +324,14 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
         cop["area"][i] = f.cop_area
         cop["growth"][i] = f.cop_growth
         cop["hull"][i] = f.cop_hull
+        cop["flow"][i] = f.flow
         detected[i] = f.n_detected
+        tracked[i] = len(f.points) - f.n_lost
         reliable[i] = bool(f.reliable)
         detection_ok[i] = bool(f.detection_reliable)
         reasons[i] = "" if f.reliable else f.reason
     return FrameTable(folder, cop, detected, reliable, reasons, len(pipe.rest_points),
-                      detection_ok)
+                      detection_ok, tracked)
 
 
 def stored_features(folder: BristolFolder) -> FrameTable:
@@ -335,12 +357,11 @@ def folder_features(folder: BristolFolder, *, perceive: bool = False,
     return perceive_folder(folder, expected_count=expected_count, progress=progress)
 
 
-def cross_validate(table: FeatureTable, order: int, folds: int, *, seed: int = 0
-                   ) -> dict[str, Any]:
-    """``folds``-fold cross-validated R² of an order-``order`` regressor: every sample predicted
-    by the model fitted without its fold (shuffled folds, seeded), R² over all predictions."""
-    import perception as pc
-
+def cross_validate(table: FeatureTable, order: int, folds: int, *, seed: int = 0,
+                   feature: str = DEFAULT_FEATURE) -> dict[str, Any]:
+    """``folds``-fold cross-validated R² of an order-``order`` regressor of ``feature``: every
+    sample predicted by the model fitted without its fold (shuffled folds, seeded), R² over all
+    predictions."""
     n = len(table.cop_px)
     if folds < 2 or folds > n:
         raise ValueError(f"--cv={folds} is out of range: allowed [2, {n}] (the usable frames)")
@@ -349,7 +370,7 @@ def cross_validate(table: FeatureTable, order: int, folds: int, *, seed: int = 0
     for k in range(folds):
         test = idx[k::folds]
         train = np.setdiff1d(idx, test)
-        model = pc.PoseRegressor(order=order, image_size=table.image_size)
+        model = make_model(order, feature, table.image_size)
         model.fit(table.cop_px[train], table.angles_deg[train])
         pred[test] = model.predict(table.cop_px[test])
     y = table.angles_deg

@@ -24,7 +24,8 @@ PAPER_DEPTHS = (-0.5, 0.0, 0.5)
 class FeatureTable:
     """CoP features and known angles of the usable samples of a dataset.
 
-    cop_px : (n, 2) perceived centre of pressure; angles_deg : (n, 2) roll, pitch
+    cop_px : (n, 2) perceived centre of pressure, or (n, d) for a vector feature
+    (:data:`VECTOR_FEATURES`); angles_deg : (n, 2) roll, pitch
     depth_mm : (n,); dropped : samples without a reliable CoP (listed, never silently used)
     """
 
@@ -47,10 +48,35 @@ default headline feature (docs/calibration.md says why)."""
 DEFAULT_FEATURE = next(iter(FEATURES))
 
 
-def check_feature(feature: str) -> str:
-    if feature not in FEATURES:
-        raise ValueError(f"feature={feature!r} is not allowed: one of {', '.join(FEATURES)}")
+VECTOR_FEATURES = {
+    "flow": "the growth CoP plus the whole marker array's motion against the rest frame: mean "
+            "displacement, displacement-weighted centroid, displacement gradient "
+            "(perception/flow.py; 10 numbers)",
+}
+"""Features of more than two numbers, perceived from a folder's frames (``tactip fit`` /
+``evaluate`` / ``features`` on Bristol-layout folders); this project's sweeps store only the
+CoP :data:`FEATURES`."""
+FOLDER_FEATURES = {**FEATURES, **VECTOR_FEATURES}
+"""Every feature ``tactip fit`` can fit on a labelled folder."""
+
+
+def check_feature(feature: str, *, allowed: dict[str, str] = FEATURES) -> str:
+    if feature not in allowed:
+        raise ValueError(f"feature={feature!r} is not allowed: one of {', '.join(allowed)}")
     return feature
+
+
+def make_model(order: int, feature: str, image_size: tuple[int, int] | None):
+    """An unfitted regressor for ``feature``: :class:`perception.PoseRegressor` on a CoP,
+    :class:`perception.vector_regression.VectorRegressor` on a vector feature."""
+    import perception as pc
+
+    if check_feature(feature, allowed=FOLDER_FEATURES) in VECTOR_FEATURES:
+        from perception.flow import FLOW_NAMES
+        from perception.vector_regression import VectorRegressor
+
+        return VectorRegressor(order, input_names=FLOW_NAMES, image_size=image_size)
+    return pc.PoseRegressor(order=order, image_size=image_size)
 
 
 def features(dataset: Dataset | str | Path, *, feature: str = DEFAULT_FEATURE) -> FeatureTable:
@@ -67,14 +93,13 @@ def features(dataset: Dataset | str | Path, *, feature: str = DEFAULT_FEATURE) -
                         (int(res[0]), int(res[1])))
 
 
-def fit_model(train: FeatureTable, order: int):
-    """A :class:`perception.PoseRegressor` of ``order`` fitted on ``train``."""
-    import perception as pc
-
-    if len(train.cop_px) < 3 * (order + 1):
+def fit_model(train: FeatureTable, order: int, feature: str = DEFAULT_FEATURE):
+    """A regressor of ``order`` for ``feature`` (:func:`make_model`) fitted on ``train``."""
+    model = make_model(order, feature, train.image_size)
+    n_coef = len(model.powers_) + 1
+    if len(train.cop_px) < max(3 * (order + 1), n_coef):
         raise DatasetError(f"only {len(train.cop_px)} usable training samples for an order-"
-                           f"{order} model")
-    model = pc.PoseRegressor(order=order, image_size=train.image_size)
+                           f"{order} model of the {feature!r} feature")
     return model.fit(train.cop_px, train.angles_deg)
 
 
@@ -86,7 +111,7 @@ def save_model(model: Any, path: str | Path, *, feature: str, fitted_on: dict[st
     from .dataset import atomic_write_text
 
     data = model.to_dict()
-    data["fitted_on"] = {"feature": check_feature(feature),
+    data["fitted_on"] = {"feature": check_feature(feature, allowed=FOLDER_FEATURES),
                          "image_size": list(model.image_size or []), **fitted_on}
     atomic_write_text(Path(path), json.dumps(data, indent=2, default=json_default) + "\n")
 
@@ -95,8 +120,22 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     """A saved model and its ``fitted_on`` record (empty for a model saved without one)."""
     import perception as pc
 
-    model = pc.PoseRegressor.from_json(Path(path))
+    model = pc.PoseRegressor.from_json(Path(path))  # checks the file and its JSON
     return model, json.loads(Path(path).read_text()).get("fitted_on", {})
+
+
+def load_any_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
+    """:func:`load_model` for a CoP model or a vector-feature model (by its ``format``)."""
+    from perception.errors import ModelError
+    from perception.vector_regression import VectorRegressor
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        raise ModelError(f"cannot read model file {str(path)!r}: {exc}") from None
+    if isinstance(data, dict) and data.get("format") == "perception.VectorRegressor":
+        return VectorRegressor.from_dict(data), data.get("fitted_on", {})
+    return load_model(path)
 
 
 @dataclass(frozen=True)

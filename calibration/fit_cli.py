@@ -16,7 +16,7 @@ from tactip_sim.commands.args import int_in
 
 
 def _folder_arguments(p: argparse.ArgumentParser) -> None:
-    from .fit import DEFAULT_FEATURE, FEATURES
+    from .fit import FOLDER_FEATURES
 
     g = p.add_argument_group("the labelled folder (Bristol layout: targets.csv + images)")
     g.add_argument("--rest", metavar="IMAGE",
@@ -40,9 +40,11 @@ def _folder_arguments(p: argparse.ArgumentParser) -> None:
                    "of using the features their sweep stored (averaged over all frames)")
     g.add_argument("--keep-flagged", action="store_true",
                    help="also use frames the pipeline flagged unreliable (if they have a CoP)")
-    g.add_argument("--feature", default=None, choices=list(FEATURES),
-                   help="CoP feature: " + "; ".join(f"'{k}' = {v}" for k, v in FEATURES.items())
-                   + f" (fit: default {DEFAULT_FEATURE}; evaluate: the model's)")
+    g.add_argument("--feature", default=None, choices=[*FOLDER_FEATURES, "auto"],
+                   help="feature: " + "; ".join(f"'{k}' = {v}"
+                                                for k, v in FOLDER_FEATURES.items())
+                   + "; 'auto' = every one, the best by cross-validation (fit: default auto; "
+                   "evaluate: the model's)")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -73,34 +75,88 @@ def _write_json(target: str | None, data: dict[str, Any]) -> None:
         atomic_write_text(Path(target), text)
 
 
-def _cmd_fit(args: argparse.Namespace) -> int:
-    from .bristol import cross_validate
-    from .fit import DEFAULT_FEATURE, fit_model, save_model
+def _candidates(args: argparse.Namespace, frames: Any) -> tuple[list[str], list[int]]:
+    from .fit import FEATURES, FOLDER_FEATURES
 
-    feature = args.feature or DEFAULT_FEATURE
+    if args.feature and args.feature != "auto":
+        features = [args.feature]
+    else:  # stored features of this project's datasets: the CoPs only
+        features = list(FOLDER_FEATURES if "flow" in frames.cop else FEATURES)
+    orders = [1, 2, 3] if args.order == "auto" else [int(args.order)]
+    return features, orders
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    from .cv_select import nested_cv, select_by_cv
+    from .fit import fit_model, save_model
+
+    if args.cv is not None and args.cv < 2:
+        raise ValueError(f"--cv={args.cv} is out of range: allowed >= 2")
     frames = _open(args, args.dataset)
+    features, orders = _candidates(args, frames)
+    report: dict[str, Any] = {}
+    chosen = None
+    if len(features) * len(orders) > 1:
+        folds = args.cv or 5
+        chosen, cands = select_by_cv(frames, features, orders, folds, seed=args.seed,
+                                     keep_flagged=args.keep_flagged)
+        report["selection"] = {
+            "folds": folds, "seed": args.seed, "criterion": "mean of the roll and pitch "
+            "cross-validated R²", "candidates": [
+                {k: v for k, v in c.items() if k != "predicted_deg"} for c in cands]}
+        print(f"{folds}-fold cross-validated R² of each candidate (roll, pitch; frames used):")
+        for c in cands:
+            mark = " <- chosen" if c is chosen else ""
+            if "error" in c:
+                print(f"  {c['feature']:>6} order {c['order']}: failed ({c['error']})")
+            else:
+                print(f"  {c['feature']:>6} order {c['order']}: {c['r2_roll']:.4f}, "
+                      f"{c['r2_pitch']:.4f} ({c['n_used']}){mark}")
+        feature, order = chosen["feature"], chosen["order"]
+    else:
+        feature, order = features[0], orders[0]
     train = frames.features(feature, keep_flagged=args.keep_flagged)
-    model = fit_model(train, args.order)
-    out = Path(args.out) if args.out else Path(args.dataset) / f"model_order{args.order}.json"
+    model = fit_model(train, order, feature)
+    out = Path(args.out) if args.out else Path(args.dataset) / f"model_order{order}.json"
     _check_overwrite(out)
     save_model(model, out, feature=feature,
                fitted_on={"data": str(Path(args.dataset).resolve()), "rows": len(frames.folder),
                           "used": len(train.cop_px), **frames.summary()})
     s = model.score(train.cop_px, train.angles_deg)
-    report: dict[str, Any] = {
-        "model": str(out), "feature": feature, "order": args.order, "n_used": s.n,
+    report = {
+        "model": str(out), "feature": feature, "order": order, "n_used": s.n,
         "n_flagged": int((~frames.usable(feature)).sum()), "n_rows": len(frames.folder),
-        "train_r2_roll": float(s.r2[0]), "train_r2_pitch": float(s.r2[1]), **frames.summary()}
-    print(f"order {args.order} ({feature} CoP) fitted on {s.n} of {len(frames.folder)} frames "
+        "train_r2_roll": float(s.r2[0]), "train_r2_pitch": float(s.r2[1]), **frames.summary(),
+        **report}
+    print(f"order {order} ({feature}) fitted on {s.n} of {len(frames.folder)} frames "
           f"({report['n_flagged']} flagged by perception): training R² roll {s.r2[0]:.4f}, "
           f"pitch {s.r2[1]:.4f}; saved {out}")
     if args.cv:
-        cv = cross_validate(train, args.order, args.cv, seed=args.seed)
-        report.update({k: v for k, v in cv.items() if k != "predicted_deg"})
+        from .bristol import cross_validate
+
+        cv = chosen or cross_validate(train, order, args.cv, seed=args.seed, feature=feature)
+        report.update({k: v for k, v in cv.items()
+                       if k not in ("predicted_deg", "feature", "order", "n_used", "r2_mean")})
         report["r2_roll"], report["r2_pitch"] = cv["r2_roll"], cv["r2_pitch"]
         print(f"{args.cv}-fold cross-validated R² roll {cv['r2_roll']:.4f}, pitch "
               f"{cv['r2_pitch']:.4f} (RMSE {cv['rmse_roll_deg']:.2f}°, "
               f"{cv['rmse_pitch_deg']:.2f}°)")
+        if chosen is not None:
+            nested = nested_cv(frames, features, orders, args.cv, seed=args.seed,
+                               keep_flagged=args.keep_flagged)
+            report["nested_cv"] = {k: v for k, v in nested.items() if k != "predicted_deg"}
+            print(f"nested {args.cv}-fold cross-validation of the choice itself (the figure to "
+                  f"expect on new taps): R² roll {nested['r2_roll']:.4f}, pitch "
+                  f"{nested['r2_pitch']:.4f} on {nested['n_predicted']} frames; chosen per "
+                  f"fold: {', '.join(nested['chosen'])}")
+        if args.plot:
+            from .fit_plots import predicted_vs_true
+
+            pred = cv["predicted_deg"]
+            predicted_vs_true(train.angles_deg, pred, Path(args.plot),
+                              title=f"{Path(args.dataset).name}: {args.cv}-fold CV, {feature} "
+                              f"order {order}", depth_mm=train.depth_mm)
+            print(f"predicted-vs-true chart: {args.plot}")
     _write_json(args.json, report)
     return 0
 
@@ -110,7 +166,8 @@ def _check_overwrite(out: Path) -> None:
     if not out.exists():
         return
     try:
-        is_model = json.loads(out.read_text()).get("format") == "perception.PoseRegressor"
+        is_model = json.loads(out.read_text()).get("format") in (
+            "perception.PoseRegressor", "perception.VectorRegressor")
     except (OSError, ValueError, UnicodeDecodeError, AttributeError):
         is_model = False
     if out.is_dir() or not is_model:
@@ -119,13 +176,15 @@ def _check_overwrite(out: Path) -> None:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from .fit import load_model
+    from .fit import VECTOR_FEATURES, load_any_model
 
-    model, fitted_on = load_model(args.model)
+    model, fitted_on = load_any_model(args.model)
     feature = fitted_on.get("feature")
     if args.feature and feature and args.feature != feature:
         raise ValueError(f"--feature {args.feature}: the model was fitted on the {feature!r} "
                          f"CoP ({args.model}); a model scores only the feature it was fitted on")
+    if args.feature == "auto":
+        raise ValueError("--feature auto is for tactip fit; evaluate scores the model's feature")
     feature = args.feature or feature
     if feature is None:
         raise ValueError(f"{args.model} does not record its CoP feature (saved by an older "
@@ -136,13 +195,23 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         t = frames.features(feature, keep_flagged=args.keep_flagged)
         size = tuple(t.image_size)
         if model.image_size is not None and size != tuple(model.image_size):
+            if feature in VECTOR_FEATURES:
+                raise ValueError(
+                    f"{d}: frames are {size[0]}x{size[1]} but {args.model} was fitted on "
+                    f"{model.image_size[0]}x{model.image_size[1]} frames; the {feature!r} "
+                    "feature cannot be rescaled to another format: fit a model on this format")
             if not args.rescale:
                 raise ValueError(
                     f"{d}: frames are {size[0]}x{size[1]} but {args.model} was fitted on "
                     f"{model.image_size[0]}x{model.image_size[1]} frames; a CoP in pixels of "
                     "another format is not the same feature (crop, lens). Fit a model on this "
                     "format, or pass --rescale to scale the CoPs by the image sizes")
-        pred = model.predict(t.cop_px, image_size=size) if len(t.cop_px) else np.zeros((0, 2))
+        if not len(t.cop_px):
+            pred = np.zeros((0, 2))
+        elif feature in VECTOR_FEATURES:
+            pred = model.predict(t.cop_px)
+        else:
+            pred = model.predict(t.cop_px, image_size=size)
         rows.append(_scores(str(d), t.angles_deg, pred, frames, len(t.cop_px), feature))
         pooled_x.append(pred)
         pooled_y.append(t.angles_deg)
@@ -194,13 +263,22 @@ def _cmd_features(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "fit", help="fit a roll/pitch regressor on a labelled folder (Bristol layout)",
-        description="Fit a polynomial CoP -> (roll, pitch) model on a labelled folder in the "
-        "Bristol layout (real or simulated) and save it as JSON with what it was fitted on; "
-        "--cv K also reports the K-fold cross-validated R².")
+        description="Fit a polynomial feature -> (roll, pitch) model on a labelled folder in "
+        "the Bristol layout (real or simulated) and save it as JSON with what it was fitted "
+        "on. By default the feature and the order are chosen by cross-validation among all "
+        "candidates (each reported); --cv K also reports the K-fold cross-validated R² and "
+        "the nested-CV R² of the choice.")
     p.add_argument("dataset", help="labelled folder: targets.csv + images (in it or images/)")
-    p.add_argument("--order", type=int, default=2, choices=[1, 2, 3], help="polynomial order")
+    p.add_argument("--order", default="auto", choices=["1", "2", "3", "auto"],
+                   help="polynomial order; 'auto' (default): the best of 1-3 by "
+                   "cross-validation")
     p.add_argument("--out", help="model file (default DATASET/model_orderN.json)")
-    p.add_argument("--cv", type=int_in(2), metavar="K", help="K-fold cross-validation (K >= 2)")
+    p.add_argument("--cv", type=int_in(2), metavar="K",
+                   help="K-fold cross-validation (K >= 2): report the chosen model's CV R² "
+                   "and, when a choice was made (auto), the nested-CV R² of the choice; "
+                   "the choice itself uses K folds (5 without --cv)")
+    p.add_argument("--plot", metavar="PNG", help="with --cv: chart of the cross-validated "
+                   "predictions against the true angles")
     p.add_argument("--seed", type=int_in(0), default=0,
                    help="seed of the cross-validation folds")
     p.add_argument("--json", metavar="OUT.json",

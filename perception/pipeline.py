@@ -7,7 +7,7 @@ real camera frames.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from os import PathLike
 
 import numpy as np
@@ -16,6 +16,7 @@ from .contact import ContactDetector, surface_deformation
 from .cop import centre_of_pressure
 from .detect import MarkerDetection, detect_markers_detailed
 from .errors import ImageError, PerceptionError
+from .flow import FLOW_NAMES, flow_features
 from .hull_cop import hull_cop
 from .image import as_grey, full_scale
 from .params import ContactParams, DetectionParams, TrackingParams
@@ -66,6 +67,10 @@ class FrameFeatures:
         undefined; ``reason`` says which.
     detection_reliable : bool
         The detection's own verdict (what ``cop_hull`` needs).
+    flow : (10,) float64
+        Whole-array motion features (:func:`perception.flow.flow_features`, names in
+        :data:`perception.flow.FLOW_NAMES`): the growth CoP, the mean displacement, the
+        displacement-weighted centroid and the displacement gradient.
     reason : str
     contact : bool
         Contact state after this frame (hysteresis on ``deformation_px``).
@@ -87,9 +92,10 @@ class FrameFeatures:
     contact: bool
     frame_index: int
     detection_reliable: bool = True
+    flow: np.ndarray = field(default_factory=lambda: np.full(len(FLOW_NAMES), np.nan))
 
     def __post_init__(self) -> None:
-        for name in ("points", "areas", "growth", "cop_area", "cop_growth", "cop_hull"):
+        for name in ("points", "areas", "growth", "cop_area", "cop_growth", "cop_hull", "flow"):
             object.__setattr__(self, name, _ro(getattr(self, name)))
 
 
@@ -253,4 +259,5 @@ class FeaturePipeline:
             reliable=reliable,
             reason=reason, contact=in_contact, frame_index=self.tracker.frame_index,
             detection_reliable=bool(det.reliable),
+            flow=flow_features(points, self.rest_points, cop_change),
         )

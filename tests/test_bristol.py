@@ -192,3 +192,25 @@ def test_fit_never_overwrites_a_file_that_is_not_a_model(folder, tmp_path, capsy
     for _ in range(2):  # a model may replace a model
         assert main(["fit", str(root), "--order", "1", "--out", str(model),
                      "--no-progress"]) == 0
+
+
+def test_the_flow_feature_fits_evaluates_and_replaces_its_own_model(folder, tmp_path):
+    from tactip_sim.commands import main
+
+    root, _ = folder
+    model, cv_json, ev_json = tmp_path / "m.json", tmp_path / "cv.json", tmp_path / "ev.json"
+    for _ in range(2):  # the second fit replaces the first model file
+        assert main(["fit", str(root), "--feature", "flow", "--order", "1", "--out", str(model),
+                     "--cv", "5", "--json", str(cv_json), "--no-progress"]) == 0
+    saved = json.loads(model.read_text())
+    assert saved["format"] == "perception.VectorRegressor"
+    assert saved["fitted_on"]["feature"] == "flow"
+    cv = json.loads(cv_json.read_text())
+    # the rest frame has no motion (no weighted centroid): 24 of the 25 rows; the bulge pushes
+    # the markers away from the contact, so the array's motion carries the contact point
+    assert cv["n_used"] == 24 and cv["r2_roll"] > 0.8 and cv["r2_pitch"] > 0.8
+    assert main(["evaluate", str(model), str(root), "--json", str(ev_json),
+                 "--no-progress"]) == 0
+    ev = json.loads(ev_json.read_text())
+    assert ev["feature"] == "flow" and ev["n_used"] == 24
+    assert ev["r2_roll"] >= cv["r2_roll"] and ev["r2_pitch"] >= cv["r2_pitch"]

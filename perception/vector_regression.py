@@ -1,0 +1,209 @@
+"""Pose regression from a feature vector of any length (e.g. :mod:`perception.flow`) to roll
+and pitch, by polynomial least squares.
+
+The same model as :class:`perception.PoseRegressor` (a multivariate polynomial of order 1-3,
+ordinary least squares, one output per angle) for d inputs instead of the two CoP
+coordinates. Each input is standardised with the training mean and standard deviation
+(``z_k = (x_k - mean_k) / std_k``) before the monomials are formed, so that inputs in px and
+in px/px enter on one scale and the design matrix stays well conditioned. A saved model is
+plain JSON, as for :class:`~perception.PoseRegressor`.
+"""
+
+from __future__ import annotations
+
+import json
+from itertools import combinations_with_replacement
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ModelError, PerceptionError
+from .regression import RegressionScore, _check_size
+
+__all__ = ["VectorRegressor", "vector_powers"]
+
+_FORMAT = "perception.VectorRegressor"
+_FORMAT_VERSION = 1
+
+
+def vector_powers(order: int, n_inputs: int) -> np.ndarray:
+    """(n_features, n_inputs) int: exponents of the monomials of degree 1..order, in
+    scikit-learn's ``PolynomialFeatures`` order (degree by degree, lexicographic)."""
+    rows = []
+    for degree in range(1, order + 1):
+        for combo in combinations_with_replacement(range(n_inputs), degree):
+            rows.append(np.bincount(combo, minlength=n_inputs))
+    return np.array(rows, dtype=np.int64).reshape(-1, n_inputs)
+
+
+class VectorRegressor:
+    """Polynomial regression from d features to two angles (roll, pitch).
+
+    Parameters
+    ----------
+    order : {1, 2, 3}
+    input_names : sequence of str
+        One name per input (d >= 1), saved with the model and checked when loading.
+    image_size : (w, h), px, optional
+        The frame format the features were measured on (recorded, checked by the caller).
+    angle_names : (2,) str
+
+    Attributes
+    ----------
+    coef_ : (2, n_features) float64, degrees per standardised unit^k
+    intercept_ : (2,) float64, degrees
+    mean_, std_ : (d,) float64
+        Standardisation of the inputs (training mean, standard deviation; 1 where constant).
+    powers_ : (n_features, d) int
+    """
+
+    def __init__(self, order: int = 2, *, input_names: tuple[str, ...] | list[str],
+                 image_size: tuple[int, int] | None = None,
+                 angle_names: tuple[str, str] = ("roll_deg", "pitch_deg")) -> None:
+        if isinstance(order, bool) or order not in (1, 2, 3):
+            raise PerceptionError(f"order={order!r} must be 1, 2 or 3")
+        names = tuple(str(n) for n in input_names)
+        if not names:
+            raise PerceptionError("input_names must name at least one input")
+        self.order = int(order)
+        self.input_names = names
+        self.image_size = None if image_size is None else _check_size(image_size)
+        self.angle_names = (str(angle_names[0]), str(angle_names[1]))
+        self.powers_ = vector_powers(self.order, len(names))
+        self.coef_: np.ndarray | None = None
+        self.intercept_: np.ndarray | None = None
+        self.mean_: np.ndarray | None = None
+        self.std_: np.ndarray | None = None
+
+    @property
+    def n_inputs(self) -> int:
+        return len(self.input_names)
+
+    def _inputs(self, x: np.ndarray) -> np.ndarray:
+        arr = np.asarray(x, dtype=np.float64)
+        if arr.ndim == 1 and arr.shape == (self.n_inputs,):
+            arr = arr[None, :]
+        if arr.ndim != 2 or arr.shape[1] != self.n_inputs:
+            raise PerceptionError(f"features must have shape (n, {self.n_inputs}) "
+                                  f"({', '.join(self.input_names)}), got {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise PerceptionError("features contain NaN or inf (drop unreliable frames first)")
+        return arr
+
+    def design(self, x: np.ndarray) -> np.ndarray:
+        """(n, n_features) monomials of the standardised inputs (no constant column)."""
+        if self.mean_ is None:
+            raise ModelError("VectorRegressor is not fitted: call fit() or load a model first")
+        z = (self._inputs(x) - self.mean_) / self.std_
+        return np.prod(z[:, None, :] ** self.powers_[None], axis=2)
+
+    def fit(self, x: np.ndarray, angles_deg: np.ndarray) -> VectorRegressor:
+        """Least-squares fit.
+
+        Parameters
+        ----------
+        x : (n, d) float
+        angles_deg : (n, 2) float, degrees
+
+        Raises
+        ------
+        PerceptionError
+            Too few samples, or inputs that do not determine the polynomial (rank deficient).
+        """
+        xs = self._inputs(x)
+        y = np.asarray(angles_deg, dtype=np.float64)
+        if y.shape != (len(xs), 2) or not np.isfinite(y).all():
+            raise PerceptionError(f"angles_deg must be finite with shape ({len(xs)}, 2), got "
+                                  f"{y.shape}")
+        n_coef = len(self.powers_) + 1
+        if len(xs) < n_coef:
+            raise PerceptionError(f"{len(xs)} samples cannot fit an order-{self.order} model "
+                                  f"of {self.n_inputs} inputs ({n_coef} coefficients)")
+        self.mean_ = xs.mean(axis=0)
+        sd = xs.std(axis=0)
+        self.std_ = np.where(sd > 0, sd, 1.0)
+        a = np.hstack([np.ones((len(xs), 1)), self.design(xs)])
+        sol, _, rank, _ = np.linalg.lstsq(a, y, rcond=None)
+        if rank < n_coef:
+            self.mean_ = self.std_ = None
+            raise PerceptionError(f"the features do not determine an order-{self.order} "
+                                  f"polynomial (rank {rank} < {n_coef})")
+        self.intercept_ = sol[0].copy()
+        self.coef_ = np.ascontiguousarray(sol[1:].T)
+        return self
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        """(n, 2) predicted angles, degrees."""
+        self._check_fitted()
+        return self.design(x) @ self.coef_.T + self.intercept_
+
+    def score(self, x: np.ndarray, angles_deg: np.ndarray) -> RegressionScore:
+        """R² and RMSE per angle (as :meth:`perception.PoseRegressor.score`)."""
+        y = np.asarray(angles_deg, dtype=np.float64)
+        pred = self.predict(x)
+        if y.shape != pred.shape or len(y) < 2:
+            raise PerceptionError(f"angles_deg must have shape {pred.shape} (at least 2 rows)")
+        res = ((y - pred) ** 2).sum(axis=0)
+        tot = ((y - y.mean(axis=0)) ** 2).sum(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r2 = np.where(tot > 0, 1.0 - res / tot, np.nan)
+        return RegressionScore(r2=r2, r2_overall=float(np.mean(r2)),
+                               rmse_deg=np.sqrt(res / len(y)), n=len(y),
+                               angle_names=self.angle_names)
+
+    # -- persistence ----------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        self._check_fitted()
+        return {"format": _FORMAT, "version": _FORMAT_VERSION, "order": self.order,
+                "angle_names": list(self.angle_names), "input_names": list(self.input_names),
+                "image_size": None if self.image_size is None else list(self.image_size),
+                "normalisation": {"mean": self.mean_.tolist(), "std": self.std_.tolist(),
+                                  "formula": "z_k = (x_k - mean[k]) / std[k]"},
+                "powers": self.powers_.tolist(), "coef": self.coef_.tolist(),
+                "intercept": self.intercept_.tolist()}
+
+    def to_json(self, path: str | PathLike[str] | None = None) -> str:
+        text = json.dumps(self.to_dict(), indent=2)
+        if path is not None:
+            Path(path).write_text(text + "\n", encoding="utf-8")
+        return text
+
+    @classmethod
+    def from_dict(cls, data: dict) -> VectorRegressor:
+        """Rebuild a fitted model from :meth:`to_dict` output (checked)."""
+        if data.get("format") != _FORMAT:
+            raise ModelError(f"not a {_FORMAT} model (format={data.get('format')!r})")
+        if data.get("version") != _FORMAT_VERSION:
+            raise ModelError(f"unsupported model version {data.get('version')!r}")
+        try:
+            model = cls(int(data["order"]), input_names=data["input_names"],
+                        image_size=data["image_size"], angle_names=tuple(data["angle_names"]))
+            powers = np.asarray(data["powers"], dtype=np.int64)
+            coef = np.asarray(data["coef"], dtype=np.float64)
+            intercept = np.asarray(data["intercept"], dtype=np.float64)
+            mean = np.asarray(data["normalisation"]["mean"], dtype=np.float64)
+            std = np.asarray(data["normalisation"]["std"], dtype=np.float64)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelError(f"malformed model description: {exc!r}") from None
+        d, nf = model.n_inputs, len(model.powers_)
+        if not np.array_equal(powers, model.powers_):
+            raise ModelError(f"powers do not match an order-{model.order} model of {d} inputs")
+        if coef.shape != (2, nf) or intercept.shape != (2,) or mean.shape != (d,) \
+                or std.shape != (d,):
+            raise ModelError("coefficient, intercept or normalisation arrays have the wrong "
+                             "shape")
+        values = np.concatenate([coef.ravel(), intercept, mean, std])
+        if not np.isfinite(values).all() or (std <= 0).any():
+            raise ModelError("model contains non-finite numbers or a non-positive std")
+        model.coef_, model.intercept_, model.mean_, model.std_ = coef, intercept, mean, std
+        return model
+
+    def _check_fitted(self) -> None:
+        if self.coef_ is None:
+            raise ModelError("VectorRegressor is not fitted: call fit() or load a model first")
+
+    def __repr__(self) -> str:
+        state = "fitted" if self.coef_ is not None else "unfitted"
+        return (f"VectorRegressor(order={self.order}, inputs={self.n_inputs}, "
+                f"image_size={self.image_size}, {state})")

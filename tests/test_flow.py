@@ -1,0 +1,235 @@
+"""The whole-array motion feature (perception/flow.py), the polynomial regressor of a feature
+vector (perception/vector_regression.py) and the choice of feature and order by (nested)
+cross-validation (calibration/cv_select.py): known answers on synthetic marker arrays, a second
+implementation (scikit-learn) for the regression, a planted informative feature for the choice."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import perception as pc
+from calibration.bristol import FrameTable, cross_validate
+from calibration.cv_select import nested_cv, select_by_cv
+from calibration.fit import FeatureTable
+from perception.errors import ModelError, PerceptionError, PointsError
+from perception.flow import FLOW_NAMES, flow_features
+from perception.vector_regression import VectorRegressor
+
+REST = pc.hex_lattice(61, 12.0, (64.0, 64.0))
+NO_COP = np.array([np.nan, np.nan])
+
+
+def _flow(points, rest=REST, cop=NO_COP):
+    return dict(zip(FLOW_NAMES, flow_features(points, rest, cop), strict=True))
+
+
+def test_a_rigid_shift_gives_its_vector_as_the_mean_displacement_and_no_gradient():
+    f = _flow(REST + (2.25, -0.75), cop=np.array([60.0, 70.0]))
+    assert (f["cop_x"], f["cop_y"]) == (60.0, 70.0)
+    assert f["mean_dx"] == pytest.approx(2.25, abs=1e-12)
+    assert f["mean_dy"] == pytest.approx(-0.75, abs=1e-12)
+    # every marker moved equally: the displacement-weighted centroid is the array's centroid
+    assert f["wc_x"] == pytest.approx(REST[:, 0].mean(), abs=1e-9)
+    assert f["wc_y"] == pytest.approx(REST[:, 1].mean(), abs=1e-9)
+    for k in ("j_xx", "j_xy", "j_yx", "j_yy"):
+        assert f[k] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_an_affine_motion_gives_its_matrix_as_the_gradient():
+    # points = rest + t + A (rest - c): a 2 % stretch in x, 1 % compression in y, a shear,
+    # and a small rotation; the entries are chosen here, not by the code
+    a = np.array([[0.02, 0.015], [-0.01, -0.01]])
+    t = np.array([0.4, -1.1])
+    c = REST.mean(axis=0)
+    f = _flow(REST + t + (REST - c) @ a.T)
+    assert f["mean_dx"] == pytest.approx(t[0], abs=1e-12)
+    assert f["mean_dy"] == pytest.approx(t[1], abs=1e-12)
+    np.testing.assert_allclose([f["j_xx"], f["j_xy"], f["j_yx"], f["j_yy"]], a.ravel(),
+                               atol=1e-12)
+
+
+def test_the_weighted_centroid_sits_where_the_array_moved():
+    pts = REST.copy()
+    pts[5] += (3.0, 4.0)  # one marker moved by 5 px
+    pts[40] += (0.0, -5.0)  # another by 5 px
+    f = _flow(pts)
+    expected = 0.5 * (REST[5] + REST[40])
+    assert (f["wc_x"], f["wc_y"]) == pytest.approx(tuple(expected), abs=1e-12)
+    assert f["mean_dx"] == pytest.approx(3.0 / len(REST), abs=1e-12)
+    assert f["mean_dy"] == pytest.approx(-1.0 / len(REST), abs=1e-12)
+
+
+def test_lost_markers_are_left_out_and_nothing_tracked_gives_nan():
+    pts = REST + (1.0, 2.0)
+    pts[:10] = (500.0, 500.0)  # garbage on the markers that will be marked lost
+    lost = pts.copy()
+    lost[:10] = np.nan
+    f = _flow(lost)
+    assert (f["mean_dx"], f["mean_dy"]) == pytest.approx((1.0, 2.0), abs=1e-12)
+    assert f["wc_x"] == pytest.approx(REST[10:, 0].mean(), abs=1e-9)
+    none = flow_features(np.full_like(REST, np.nan), REST, NO_COP)
+    assert np.isnan(none).all()
+    still = _flow(REST)  # nothing moved: no weighted centroid, a zero gradient
+    assert np.isnan(still["wc_x"]) and still["j_xx"] == 0.0
+    two = np.full_like(REST, np.nan)
+    two[:2] = REST[:2] + 1.0  # two markers cannot determine a gradient
+    f2 = _flow(two)
+    assert f2["mean_dx"] == pytest.approx(1.0) and np.isnan(f2["j_xx"])
+
+
+def test_flow_rejects_mismatched_arrays():
+    with pytest.raises(PointsError, match="one row per rest marker"):
+        flow_features(REST[:-1], REST, NO_COP)
+    with pytest.raises(PointsError, match="cop_growth must have shape"):
+        flow_features(REST, REST, np.zeros(3))
+
+
+def test_the_pipeline_reports_the_flow_of_a_shifted_array():
+    from perception.synthetic import render_markers
+
+    rest_pts = pc.hex_lattice(61, 26.0, (320.0, 240.0))
+    rng = np.random.default_rng(0)
+    rest = render_markers(rest_pts, diameter_px=11.0, noise_sigma=0.01, rng=rng).image
+    moved = render_markers(rest_pts + (3.0, -2.0), diameter_px=11.0, noise_sigma=0.01,
+                           rng=rng).image
+    pipe = pc.FeaturePipeline(rest)
+    f = dict(zip(FLOW_NAMES, pipe.process(moved).flow, strict=True))
+    # sub-pixel centroids of rendered discs: the shift is recovered to a few hundredths
+    assert (f["mean_dx"], f["mean_dy"]) == pytest.approx((3.0, -2.0), abs=0.05)
+    assert abs(f["j_xx"]) < 2e-3 and abs(f["j_yy"]) < 2e-3
+
+
+# ---------------------------------------------------------------------------------------------
+# VectorRegressor
+
+
+def _poly_data(n, rng):
+    x = np.column_stack([rng.uniform(-3, 3, n), rng.uniform(10, 30, n), rng.normal(0, 0.01, n)])
+    roll = 2.0 * x[:, 0] - 0.5 * x[:, 1] + 300.0 * x[:, 2] + 0.25 * x[:, 0] * x[:, 1]
+    pitch = -1.5 * x[:, 1] + 0.1 * x[:, 1] ** 2 + 4.0
+    return x, np.column_stack([roll, pitch])
+
+
+def test_vector_regressor_recovers_an_exact_polynomial_and_round_trips_json(tmp_path):
+    rng = np.random.default_rng(1)
+    x, y = _poly_data(80, rng)
+    m = VectorRegressor(2, input_names=("a", "b", "c"), image_size=(128, 128)).fit(x, y)
+    xt, yt = _poly_data(20, rng)
+    np.testing.assert_allclose(m.predict(xt), yt, atol=1e-8)
+    path = tmp_path / "m.json"
+    m.to_json(path)
+    import json
+
+    back = VectorRegressor.from_dict(json.loads(path.read_text()))
+    np.testing.assert_allclose(back.predict(xt), m.predict(xt), rtol=0, atol=1e-12)
+    assert back.image_size == (128, 128) and back.input_names == ("a", "b", "c")
+    # an order-1 model cannot represent the products: it must not fit them exactly
+    lin = VectorRegressor(1, input_names=("a", "b", "c")).fit(x, y)
+    assert np.abs(lin.predict(xt) - yt).max() > 0.1
+
+
+def test_vector_regressor_matches_scikit_learn_on_noisy_data():
+    from sklearn.linear_model import LinearRegression
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import PolynomialFeatures, StandardScaler
+
+    rng = np.random.default_rng(2)
+    x, y = _poly_data(120, rng)
+    y = y + rng.normal(0, 0.3, y.shape)
+    for order in (1, 2, 3):
+        ours = VectorRegressor(order, input_names=("a", "b", "c")).fit(x, y)
+        # the same model space; scikit-learn standardises by its own code (raw cubes of inputs
+        # 0.01 and 30 apart in scale would make its least squares ill-conditioned)
+        ref = make_pipeline(StandardScaler(), PolynomialFeatures(order, include_bias=False),
+                            LinearRegression()).fit(x, y)
+        xt, _ = _poly_data(15, rng)
+        np.testing.assert_allclose(ours.predict(xt), ref.predict(xt), atol=1e-6)
+
+
+def test_vector_regressor_errors_name_the_problem():
+    m = VectorRegressor(2, input_names=("a", "b"))
+    with pytest.raises(ModelError, match="not fitted"):
+        m.predict(np.zeros((1, 2)))
+    with pytest.raises(PerceptionError, match=r"shape \(n, 2\)"):
+        m.fit(np.zeros((10, 3)), np.zeros((10, 2)))
+    with pytest.raises(PerceptionError, match="cannot fit an order-2 model"):
+        m.fit(np.ones((4, 2)), np.zeros((4, 2)))
+    with pytest.raises(PerceptionError, match="NaN"):
+        m.fit(np.full((10, 2), np.nan), np.zeros((10, 2)))
+    with pytest.raises(PerceptionError, match="order=4"):
+        VectorRegressor(4, input_names=("a",))
+    with pytest.raises(ModelError, match="not a perception.VectorRegressor"):
+        VectorRegressor.from_dict({"format": "perception.PoseRegressor"})
+
+
+# ---------------------------------------------------------------------------------------------
+# Choosing the feature and the order
+
+
+def _frames(n, rng, *, flagged=()):
+    """A FrameTable whose angles are linear in the flow feature's mean displacement (plus
+    noise) while the growth CoP is pure noise, and the area CoP a noisy copy of the angles."""
+    angles = rng.uniform(-15, 15, (n, 2))
+    flow = rng.normal(0, 1, (n, len(FLOW_NAMES)))
+    flow[:, 2] = 0.1 * angles[:, 0] + rng.normal(0, 0.02, n)
+    flow[:, 3] = -0.07 * angles[:, 1] + rng.normal(0, 0.02, n)
+    cop = {"growth": rng.uniform(0, 128, (n, 2)),
+           "area": 64 + 2 * angles + rng.normal(0, 6, (n, 2)),
+           "flow": flow}
+    reliable = np.ones(n, bool)
+    reliable[list(flagged)] = False
+    return FrameTable(_Folder(angles), cop, np.full(n, 61), reliable, [""] * n, 61)
+
+
+class _Folder(SimpleNamespace):
+    def __init__(self, angles):
+        super().__init__(angles_deg=angles, depth_mm=np.full(len(angles), 3.0),
+                         image_size=(128, 128), root="synthetic")
+
+    def __len__(self):
+        return len(self.angles_deg)
+
+
+def test_cv_chooses_the_informative_feature_and_nested_cv_scores_it_on_unseen_rows():
+    rng = np.random.default_rng(5)
+    frames = _frames(150, rng, flagged=(3, 77))
+    best, cands = select_by_cv(frames, ["growth", "area", "flow"], [1, 2], 5)
+    assert [(c["feature"], c["order"]) for c in cands] == [
+        ("growth", 1), ("growth", 2), ("area", 1), ("area", 2), ("flow", 1), ("flow", 2)]
+    assert best["feature"] == "flow" and best["order"] == 1
+    assert all(c["n_used"] == 148 for c in cands)  # flagged rows are left out of every one
+    growth = cands[0]
+    assert growth["r2_roll"] < 0.1 and growth["r2_pitch"] < 0.1  # noise predicts nothing
+    # the noise on the displacement is 0.02 px on slopes of 0.1 and 0.07 px/deg over a
+    # uniform +-15 deg spread (sd 8.66 deg): R^2 = 1 - (0.2 deg)^2 / 75 and 1 - (0.286)^2 / 75
+    assert best["r2_roll"] == pytest.approx(1 - 0.2 ** 2 / 75, abs=2e-3)
+    assert best["r2_pitch"] == pytest.approx(1 - (0.02 / 0.07) ** 2 / 75, abs=3e-3)
+    nested = nested_cv(frames, ["growth", "area", "flow"], [1, 2], 5)
+    assert nested["n_predicted"] == 148
+    assert np.isnan(nested["predicted_deg"][[3, 77]]).all()
+    assert all(c.startswith("flow") for c in nested["chosen"])
+    assert nested["r2_roll"] == pytest.approx(best["r2_roll"], abs=5e-3)
+
+
+def test_cross_validation_of_a_vector_feature_matches_scikit_learn():
+    from sklearn.linear_model import LinearRegression
+    from sklearn.model_selection import PredefinedSplit, cross_val_predict
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import PolynomialFeatures
+
+    rng = np.random.default_rng(6)
+    frames = _frames(150, rng)
+    t = frames.features("flow")
+    assert isinstance(t, FeatureTable) and t.cop_px.shape == (150, len(FLOW_NAMES))
+    ours = cross_validate(t, 2, 3, seed=9, feature="flow")
+    fold = np.empty(150, int)
+    perm = np.random.default_rng(9).permutation(150)
+    for k in range(3):
+        fold[perm[k::3]] = k
+    ref = cross_val_predict(make_pipeline(PolynomialFeatures(2, include_bias=False),
+                                          LinearRegression()), t.cop_px, t.angles_deg,
+                            cv=PredefinedSplit(fold))
+    np.testing.assert_allclose(ours["predicted_deg"], ref, atol=1e-6)
