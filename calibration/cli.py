@@ -182,3 +182,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     from .studies.cli import register as register_studies
 
     register_studies(sub)
+
+    from .real_cli import register as register_real
+
+    register_real(sub)

@@ -9,6 +9,13 @@ and tangential spacing approximately, so the pitch holds along the curved skin.
 The lattice is clipped to a scaled copy of the dome's arc-length footprint,
 ``r <= q * arc_max(phi)``, with the scale ``q`` chosen so that exactly ``count`` nodes fall
 inside. Pins point along the inward surface normal; markers sit at the pin tips.
+
+The Bristol hemispherical TacTips lay their pins out in rings about the apex instead
+(``pins.layout``): ``hex_rings`` takes the lattice nodes within hexagonal distance n of the
+origin (the 127-pin tip: n = 6), ``circle_rings`` puts 6k pins equally spaced on the circle of
+arc radius k * pitch, k = 1..n (the 331-pin tip: n = 10; every ring has a pin at azimuth 0, so
+six spokes show). Both hold 1 + 3n(n + 1) pins. Either layout, in the same flat (u, v) plane,
+goes through the same map onto the dome.
 """
 
 from __future__ import annotations
@@ -20,6 +27,8 @@ import numpy as np
 from ..scene import SceneError
 from ..scene.schema import Pins
 from .surfaces import DomeShape
+
+RING_LAYOUTS = ("hex_rings", "circle_rings")
 
 
 @dataclass(frozen=True)
@@ -62,6 +71,56 @@ def triangular_lattice(pitch: float, extent: float) -> np.ndarray:
     return pts[keep]
 
 
+def ring_count(count: int) -> int | None:
+    """The n with ``1 + 3n(n + 1) == count`` (rings about a centre pin), or None."""
+    n = int(round((-3 + np.sqrt(9 + 12 * max(count - 1, 0))) / 6))
+    return n if 1 + 3 * n * (n + 1) == count else None
+
+
+def hex_rings(n: int, pitch: float) -> np.ndarray:
+    """(1 + 3n(n+1), 2) nodes of the triangular lattice (rows along x, a node at the origin)
+    within hexagonal distance ``n`` of the origin, ordered ring by ring, counter-clockwise from
+    +x within a ring (mm)."""
+    i, j = np.meshgrid(np.arange(-n, n + 1), np.arange(-n, n + 1), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    ring = np.maximum(np.maximum(np.abs(i), np.abs(j)), np.abs(i + j))
+    keep = ring <= n
+    i, j, ring = i[keep], j[keep], ring[keep]
+    uv = np.stack([(i + 0.5 * j) * pitch, j * pitch * np.sqrt(3.0) / 2.0], axis=1)
+    angle = np.mod(np.arctan2(uv[:, 1], uv[:, 0]), 2 * np.pi)
+    return uv[np.lexsort((np.round(angle, 12), ring))]
+
+
+def circle_rings(n: int, pitch: float) -> np.ndarray:
+    """(1 + 3n(n+1), 2) points: the origin, then for k = 1..n, 6k points equally spaced on the
+    circle of radius ``k * pitch`` starting at azimuth 0 (mm)."""
+    pts = [np.zeros((1, 2))]
+    for k in range(1, n + 1):
+        a = 2 * np.pi * np.arange(6 * k) / (6 * k)
+        pts.append(k * pitch * np.stack([np.cos(a), np.sin(a)], axis=1))
+    return np.concatenate(pts)
+
+
+def _rotate(uv: np.ndarray, angle_deg: float) -> np.ndarray:
+    if angle_deg == 0.0:
+        return uv
+    c, s = np.cos(np.deg2rad(angle_deg)), np.sin(np.deg2rad(angle_deg))
+    return uv @ np.array([[c, s], [-s, c]])
+
+
+def _ring_layout(inner: DomeShape, pins: Pins) -> np.ndarray:
+    n = ring_count(pins.count)
+    if n is None:
+        lo = max((k for k in range(0, 60) if 1 + 3 * k * (k + 1) < pins.count), default=0)
+        raise SceneError(
+            f"pins.count={pins.count} cannot be laid out as pins.layout={pins.layout!r}: "
+            f"ring layouts hold 1 + 3n(n + 1) pins, nearest {1 + 3 * lo * (lo + 1)} and "
+            f"{1 + 3 * (lo + 1) * (lo + 2)}"
+        )
+    make = hex_rings if pins.layout == "hex_rings" else circle_rings
+    return _rotate(make(n, pins.pitch_mm), pins.rotation_deg)
+
+
 def map_to_dome(inner: DomeShape, uv: np.ndarray) -> np.ndarray:
     """Azimuthal-equidistant map of lattice points (n, 2) onto the dome; returns (n, 3).
 
@@ -102,9 +161,12 @@ def place_pins(
     if n == 0:
         empty = np.zeros((0, 3))
         return PinLayout(empty, empty, empty, np.zeros((0, 2)), 0.0)
+    if pins.layout in RING_LAYOUTS:
+        uv = _ring_layout(inner, pins)
+        return _on_dome(inner, pins, uv, perturbation_mm, clip=1.0)
     _, arc = inner.meridian_arc(np.array([0.0, np.pi / 2]))
     extent = float(arc[:, -1].max()) + pins.pitch_mm
-    uv = triangular_lattice(pins.pitch_mm, extent)
+    uv = _rotate(triangular_lattice(pins.pitch_mm, extent), pins.rotation_deg)
     phi = np.arctan2(uv[:, 1], uv[:, 0])
     arc_max = inner.meridian_arc(phi, n_alpha=1024)[1][:, -1]
     q = np.hypot(uv[:, 0], uv[:, 1]) / arc_max
@@ -128,7 +190,13 @@ def place_pins(
     clip = 0.5 * (q_sorted[n - 1] + q_sorted[n])
     # order pins row by row (y then x) for stable, human-readable indices
     chosen = chosen[np.lexsort((uv[chosen, 0], uv[chosen, 1]))]
-    uv = uv[chosen]
+    return _on_dome(inner, pins, uv[chosen], perturbation_mm, clip=float(clip))
+
+
+def _on_dome(inner: DomeShape, pins: Pins, uv: np.ndarray, perturbation_mm: np.ndarray | None,
+             *, clip: float) -> PinLayout:
+    """Map layout nodes (n, 2) onto the dome, checking that every pin fits."""
+    n = len(uv)
     if perturbation_mm is not None:
         uv = uv + np.asarray(perturbation_mm, dtype=float).reshape(n, 2)
     # the outermost pin must keep its radius from the wall
@@ -152,4 +220,4 @@ def place_pins(
             f"({roots[low, 0]:.1f}, {roots[low, 1]:.1f}) mm: its tip is {tips[low, 2]:.2f} mm "
             f"above the window, less than pins.clearance_mm={pins.clearance_mm:g}"
         )
-    return PinLayout(roots, directions, tips, uv, float(clip))
+    return PinLayout(roots, directions, tips, uv, clip)

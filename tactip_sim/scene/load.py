@@ -161,7 +161,21 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
 
     d = plain(dataclasses.asdict(scene))
     d.pop("source", None)
+    # keys added after scenes were hashed: omitted at their defaults (old hashes stay)
+    for section, key in _OMIT_AT_DEFAULT:
+        table = d.get(section, {})
+        if key in table and table[key] == _default_of(section, key):
+            del table[key]
     return d
+
+
+#: (section, key) pairs left out of :func:`scene_to_dict` (so of the hash) at their default.
+_OMIT_AT_DEFAULT = (("pins", "layout"), ("pins", "rotation_deg"))
+
+
+def _default_of(section: str, key: str) -> Any:
+    field_ = {f.name: f for f in dataclasses.fields(SECTIONS[section])}[key]
+    return field_.default
 
 
 def scene_to_toml(scene: Scene) -> str:

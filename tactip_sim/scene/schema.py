@@ -14,6 +14,7 @@ PAD_SHAPES = ("dome", "block")
 LENS_MODELS = ("equidistant", "equisolid", "stereographic", "kannala_brandt")
 INDENTERS = ("plate", "sphere", "cylinder", "edge", "mesh")
 PIN_MODELS = ("embedded", "rod")
+PIN_LAYOUTS = ("lattice", "hex_rings", "circle_rings")
 REFRACTION = ("none", "analytic", "path")
 MATERIAL_MODELS = ("linear", "neo_hookean")
 CONTACT_SOLVERS = ("reduced", "full")
@@ -60,7 +61,12 @@ class Gel(Material):
 
 @dataclass(frozen=True)
 class Pins:
-    """Pins on the inside of the skin, on a triangular lattice, with marker caps at the tips.
+    """Pins on the inside of the skin, with marker caps at the tips.
+
+    ``layout`` (default ``lattice``, the seed sensor's) picks the pattern; ``hex_rings`` and
+    ``circle_rings`` are the Bristol hemispherical TacTips' (127 = 6 rings, 331 = 10 rings).
+    ``layout`` and ``rotation_deg`` are left out of the scene's dict and hash at their defaults,
+    so scenes written before they existed keep their hashes.
 
     The lattice pitch is measured along the skin's inner surface (an azimuthal-equidistant map
     from the apex), so pins keep their spacing over the curved dome; the lattice is clipped to a
@@ -74,6 +80,14 @@ class Pins:
     marker_diameter_mm: float = positive(1.6, "white marker cap diameter (assumed)", hi=100)
     clearance_mm: float = nonneg(0.5, "least gap between a pin tip and the window", hi=100)
     model: str = spec("rod", "str", "how a tip follows the skin", choices=PIN_MODELS)
+    layout: str = spec(
+        "lattice", "str", "lattice: the triangular lattice clipped to the footprint; hex_rings: "
+        "the lattice's hexagonal rings about the apex; circle_rings: concentric rings of 6k pins "
+        "(ring k at arc length k * pitch); ring layouts need count = 1 + 3n(n + 1)",
+        choices=PIN_LAYOUTS,
+    )
+    rotation_deg: float = spec(0.0, "float", "rotation of the layout about the apex (+z)",
+                               lo=-180, hi=180)
 
 
 @dataclass(frozen=True)
