@@ -77,6 +77,7 @@ def calibrate(
     imperfections (:mod:`calibration.rig`; default: an ideal rig).
     """
     rig = RigModel() if rig is None else rig
+    scene = rig.apply_to_scene(scene)  # relaxed moduli, scaled tolerances (else the same scene)
     check_feature(feature)
     others = [f for f in FEATURES if f != feature]
     out = Path(out)

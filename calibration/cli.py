@@ -71,9 +71,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         raise ValueError(f"--tips {args.tips!r} holds an empty name: give comma-separated "
                          "names of protocol.tips, e.g. A,B")
     scene, fidelity = _scene_and_fidelity(args)
-    from .rig import RigModel
+    from .rig import load_rig
 
-    rig = RigModel.from_file(args.rig) if args.rig else None
+    rig = load_rig(args.rig) if args.rig else None
     res = calibrate(scene, args.out, tips=tips, frames=args.frames, workers=args.workers, rig=rig,
                     scheduler=args.scheduler, progress=not args.no_progress,
                     charts=not args.no_charts, feature=args.feature, fidelity=fidelity)
@@ -136,10 +136,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true",
                    help="coarser grids (roll step 8°, pitch step 3.5°, 30 test poses)")
     p.add_argument("--no-charts", action="store_true", help="skip the PNG charts")
-    p.add_argument("--rig", metavar="FILE",
-                   help="a rig file (rigs/*.toml): the data collection's imperfections (robot "
-                   "pose error, the surface found by a threshold, exposure drift); default: "
-                   "an ideal rig")
+    p.add_argument("--rig", metavar="FILE|PRESET",
+                   help="a rig file (rigs/*.toml) or preset name ('realistic': every modelled "
+                   "source at its cited size; 'pestell_ur5'): the data collection's "
+                   "imperfections (docs/rig.md); default: an ideal rig")
     _feature_argument(p, "headline CoP feature (all are fitted and reported)")
     _scale_args(p)
     add_tolerance_arguments(p)

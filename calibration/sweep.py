@@ -13,6 +13,7 @@ import hashlib
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from dataclasses import replace as dc_replace
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +27,7 @@ from .dataset import Dataset, SampleRecord, poses_digest
 from .executor import execute
 from .executor import progress as progress_bar
 from .protocol import PoseSet, make_tip
-from .rig import RigModel, find_zero
+from .rig import RigModel, find_zero, jpeg_roundtrip, motion_blur
 from .versions import package_versions, perception_results_version
 
 
@@ -185,13 +186,103 @@ def run_chunk(spec: SweepSpec, indices: Sequence[int]
         if not spec.rig.ideal:
             rng = spec.rig.rng(spec.scene.protocol.seed, spec.tip, spec.poses.name, int(i))
             reached, gain = spec.rig.perturb(pose, rng, zero_offset_mm=rig_zero(spec, chain))
-        s = chain.sample(reached, spec.set_tag, int(i), gain=gain)
+        if _more_sources(spec.rig):
+            s = rig_sample(spec, chain, int(i), reached, gain, rng)
+        else:
+            s = chain.sample(reached, spec.set_tag, int(i), gain=gain)
         ok, png = cv2.imencode(".png", s.rendered.images[0])
         if not ok:  # pragma: no cover - OpenCV cannot fail on a uint8 image
             raise RuntimeError(f"could not encode sample {i} as PNG")
         out.append((record(int(i), pose, s, reached), png.tobytes(),
                     time.perf_counter() - t0))
     return cv2.imencode(".png", chain.rest_image)[1].tobytes(), out
+
+
+def _more_sources(rig: RigModel) -> bool:
+    """Whether a sample needs :func:`rig_sample` (the rig's per-sample sources beyond pose
+    error, the zero and exposure noise, which :meth:`Chain.sample` handles itself)."""
+    return rig.hysteresis or rig.exposure_trend > 0 or rig.camera_effects
+
+
+_PIPELINES: dict[tuple[str, int], Any] = {}
+_LAST_PRESS: dict[tuple, Any] = {}
+
+
+def _pipeline(spec: SweepSpec, chain: Chain) -> tuple[Any, np.ndarray]:
+    """The perception pipeline the rig's frames go through and its rest markers' pins: the
+    chain's, or one built on the JPEG-compressed rest frame (the real camera's rest frame is
+    compressed too)."""
+    q = int(spec.rig.jpeg_quality)
+    if q == 0:
+        return chain.pipeline, chain.pin_of
+    key = (spec.chain_key(), q)
+    if key not in _PIPELINES:
+        import perception as pc
+
+        from .chain import identify_markers
+
+        _PIPELINES.clear()
+        pipe = pc.FeaturePipeline(jpeg_roundtrip(chain.rest_image, q),
+                                  expected_count=chain.scene.pins.count)
+        _PIPELINES[key] = (pipe, identify_markers(pipe.rest_points, chain.rest_truth_px,
+                                                  pipe.spacing_px))
+    return _PIPELINES[key]
+
+
+def _press(spec: SweepSpec, chain: Chain, pose: Sequence[float]) -> tuple[Any, float]:
+    """``chain.press`` remembering the last pose of this tip (a hysteresis sample presses the
+    previous pose again)."""
+    key = (spec.chain_key(), *(float(v) for v in pose))
+    if key in _LAST_PRESS:
+        return _LAST_PRESS[key]
+    out = chain.press(pose)
+    _LAST_PRESS.clear()
+    _LAST_PRESS[key] = out
+    return out
+
+
+def rig_sample(spec: SweepSpec, chain: Chain, index: int, reached: Sequence[float],
+               gain: float, rng: np.random.Generator) -> Any:
+    """One sample through the chain with the rig's further sources (:mod:`calibration.rig`):
+    the exposure trend over the sweep, hysteresis (markers lag towards the previous pose's by
+    the skin's residual fraction), motion blur on the radiance, JPEG-compressed frames. The
+    stages and seeds are :meth:`Chain.sample`'s, so a source at zero changes nothing."""
+    from .chain import Rendered, Sample, perceive
+
+    rig = spec.rig
+    gain *= 1.0 - rig.exposure_trend * index / max(len(spec.poses) - 1, 1)
+    angle = float(rng.uniform(0.0, np.pi))  # drawn after perturb's, so those stay the same
+    previous = None
+    h = rig.hysteresis_fraction()
+    if h > 0 and index > 0:
+        zero = rig_zero(spec, chain)
+        p = spec.poses.poses[index - 1]
+        previous, _ = _press(spec, chain, (float(p[0]), float(p[1]), float(p[2]) + zero))
+    state, physics_s = _press(spec, chain, reached)
+    if previous is not None:
+        markers = (1 - h) * state.markers_mm + h * previous.markers_mm
+        dirs = (1 - h) * state.marker_directions + h * previous.marker_directions
+        dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+        state = dc_replace(state, markers_mm=markers, marker_directions=dirs)
+    t0 = time.perf_counter()
+    crng = chain.rng(spec.set_tag, index)
+    radiance = motion_blur(chain.radiance(state, crng), rig.motion_blur_px, angle)
+    px, visible, blobs = chain.truth(state)
+    camera = chain.renderer.camera
+    if gain != 1.0:
+        camera = dc_replace(camera, exposure=camera.exposure * gain)
+    images = camera.frames(radiance, crng, chain.frames)
+    if rig.jpeg_quality > 0:
+        images = [jpeg_roundtrip(im, int(rig.jpeg_quality)) for im in images]
+    t1 = time.perf_counter()
+    pipe, pin_of = _pipeline(spec, chain)
+    perceived = perceive(pipe, images)
+    pins = np.full((chain.n_pins, 2), np.nan)
+    ok = pin_of >= 0
+    pins[pin_of[ok]] = perceived.points[ok]
+    return Sample(state, Rendered(px, visible, blobs, images), perceived, pins,
+                  {"physics": physics_s, "render": t1 - t0,
+                   "perception": time.perf_counter() - t1})
 
 
 @dataclass(frozen=True)
