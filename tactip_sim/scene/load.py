@@ -130,8 +130,17 @@ def preset_of(scene: Scene) -> str | None:
     return None
 
 
+# keys added after scenes were hashed: left out of scene_to_dict (so of scene_hash, and of
+# every cache and dataset keyed on it) while they hold these defaults
+OMIT_IF_DEFAULT: dict[tuple[str, str], Any] = {
+    ("fidelity", "contact_tolerance"): 0.03,
+    ("fidelity", "contact_refinement"): "off",
+}
+
+
 def scene_to_dict(scene: Scene) -> dict[str, Any]:
-    """The resolved scene as plain TOML-able data (lists, not tuples), without ``source``."""
+    """The resolved scene as plain TOML-able data (lists, not tuples), without ``source``, and
+    without the keys of :data:`OMIT_IF_DEFAULT` that hold their defaults."""
 
     def plain(v: Any) -> Any:
         if isinstance(v, tuple):
@@ -142,6 +151,9 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
 
     d = plain(dataclasses.asdict(scene))
     d.pop("source", None)
+    for (section, key), default in OMIT_IF_DEFAULT.items():
+        if d.get(section, {}).get(key, None) == default:
+            del d[section][key]
     return d
 
 
