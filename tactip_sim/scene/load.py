@@ -150,7 +150,8 @@ def key_spec(dotted: str) -> Spec:
 
 
 def scene_to_dict(scene: Scene) -> dict[str, Any]:
-    """The resolved scene as plain TOML-able data (lists, not tuples), without ``source``."""
+    """The resolved scene as plain TOML-able data (lists, not tuples), without ``source``, and
+    without the keys of :data:`_OMIT_AT_DEFAULT` that hold their defaults."""
 
     def plain(v: Any) -> Any:
         if isinstance(v, tuple):
@@ -170,7 +171,8 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
 
 
 #: (section, key) pairs left out of :func:`scene_to_dict` (so of the hash) at their default.
-_OMIT_AT_DEFAULT = (("pins", "layout"), ("pins", "rotation_deg"))
+_OMIT_AT_DEFAULT = (("pins", "layout"), ("pins", "rotation_deg"),
+                    ("fidelity", "contact_tolerance"), ("fidelity", "contact_refinement"))
 
 
 def _default_of(section: str, key: str) -> Any:

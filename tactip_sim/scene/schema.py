@@ -18,6 +18,7 @@ PIN_LAYOUTS = ("lattice", "hex_rings", "circle_rings")
 REFRACTION = ("none", "analytic", "path")
 MATERIAL_MODELS = ("linear", "neo_hookean")
 CONTACT_SOLVERS = ("reduced", "full")
+CONTACT_REFINEMENTS = ("off", "auto")
 SHADINGS = ("diffused", "lambert")
 
 
@@ -201,6 +202,16 @@ class Fidelity:
     element_order: int = spec(2, "int", "1 = linear P1 tets, 2 = quadratic P2 tets", lo=1, hi=2)
     material_model: str = spec("linear", "str", "constitutive law", choices=MATERIAL_MODELS)
     contact_solver: str = spec("reduced", "str", "contact solve", choices=CONTACT_SOLVERS)
+    # docs/fem.md "Discretisation error and contact refinement"
+    contact_tolerance: float = spec(
+        0.03, "float", "relative force error a solve may have before it warns (and, with "
+        "contact_refinement = 'auto', before the contact is meshed finer)", lo=0, hi=1,
+        lo_open=True,
+    )
+    contact_refinement: str = spec(
+        "off", "str", "mesh the contact zone finer when the estimated error would exceed "
+        "contact_tolerance (auto) or never (off)", choices=CONTACT_REFINEMENTS,
+    )
 
 
 @dataclass(frozen=True)
