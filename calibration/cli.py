@@ -11,12 +11,6 @@ import numpy as np
 from tactip_sim.commands import add_scene_argument, load_scene_args, parse_overrides, with_overrides
 from tactip_sim.commands.args import int_in, scene_key_type
 
-QUICK = {  # a reduced protocol for a first look (and for tests): same ranges, coarser grids
-    "protocol.roll_step_deg": 8.0,
-    "protocol.pitch_step_deg": 3.5,
-    "protocol.test_poses": 30,
-}
-
 
 def _scale_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int_in(1), default=1,
@@ -65,6 +59,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
     _check_scale(args)
     if args.quick:
+        from .calibrate import QUICK
+
         args.overrides = [f"{k}={v}" for k, v in QUICK.items()] + list(args.overrides)
     tips = None if args.tips is None else [t.strip() for t in args.tips.split(",")]
     if tips is not None and not all(tips):
