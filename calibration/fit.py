@@ -96,7 +96,11 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     import perception as pc
 
     model = pc.PoseRegressor.from_json(Path(path))
-    return model, json.loads(Path(path).read_text()).get("fitted_on", {})
+    fitted_on = json.loads(Path(path).read_text()).get("fitted_on", {})
+    if not isinstance(fitted_on, dict):  # a hand-edited file
+        raise pc.ModelError(f"{path}: 'fitted_on' must be a JSON object (the feature, image "
+                            f"size and data the model was fitted on), not {fitted_on!r}")
+    return model, fitted_on
 
 
 @dataclass(frozen=True)

@@ -291,3 +291,46 @@ def test_mesh_edge_that_hung_is_refused_naming_the_range():
     with pytest.raises(SceneError, match=r"fidelity\.mesh_edge_mm=100.*allowed \[0\.2, 16\]"):
         ts.load_scene(SCENE, {"fidelity.mesh_edge_mm": 100.0})
     assert ts.load_scene(SCENE, {"fidelity.mesh_edge_mm": 16.0}).fidelity.mesh_edge_mm == 16.0
+
+
+# --- found by tests/test_fuzz.py ---------------------------------------------------------
+
+@pytest.mark.parametrize("text", ["", "\n\n", "# only a comment\n"])
+def test_empty_scene_file_refused(tmp_path, text):
+    path = tmp_path / "empty.toml"
+    path.write_text(text)
+    with pytest.raises(SceneError, match="empty.toml.*no settings"):
+        ts.load_scene(path)
+
+
+def test_torn_targets_csv_is_a_dataset_error(tmp_path):
+    from calibration.bristol import BristolFolder
+    from calibration.dataset import DatasetError
+
+    (tmp_path / "targets.csv").write_text(
+        "sensor_image,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6\nimage_1.png,0,0,1,2,3,0\n"
+        "image_2.png,")  # torn mid-row: float(None) was a TypeError
+    with pytest.raises(DatasetError, match="data row 2 has 2 fields but the header has 7"):
+        BristolFolder.open(tmp_path)
+    (tmp_path / "targets.csv").write_text(
+        "sensor_image,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6\nimage_1.png,0,0,1,2,3,0,9\n")
+    with pytest.raises(DatasetError, match="data row 1 has 8 fields"):
+        BristolFolder.open(tmp_path)
+
+
+def test_model_with_a_malformed_record_is_refused(tmp_path):
+    import json
+
+    import perception as pc
+    from calibration.fit import load_model, save_model
+
+    rng = np.random.default_rng(0)
+    cop = rng.uniform(100, 500, (20, 2))
+    model = pc.PoseRegressor(order=1, image_size=(640, 480)).fit(cop, cop * 0.1)
+    path = tmp_path / "m.json"
+    save_model(model, path, feature="growth", fitted_on={})
+    data = json.loads(path.read_text())
+    data["fitted_on"] = "x"  # was an AttributeError ('str' object has no attribute 'get')
+    path.write_text(json.dumps(data))
+    with pytest.raises(pc.ModelError, match="fitted_on"):
+        load_model(path)
