@@ -334,3 +334,18 @@ def test_model_with_a_malformed_record_is_refused(tmp_path):
     path.write_text(json.dumps(data))
     with pytest.raises(pc.ModelError, match="fitted_on"):
         load_model(path)
+
+
+# --- item 2, the class of bug: every name from a file that becomes a path ----------------
+
+@pytest.mark.parametrize("finger", ["../../ESCAPED", "a/b", ""])
+def test_servo_finger_names_that_would_leave_out_are_refused(tmp_path, finger):
+    from calibration.servo.objects import GRASPS_FILE, load_grasps
+
+    text = GRASPS_FILE.read_text().replace('name = "A"', f'name = "{finger}"', 1)
+    path = tmp_path / "grasps.toml"
+    path.write_text(text)
+    for mesh in GRASPS_FILE.parent.glob("*.stl"):  # the file names meshes beside it
+        (tmp_path / mesh.name).write_bytes(mesh.read_bytes())
+    with pytest.raises(ValueError, match="finger name"):
+        load_grasps(path)
