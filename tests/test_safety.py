@@ -349,3 +349,18 @@ def test_servo_finger_names_that_would_leave_out_are_refused(tmp_path, finger):
         (tmp_path / mesh.name).write_bytes(mesh.read_bytes())
     with pytest.raises(ValueError, match="finger name"):
         load_grasps(path)
+
+
+@pytest.mark.parametrize("key", ["feature_names", "order", "coef", "normalisation"])
+def test_model_missing_a_key_is_a_model_error(tmp_path, key):
+    import json
+
+    import perception as pc
+
+    rng = np.random.default_rng(0)
+    cop = rng.uniform(100, 500, (20, 2))
+    model = pc.PoseRegressor(order=1, image_size=(640, 480)).fit(cop, cop * 0.1)
+    data = model.to_dict()
+    data.pop(key)  # without feature_names: a KeyError escaped (found by the fuzz run)
+    with pytest.raises(pc.ModelError):
+        pc.PoseRegressor.from_json(json.dumps(data))
