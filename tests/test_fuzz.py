@@ -535,25 +535,16 @@ def fuzz_cache(res: Result, rng: np.random.Generator, n: int, tmp: Path) -> None
 def fuzz_cli_numbers(res: Result, rng: np.random.Generator, n: int) -> None:
     """Every option with a range type of every command, given odd numbers: parsed inside the
     range, or refused naming the option."""
-    from tactip_sim.commands import build_parser
-
-    parser = build_parser()
-    subs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    options = []
-    for name, sub in subs.choices.items():
-        for a in sub._actions:
-            rng_of = getattr(a.type, "allowed", None)
-            if a.option_strings and rng_of is not None:
-                options.append((name, sub, a, rng_of))
+    options = _ranged_options()
     assert options, "no ranged options found"
     odd = ["-1", "0", "1", "-5", "1e9", "nan", "inf", "-inf", "2.5", "", "x", "1e-12",
            "999999999999", "-0", "0x10"]
     for _ in range(n):
-        name, sub, action, (lo, hi, lo_open) = options[rng.integers(len(options))]
+        name, action, (lo, hi, lo_open) = options[rng.integers(len(options))]
         text = odd[rng.integers(len(odd))] if rng.random() < 0.7 else \
             repr(float(rng.normal(0, 1e3)))
 
-        def run(sub=sub, action=action, text=text, lo=lo, hi=hi, lo_open=lo_open) -> str:
+        def run(action=action, text=text, lo=lo, hi=hi, lo_open=lo_open) -> str:
             try:
                 value = action.type(text)
             except (argparse.ArgumentTypeError, ValueError, TypeError) as exc:
@@ -624,6 +615,37 @@ def test_fuzz_large(sandbox, seed):
     res = run_fuzz(FUZZ_LARGE, seed=seed, tmp=sandbox / "fuzz")
     _check(res, set(), sandbox / "cwd")
     assert not list((sandbox / "home").iterdir())
+
+
+def _ranged_options() -> list[tuple[str, argparse.Action, tuple]]:
+    from tactip_sim.commands import build_parser
+
+    subs = next(a for a in build_parser()._actions
+                if isinstance(a, argparse._SubParsersAction))
+    return [(name, a, a.type.allowed) for name, sub in subs.choices.items()
+            for a in sub._actions if a.option_strings and hasattr(a.type, "allowed")]
+
+
+def test_every_ranged_option_refuses_nan_and_its_bounds_neighbours():
+    """Each option of each command with a range: NaN, inf and the numbers just outside its
+    range are refused with the range in the message; its bounds (when closed) are accepted."""
+    options = _ranged_options()
+    assert len(options) >= 20
+    for name, action, (lo, hi, lo_open) in options:
+        outside = ["nan", "inf", "x"]
+        if lo is not None:
+            below = lo - 1 if isinstance(lo, int) else lo - 1e-9 * max(1, abs(lo))
+            outside.append(str(below) if isinstance(lo, int) else repr(below))
+            if lo_open:
+                outside.append(repr(lo))
+            else:
+                assert action.type(str(lo)) == lo, (name, action.option_strings)
+        if hi is not None:
+            outside.append(str(hi + 1) if isinstance(hi, int) else repr(hi * (1 + 1e-9) + 1e-9))
+            assert action.type(str(hi)) == hi, (name, action.option_strings)
+        for text in outside:
+            with pytest.raises(argparse.ArgumentTypeError, match="allowed"):
+                action.type(text)
 
 
 def test_the_oracles_catch_what_they_should(sandbox):
