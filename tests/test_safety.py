@@ -4,6 +4,7 @@ failed on the code before its fix (the message, the exception type or the file w
 from __future__ import annotations
 
 import argparse
+import io
 import subprocess
 import sys
 from pathlib import Path
@@ -364,3 +365,24 @@ def test_model_missing_a_key_is_a_model_error(tmp_path, key):
     data.pop(key)  # without feature_names: a KeyError escaped (found by the fuzz run)
     with pytest.raises(pc.ModelError):
         pc.PoseRegressor.from_json(json.dumps(data))
+
+
+# --- item 8: long silent steps show a clock on a terminal, nothing in a pipe -------------
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_clock_shows_elapsed_time_on_a_terminal_only():
+    import time
+
+    from tactip_sim.progress import clock
+
+    tty, pipe = _Terminal(), io.StringIO()
+    with clock("meshing", every_s=0.05, file=tty):
+        time.sleep(0.3)
+    with clock("meshing", every_s=0.05, file=pipe):
+        time.sleep(0.1)
+    assert tty.getvalue().count("meshing: 00:0") >= 3   # refreshed while it ran
+    assert pipe.getvalue() == ""
