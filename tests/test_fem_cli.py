@@ -35,12 +35,20 @@ def test_press_text_with_sphere_and_no_contact(capsys):
 @pytest.mark.parametrize("argv, message", [
     (["--roll", "95"], "roll_deg=95 is out of range"),
     (["--depth", "9"], "depth_mm=9 is out of range"),
-    (["--indenter", "sphere", "--radius", "-2"], "radius_mm=-2.0 is out of range"),
     (["--indenter", "mesh"], "needs --mesh PATH"),
 ])
 def test_press_bad_input_exits_with_a_message(capsys, argv, message):
     assert main(["press", SCENE, *P1, *argv]) == 1
     assert message in capsys.readouterr().err
+
+
+def test_press_bad_radius_is_refused_by_the_option_parser(capsys):
+    """--radius is checked by argparse (exit status 2), naming the option and its range."""
+    with pytest.raises(SystemExit) as exc:
+        main(["press", SCENE, *P1, "--indenter", "sphere", "--radius", "-2"])
+    assert exc.value.code == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "--radius" in err and "-2 is out of range" in err
 
 
 def test_press_help(capsys):
