@@ -115,6 +115,12 @@ class BristolFolder:
             rows = list(reader)
         if not rows:
             raise DatasetError(f"{path}: no rows")
+        for i, r in enumerate(rows):  # DictReader: None for a short row's missing cells,
+            extra = r.pop(None, None) or []  # and the key None for a long row's extra ones
+            n = sum(v is not None for v in r.values()) + len(extra)
+            if n != len(header):
+                raise DatasetError(f"{path}: data row {i + 1} has {n} fields but the header has "
+                                   f"{len(header)} (a truncated or torn file?)")
         image_col = columns.image or next((c for c in IMAGE_COLUMNS if c in header), None)
         if image_col is None or image_col not in header:
             raise DatasetError(f"{path}: no image column (looked for "

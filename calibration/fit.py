@@ -120,8 +120,12 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     """A saved model and its ``fitted_on`` record (empty for a model saved without one)."""
     import perception as pc
 
-    model = pc.PoseRegressor.from_json(Path(path))  # checks the file and its JSON
-    return model, json.loads(Path(path).read_text()).get("fitted_on", {})
+    model = pc.PoseRegressor.from_json(Path(path))
+    fitted_on = json.loads(Path(path).read_text()).get("fitted_on", {})
+    if not isinstance(fitted_on, dict):  # a hand-edited file
+        raise pc.ModelError(f"{path}: 'fitted_on' must be a JSON object (the feature, image "
+                            f"size and data the model was fitted on), not {fitted_on!r}")
+    return model, fitted_on
 
 
 def load_any_model(path: str | Path) -> tuple[Any, dict[str, Any]]:

@@ -319,7 +319,7 @@ class PoseRegressor:
         values = np.concatenate([coef.ravel(), intercept, centre, [scale]])
         if not np.isfinite(values).all() or scale <= 0:
             raise ModelError("model contains non-finite numbers or a non-positive scale")
-        if list(data["feature_names"]) != model.feature_names_:
+        if list(data.get("feature_names") or []) != model.feature_names_:
             raise ModelError("feature names do not match the powers")
         model.coef_, model.intercept_ = coef, intercept
         model.centre_px_, model.scale_px_ = centre, scale

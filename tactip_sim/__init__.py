@@ -10,14 +10,20 @@ attribute access.
 
 from importlib import import_module
 
-from .geometry import Pad, build_pad
-from .mesh import REGION_GEL, REGION_SKIN, TetMesh, tetrahedralise
 from .scene import Scene, SceneError, apply_preset, load_scene, replace_in, scene_to_toml
 
 __version__ = "0.1.0"
 
 # lazy public names: name -> module (relative to this package)
 _LAZY = {
+    # geometry and mesh too (trimesh, ~0.7 s): `tactip` then reaches its own Ctrl-C handling
+    # before the heavy imports start
+    "Pad": ".geometry",
+    "build_pad": ".geometry",
+    "REGION_GEL": ".mesh",
+    "REGION_SKIN": ".mesh",
+    "TetMesh": ".mesh",
+    "tetrahedralise": ".mesh",
     "Simulator": ".simulator",
     "Pose": ".fem",
     "ContactState": ".fem",

@@ -1,9 +1,10 @@
 """The layout's import graph (docs/architecture.md): no cycle between files, and no import from
 a lower layer of ``tactip_sim`` up to a higher one, at module level or inside a function.
 
-Layers, bottom up: scene (with the cache and libLLVM utilities) -> geometry -> mesh -> fem ->
-optics -> render -> simulator -> commands. ``tactip_sim/__init__.py`` is the package's facade
-(it loads the higher layers lazily); no module below the commands floor may import it.
+Layers, bottom up: scene (with the cache, libLLVM and progress utilities) -> geometry -> mesh
+-> fem -> optics -> render -> simulator -> commands. ``tactip_sim/__init__.py`` is the
+package's facade (it loads the higher layers lazily); no module below the commands floor may
+import it.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from .conftest import ROOT
 PACKAGES = ("tactip_sim", "perception", "calibration")
 
 LAYERS = {
-    "scene": 0, "cache": 0, "llvm": 0,
+    "scene": 0, "cache": 0, "llvm": 0, "progress": 0,
     "geometry": 1,
     "mesh": 2,
     "fem": 3,

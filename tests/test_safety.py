@@ -4,6 +4,7 @@ failed on the code before its fix (the message, the exception type or the file w
 from __future__ import annotations
 
 import argparse
+import io
 import subprocess
 import sys
 from pathlib import Path
@@ -291,3 +292,130 @@ def test_mesh_edge_that_hung_is_refused_naming_the_range():
     with pytest.raises(SceneError, match=r"fidelity\.mesh_edge_mm=100.*allowed \[0\.2, 16\]"):
         ts.load_scene(SCENE, {"fidelity.mesh_edge_mm": 100.0})
     assert ts.load_scene(SCENE, {"fidelity.mesh_edge_mm": 16.0}).fidelity.mesh_edge_mm == 16.0
+
+
+# --- found by tests/test_fuzz.py ---------------------------------------------------------
+
+@pytest.mark.parametrize("text", ["", "\n\n", "# only a comment\n"])
+def test_empty_scene_file_refused(tmp_path, text):
+    path = tmp_path / "empty.toml"
+    path.write_text(text)
+    with pytest.raises(SceneError, match="empty.toml.*no settings"):
+        ts.load_scene(path)
+
+
+def test_torn_targets_csv_is_a_dataset_error(tmp_path):
+    from calibration.bristol import BristolFolder
+    from calibration.dataset import DatasetError
+
+    (tmp_path / "targets.csv").write_text(
+        "sensor_image,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6\nimage_1.png,0,0,1,2,3,0\n"
+        "image_2.png,")  # torn mid-row: float(None) was a TypeError
+    with pytest.raises(DatasetError, match="data row 2 has 2 fields but the header has 7"):
+        BristolFolder.open(tmp_path)
+    (tmp_path / "targets.csv").write_text(
+        "sensor_image,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6\nimage_1.png,0,0,1,2,3,0,9\n")
+    with pytest.raises(DatasetError, match="data row 1 has 8 fields"):
+        BristolFolder.open(tmp_path)
+
+
+def test_model_with_a_malformed_record_is_refused(tmp_path):
+    import json
+
+    import perception as pc
+    from calibration.fit import load_model, save_model
+
+    rng = np.random.default_rng(0)
+    cop = rng.uniform(100, 500, (20, 2))
+    model = pc.PoseRegressor(order=1, image_size=(640, 480)).fit(cop, cop * 0.1)
+    path = tmp_path / "m.json"
+    save_model(model, path, feature="growth", fitted_on={})
+    data = json.loads(path.read_text())
+    data["fitted_on"] = "x"  # was an AttributeError ('str' object has no attribute 'get')
+    path.write_text(json.dumps(data))
+    with pytest.raises(pc.ModelError, match="fitted_on"):
+        load_model(path)
+
+
+# --- item 2, the class of bug: every name from a file that becomes a path ----------------
+
+@pytest.mark.parametrize("finger", ["../../ESCAPED", "a/b", ""])
+def test_servo_finger_names_that_would_leave_out_are_refused(tmp_path, finger):
+    from calibration.servo.objects import GRASPS_FILE, load_grasps
+
+    text = GRASPS_FILE.read_text().replace('name = "A"', f'name = "{finger}"', 1)
+    path = tmp_path / "grasps.toml"
+    path.write_text(text)
+    for mesh in GRASPS_FILE.parent.glob("*.stl"):  # the file names meshes beside it
+        (tmp_path / mesh.name).write_bytes(mesh.read_bytes())
+    with pytest.raises(ValueError, match="finger name"):
+        load_grasps(path)
+
+
+@pytest.mark.parametrize("key", ["feature_names", "order", "coef", "normalisation"])
+def test_model_missing_a_key_is_a_model_error(tmp_path, key):
+    import json
+
+    import perception as pc
+
+    rng = np.random.default_rng(0)
+    cop = rng.uniform(100, 500, (20, 2))
+    model = pc.PoseRegressor(order=1, image_size=(640, 480)).fit(cop, cop * 0.1)
+    data = model.to_dict()
+    data.pop(key)  # without feature_names: a KeyError escaped (found by the fuzz run)
+    with pytest.raises(pc.ModelError):
+        pc.PoseRegressor.from_json(json.dumps(data))
+
+
+# --- item 8: long silent steps show a clock on a terminal, nothing in a pipe -------------
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_clock_shows_elapsed_time_on_a_terminal_only():
+    import time
+
+    from tactip_sim.progress import clock
+
+    tty, pipe = _Terminal(), io.StringIO()
+    with clock("meshing", every_s=0.05, file=tty):
+        time.sleep(0.3)
+    with clock("meshing", every_s=0.05, file=pipe):
+        time.sleep(0.1)
+    assert tty.getvalue().count("meshing: 00:0") >= 3   # refreshed while it ran
+    assert pipe.getvalue() == ""
+
+
+# --- item 11: a Ctrl-C while the subcommands load is never swallowed -------------------
+
+def test_ctrl_c_during_a_swallowing_import_still_stops_the_command(monkeypatch, capsys):
+    """trimesh imports its optional parts under ``except BaseException``: a Ctrl-C landing
+    there was swallowed and the command ran to its end (measured: `tactip press` interrupted
+    2.5 s in finished with exit status 0). Here the loading is such an import."""
+    import os
+    import signal
+
+    from tactip_sim.commands import cli
+
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        pytest.skip("SIGINT is not Python's default handler in this process")
+    real = cli.build_parser
+
+    def loading_that_swallows():
+        try:
+            os.kill(os.getpid(), signal.SIGINT)   # the user's Ctrl-C, mid-import
+            for _ in range(1000):                  # (Python runs the handler soon after)
+                pass
+        except BaseException:  # noqa: BLE001 - what the library does
+            pass
+        return real()
+
+    monkeypatch.setattr(cli, "build_parser", loading_that_swallows)
+    ran = []
+    monkeypatch.setattr(cli, "_run", lambda args, terminated: ran.append(args) or 0)
+    assert cli.main(["scene", str(SCENE)]) == 130
+    assert ran == []
+    assert "interrupted before the command started" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

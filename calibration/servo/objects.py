@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from tactip_sim.scene.names import check_name
+
 OBJECTS_DIR = Path(__file__).resolve().parents[2] / "scenes" / "objects"
 GRASPS_FILE = OBJECTS_DIR / "servo_grasps.toml"
 
@@ -449,6 +451,7 @@ def load_grasps(path: str | Path = GRASPS_FILE) -> dict[str, GraspSpec]:
             if bad or "name" not in f or "azimuth_deg" not in f:
                 raise ValueError(f"{where}: a finger needs name and azimuth_deg and may have "
                                  f"{sorted(_FINGER_KEYS)} (got {sorted(f)})")
+            check_name(f["name"], f"{where}: finger name")  # names the trace file
             fingers.append(FingerSpec(str(f["name"]), float(f["azimuth_deg"]),
                                       float(f.get("height_mm", 0.0)),
                                       float(f.get("lateral_mm", 0.0))))

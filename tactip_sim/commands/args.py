@@ -100,6 +100,7 @@ def int_in(lo: int | None = None, hi: int | None = None) -> Callable[[str], int]
         return value
 
     parse.__name__ = "integer"
+    parse.allowed = (lo, hi, False)  # type: ignore[attr-defined]  (read by the fuzz tests)
     return parse
 
 
@@ -123,6 +124,7 @@ def float_in(lo: float | None = None, hi: float | None = None, *,
         return value
 
     parse.__name__ = "number"
+    parse.allowed = (lo, hi, lo_open)  # type: ignore[attr-defined]
     return parse
 
 

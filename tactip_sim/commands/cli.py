@@ -14,14 +14,16 @@ import contextlib
 import json
 import sys
 from collections.abc import Callable, Iterator, Sequence
+from importlib import import_module
 from importlib.metadata import entry_points
 
 from ..scene import SceneError
-from . import press, render, validate_lens
 from .args import add_scene_argument, load_scene_args
 
-_OWN_COMMANDS = (press, render, validate_lens)
-"""Modules of this floor with ``register(subparsers)``, in the order of ``tactip --help``."""
+_OWN_COMMANDS = ("press", "render", "validate_lens")
+"""Modules of this floor with ``register(subparsers)``, in the order of ``tactip --help``;
+imported by :func:`build_parser`, so that a Ctrl-C during their (heavy) imports reaches
+:func:`main`'s handler."""
 
 
 def _cmd_scene(args: argparse.Namespace) -> int:
@@ -107,8 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("action", choices=["info", "clear"], help="info: size; clear: delete all")
     p.set_defaults(func=_cmd_cache)
 
-    for module in _OWN_COMMANDS:
-        module.register(sub)
+    for name in _OWN_COMMANDS:
+        import_module(f"{__package__}.{name}").register(sub)
     for ep in sorted(entry_points(group="tactip.commands"), key=lambda e: e.name):
         register: Callable[[argparse._SubParsersAction], None] = ep.load()
         register(sub)
@@ -119,12 +121,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``tactip`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code: 0, 1
     (an error, printed), 2 (a scene error, printed), 130 (interrupted: Ctrl-C) or 143
     (terminated: SIGTERM, handled as an interrupt so temporary files are removed)."""
-    try:  # loading the subcommands imports their packages: a Ctrl-C may land here
+    # loading the subcommands imports their packages; some libraries import their optional
+    # parts under `except BaseException` (trimesh), which swallowed a Ctrl-C: the command then
+    # ran to the end. So a Ctrl-C here is held until the imports are done.
+    with _held_interrupt() as held:
         parser = build_parser()
-        args = parser.parse_args(argv)
-    except KeyboardInterrupt:
+    if held:
         print("\ntactip: interrupted before the command started", file=sys.stderr)
         return 130
+    args = parser.parse_args(argv)
     with _sigterm_interrupts() as terminated:
         return _run(args, terminated)
 
@@ -156,6 +161,25 @@ def _caused_by_interrupt(exc: BaseException) -> bool:
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
     return False
+
+
+@contextlib.contextmanager
+def _held_interrupt() -> Iterator[list[int]]:
+    """While the block runs, a Ctrl-C (SIGINT) is recorded instead of raised; the yielded
+    list holds it afterwards. Python's own handler is restored after the block."""
+    import signal
+    import threading
+
+    seen: list[int] = []
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield seen
+        return
+    signal.signal(signal.SIGINT, lambda signum, frame: seen.append(signum))
+    try:
+        yield seen
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @contextlib.contextmanager

@@ -34,6 +34,7 @@ import time
 import numpy as np
 
 from .. import cache
+from ..progress import clock
 from .elasticity import cholmod_available, schur_inverse
 from .model import ElasticBody
 
@@ -99,7 +100,8 @@ class ReducedModel:
                 resp = None
         self.from_cache = comp is not None and resp is not None
         if comp is None:
-            comp, resp, mcomp = self._compute_all()
+            with clock("precomputing the contact compliance (once per mesh, then cached)"):
+                comp, resp, mcomp = self._compute_all()
             if use_cache:
                 cache.save_npz(c_path, compliance=comp)
                 cache.save_npz(r_path, response=resp, marker_compliance=mcomp)

@@ -18,6 +18,7 @@ import numpy as np
 
 from .. import cache
 from ..geometry import build_pad
+from ..progress import clock
 from ..scene import Scene
 from .snap import snap_nodes
 from .topology import REGION_GEL, REGION_SKIN, TET_FACES, tet_volumes
@@ -303,34 +304,14 @@ def _run_tetwild(**kwargs: object) -> tuple[np.ndarray, np.ndarray]:
     with tempfile.TemporaryDirectory(prefix="tactip-tetwild-") as tmp:
         src, dst = Path(tmp) / "input.npz", Path(tmp) / "output.npz"
         np.savez(src, **{k: np.asarray(v) for k, v in kwargs.items()})
-        res = _run_child([sys.executable, "-m", "tactip_sim.mesh._tetwild", str(src),
-                          str(dst)], cwd=tmp, env=env,
-                         label=f"meshing the pad (pytetwild, edge {kwargs['edge_length_abs']} mm)")
+        # subprocess.run kills the child if this process is interrupted (Ctrl-C, or SIGTERM
+        # as the commands handle it); the clock shows on a terminal (a mesh can take minutes)
+        with clock(f"meshing the pad (pytetwild, edge {kwargs['edge_length_abs']} mm)"):
+            res = subprocess.run([sys.executable, "-m", "tactip_sim.mesh._tetwild", str(src),
+                                  str(dst)], cwd=tmp, env=env, capture_output=True, text=True,
+                                 check=False)
         if res.returncode != 0 or not dst.is_file():
             raise RuntimeError(f"pytetwild failed (exit status {res.returncode}): "
                                f"{res.stderr.strip()[-2000:]}")
         with np.load(dst) as data:
             return data["nodes"], data["tets"]
-
-
-def _run_child(cmd: list[str], *, cwd: str, env: dict[str, str], label: str
-               ) -> subprocess.CompletedProcess:
-    """``subprocess.run(cmd)`` with a running clock on a terminal (a mesh can take minutes,
-    and used to show nothing); the child is stopped if this process is interrupted."""
-    from tqdm import tqdm
-
-    with subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.PIPE,
-                          stderr=subprocess.PIPE, text=True) as proc, \
-            tqdm(desc=label, bar_format="{desc}: {elapsed}", disable=None, leave=False) as bar:
-        try:
-            while True:
-                try:
-                    out, err = proc.communicate(timeout=1.0)
-                    break
-                except subprocess.TimeoutExpired:
-                    bar.refresh()
-        except BaseException:  # Ctrl-C, SIGTERM (as SystemExit): no orphaned mesher
-            proc.kill()
-            proc.wait()
-            raise
-    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)

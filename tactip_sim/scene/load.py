@@ -84,6 +84,9 @@ def load_scene(path: str | Path, overrides: Mapping[str, Any] | None = None) -> 
         raise SceneError(f"scene file {str(path)!r} is not valid TOML: {exc}") from exc
     except OSError as exc:
         raise SceneError(f"scene file {str(path)!r} cannot be read: {exc.strerror}") from None
+    if not data:
+        raise SceneError(f"scene file {str(path)!r} holds no settings (an empty file?): give a "
+                         "scene, e.g. scenes/shadow_fingertip.toml")
     if overrides:
         data = apply_overrides(data, overrides)
     return scene_from_dict(data, source=str(path.resolve()))
