@@ -158,6 +158,12 @@ def test_malformed_folders_get_errors_naming_the_file(tmp_path, folder):
     cv2.imwrite(str(small_rest), np.zeros((128, 128), np.uint8))
     with pytest.raises(DatasetError, match="rest frame of another sensor"):
         BristolFolder.open(root, rest=small_rest)
+    other = tmp_path / "other_sensor.png"  # same size, a 37-marker sensor
+    cv2.imwrite(str(other), render_markers(pc.hex_lattice(37, SPACING, C), diameter_px=11.0,
+                                           noise_sigma=0.01, rng=np.random.default_rng(0)).image)
+    with pytest.raises(DatasetError, match=r"other_sensor.png: the reference frame shows 37 "
+                       r"markers but the folder.s first frames a median of 97"):
+        folder_features(BristolFolder.open(root, rest=other))
     blank = tmp_path / "blank.png"
     cv2.imwrite(str(blank), np.zeros((480, 640), np.uint8))
     with pytest.raises(DatasetError, match="reference frame cannot be used"):
