@@ -46,6 +46,12 @@ TAP_GATE_FRACTION = 1.0
 """Tracking gate for taps, as a fraction of the rest spacing (frame-to-frame sequences use 0.5,
 :class:`perception.TrackingParams`). On the 1 000 real 128x128 taps of ``../shared/real`` the
 frames flagged for lost tracks went from 363 (gate 0.5) to 12 (docs/real_data.md)."""
+TAP_SEARCH_FRACTION = 0.5
+"""How far beyond the Voronoi region (the rest markers' hull grown by half a spacing) taps are
+searched for markers, as a fraction of the rest spacing: half a spacing, so that the search
+reaches one tracking gate (:data:`TAP_GATE_FRACTION` spacings) beyond the hull and a rim marker
+that a tilted press pushes outward is found as far as it can be tracked
+(:class:`perception.FeaturePipeline` ``search_margin_px``)."""
 
 IMAGE_COLUMNS = ("sensor_image", "image")
 """Image columns looked for, in this order (Bristol data sets, then this project's)."""
@@ -336,6 +342,11 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
         pipe = pc.FeaturePipeline(
             str(folder.rest), expected_count=expected_count,
             tracking=pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False))
+        if TAP_SEARCH_FRACTION > 0:  # the spacing is known once the rest frame is detected
+            pipe = pc.FeaturePipeline(
+                str(folder.rest), expected_count=expected_count,
+                tracking=pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False),
+                search_margin_px=TAP_SEARCH_FRACTION * pipe.spacing_px)
     except pc.PerceptionError as exc:
         raise DatasetError(f"{folder.rest}: the reference frame cannot be used ({exc})") from None
     _check_same_sensor(folder, len(pipe.rest_points))
