@@ -338,14 +338,16 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
 
     import perception as pc
 
+    # taps: each frame tracked straight from the rest frame (no velocity), a gate of one
+    # spacing, an oversized blob a merged pair only if a marker is missing next to it
+    tracking = pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False,
+                                 merge_needs_lost_neighbour=True)
     try:
-        pipe = pc.FeaturePipeline(
-            str(folder.rest), expected_count=expected_count,
-            tracking=pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False))
+        pipe = pc.FeaturePipeline(str(folder.rest), expected_count=expected_count,
+                                  tracking=tracking)
         if TAP_SEARCH_FRACTION > 0:  # the spacing is known once the rest frame is detected
             pipe = pc.FeaturePipeline(
-                str(folder.rest), expected_count=expected_count,
-                tracking=pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False),
+                str(folder.rest), expected_count=expected_count, tracking=tracking,
                 search_margin_px=TAP_SEARCH_FRACTION * pipe.spacing_px)
     except pc.PerceptionError as exc:
         raise DatasetError(f"{folder.rest}: the reference frame cannot be used ({exc})") from None

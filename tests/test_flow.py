@@ -265,3 +265,37 @@ def test_a_search_margin_finds_rim_markers_pushed_beyond_the_region():
     np.testing.assert_allclose(f1.points, pushed[k], atol=0.1)
     with pytest.raises(PerceptionError, match="search_margin_px=-1"):
         pc.FeaturePipeline(rest, search_margin_px=-1)
+
+
+def test_a_grown_marker_is_a_merged_pair_only_if_its_partner_is_missing():
+    rest = pc.hex_lattice(37, 10.0, (50.0, 50.0))
+    areas = np.full(len(rest), 6.0)  # a 128x128 frame's 2-3 px markers
+    params = pc.TrackingParams(gate_fraction=1.0, use_velocity=False,
+                               merge_needs_lost_neighbour=True)
+    # marker 0 grew to 2.5x its rest area (pressed), every marker present: one grown marker
+    grown = np.r_[15.0, areas[1:]]
+    t = pc.MarkerTracker(rest, rest_areas=areas, params=params)
+    out = t.update(rest + 0.3, areas=grown)
+    assert t.n_lost == 0 and np.allclose(out, rest + 0.3)
+    plain = pc.MarkerTracker(rest, rest_areas=areas,
+                             params=pc.TrackingParams(gate_fraction=1.0, use_velocity=False))
+    plain.update(rest + 0.3, areas=grown)
+    assert plain.status[0] == pc.MERGED  # the area-only rule flags it
+    # a real merged pair: markers i and j (neighbours) seen as one big blob between them
+    i = 0
+    j = int(np.argsort(np.linalg.norm(rest - rest[i], axis=1))[1])
+    det = np.vstack([np.delete(rest, [i, j], axis=0), 0.5 * (rest[i] + rest[j])])
+    det_areas = np.r_[np.delete(areas, [i, j]), 12.0]
+    t.reset()
+    out = t.update(det, areas=det_areas)
+    assert np.isnan(out[[i, j]]).all()
+    assert sorted(t.status[[i, j]]) == [pc.LOST, pc.MERGED]
+    # the same big blob with the missing marker far away (outside the gate): a grown marker
+    k = int(np.argmax(np.linalg.norm(rest - rest[i], axis=1)))
+    det = np.vstack([np.delete(rest, [i, k], axis=0), rest[i]])
+    det_areas = np.r_[np.delete(areas, [i, k]), 12.0]
+    t.reset()
+    out = t.update(det, areas=det_areas)
+    assert t.status[i] == pc.TRACKED and np.allclose(out[i], rest[i])
+    assert t.status[k] == pc.LOST
+
