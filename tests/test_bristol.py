@@ -200,7 +200,7 @@ def test_fit_never_overwrites_a_file_that_is_not_a_model(folder, tmp_path, capsy
                      "--no-progress"]) == 0
 
 
-def test_the_flow_feature_fits_evaluates_and_replaces_its_own_model(folder, tmp_path):
+def test_the_flow_feature_fits_evaluates_and_replaces_its_own_model(folder, tmp_path, capsys):
     from tactip_sim.commands import main
 
     root, _ = folder
@@ -220,3 +220,8 @@ def test_the_flow_feature_fits_evaluates_and_replaces_its_own_model(folder, tmp_
     ev = json.loads(ev_json.read_text())
     assert ev["feature"] == "flow" and ev["n_used"] == 24
     assert ev["r2_roll"] >= cv["r2_roll"] and ev["r2_pitch"] >= cv["r2_pitch"]
+    data = json.loads(model.read_text())
+    data["image_size"] = [128, 128]
+    model.write_text(json.dumps(data))
+    assert main(["evaluate", str(model), str(root), "--rescale", "--no-progress"]) != 0
+    assert "cannot be rescaled" in capsys.readouterr().err
