@@ -205,9 +205,16 @@ def test_the_flow_feature_fits_evaluates_and_replaces_its_own_model(folder, tmp_
 
     root, _ = folder
     model, cv_json, ev_json = tmp_path / "m.json", tmp_path / "cv.json", tmp_path / "ev.json"
+    chart = tmp_path / "chart.png"
     for _ in range(2):  # the second fit replaces the first model file
         assert main(["fit", str(root), "--feature", "flow", "--order", "1", "--out", str(model),
-                     "--cv", "5", "--json", str(cv_json), "--no-progress"]) == 0
+                     "--cv", "5", "--json", str(cv_json), "--plot", str(chart),
+                     "--no-progress"]) == 0
+    assert chart.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    capsys.readouterr()
+    assert main(["fit", str(root), "--order", "1", "--out", str(model), "--plot", str(chart),
+                 "--no-progress"]) != 0
+    assert "give --cv K too" in capsys.readouterr().err
     saved = json.loads(model.read_text())
     assert saved["format"] == "perception.VectorRegressor"
     assert saved["fitted_on"]["feature"] == "flow"
