@@ -46,6 +46,12 @@ TAP_GATE_FRACTION = 1.0
 """Tracking gate for taps, as a fraction of the rest spacing (frame-to-frame sequences use 0.5,
 :class:`perception.TrackingParams`). On the 1 000 real 128x128 taps of ``../shared/real`` the
 frames flagged for lost tracks went from 363 (gate 0.5) to 12 (docs/real_data.md)."""
+TAP_SEARCH_FRACTION = 0.5
+"""How far beyond the Voronoi region (the rest markers' hull grown by half a spacing) taps are
+searched for markers, as a fraction of the rest spacing: half a spacing, so that the search
+reaches one tracking gate (:data:`TAP_GATE_FRACTION` spacings) beyond the hull and a rim marker
+that a tilted press pushes outward is found as far as it can be tracked
+(:class:`perception.FeaturePipeline` ``search_margin_px``)."""
 
 IMAGE_COLUMNS = ("sensor_image", "image")
 """Image columns looked for, in this order (Bristol data sets, then this project's)."""
@@ -292,6 +298,39 @@ class FrameTable:
                 "image_size": list(self.folder.image_size)}
 
 
+OTHER_SENSOR_CHECK_FRAMES = 5
+"""The reference frame's marker count is compared with the median count of this many first
+frames (:func:`_check_same_sensor`)."""
+OTHER_SENSOR_RATIO = 1.25
+"""A reference frame with more than this many times (or fewer than 1/this) the markers the
+folder's frames show is taken for another sensor's. A press hides or merges at most a few
+markers at the rim (e.g. 328-334 of 331 on the 1 000 real 128x128 taps, docs/real_data.md);
+the two Bristol TacTips differ by a factor 331/127 = 2.6."""
+
+
+def _check_same_sensor(folder: BristolFolder, rest_markers: int) -> None:
+    """The markers detected on the whole of the first frames (not only within the reference's
+    region, where the pipeline looks) must number about as many as on the reference frame."""
+    import perception as pc
+
+    counts = []
+    for path in folder.images[:OTHER_SENSOR_CHECK_FRAMES]:
+        try:
+            counts.append(len(pc.detect_markers(str(path))))
+        except pc.PerceptionError:
+            continue  # such a frame is flagged by the pipeline with its reason
+    if not counts:
+        return
+    med = float(np.median(counts))
+    ratio = med / max(rest_markers, 1)
+    if not 1 / OTHER_SENSOR_RATIO <= ratio <= OTHER_SENSOR_RATIO:
+        raise DatasetError(
+            f"{folder.rest}: the reference frame shows {rest_markers} markers but the folder's "
+            f"first frames a median of {med:g} (ratio {ratio:.2f}, allowed "
+            f"{1 / OTHER_SENSOR_RATIO:.2f}-{OTHER_SENSOR_RATIO:.2f}): a rest frame of another "
+            "sensor? Pass --rest with a rest frame of this sensor")
+
+
 def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
                     progress: bool = False) -> FrameTable:
     """Every frame of ``folder`` through the feature pipeline, each against the reference.
@@ -305,12 +344,20 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
 
     import perception as pc
 
+    # taps: each frame tracked straight from the rest frame (no velocity), a gate of one
+    # spacing, an oversized blob a merged pair only if a marker is missing next to it
+    tracking = pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False,
+                                 merge_needs_lost_neighbour=True)
     try:
-        pipe = pc.FeaturePipeline(
-            str(folder.rest), expected_count=expected_count,
-            tracking=pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False))
+        pipe = pc.FeaturePipeline(str(folder.rest), expected_count=expected_count,
+                                  tracking=tracking)
+        if TAP_SEARCH_FRACTION > 0:  # the spacing is known once the rest frame is detected
+            pipe = pc.FeaturePipeline(
+                str(folder.rest), expected_count=expected_count, tracking=tracking,
+                search_margin_px=TAP_SEARCH_FRACTION * pipe.spacing_px)
     except pc.PerceptionError as exc:
         raise DatasetError(f"{folder.rest}: the reference frame cannot be used ({exc})") from None
+    _check_same_sensor(folder, len(pipe.rest_points))
     n = len(folder)
     cop = {name: np.full((n, 2), np.nan) for name in FEATURES}
     cop["flow"] = np.full((n, len(_flow_names())), np.nan)

@@ -92,6 +92,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
     if args.cv is not None and args.cv < 2:
         raise ValueError(f"--cv={args.cv} is out of range: allowed >= 2")
+    if args.plot and not args.cv:
+        raise ValueError("--plot charts the cross-validated predictions: give --cv K too")
     frames = _open(args, args.dataset)
     features, orders = _candidates(args, frames)
     report: dict[str, Any] = {}

@@ -122,12 +122,19 @@ class TrackingParams:
         merged pair: the tracks it would feed are flagged, not given its position. Range (1, 100].
     max_lost_fraction : float
         A frame with more than this fraction of tracks lost is unreliable. Range [0, 1].
+    merge_needs_lost_neighbour : bool
+        Flag an oversized blob as a merged pair only when a track left without a detection
+        is expected within the gate of it (the pair's other marker); otherwise it is one
+        marker that grew, e.g. a 1-3 px marker of a 128x128 binarised frame pressed into
+        contact, whose area then varies by more than ``merge_area_ratio`` from pixel
+        quantisation alone. Default False (every oversized blob is a merged pair).
     """
 
     gate_fraction: float = 0.5
     use_velocity: bool = True
     merge_area_ratio: float = 1.6
     max_lost_fraction: float = 0.1
+    merge_needs_lost_neighbour: bool = False
 
     def __post_init__(self) -> None:
         _check_range("gate_fraction", self.gate_fraction, 0, 2, lo_open=True)

@@ -111,6 +111,13 @@ class FeaturePipeline:
     region : Polygon, (k, 2) vertices or (h, w) binary mask, optional
         Sensor region for detection and Voronoi clipping. Default: fitted to the rest markers
         (:func:`perception.region.fit_region`, convex hull grown by half the spacing).
+    search_margin_px : float, px, >= 0, optional
+        Detect markers this far beyond ``region`` too (default 0: only inside it). A marker
+        pushed outward across the region's edge is then still found and tracked (its cell is
+        the part of its Voronoi cell inside ``region``). Labelled taps tracked straight from
+        the rest frame with a gate of one spacing use half a spacing
+        (:data:`calibration.bristol.TAP_SEARCH_FRACTION`), so the search reaches one gate
+        beyond the rest markers' hull.
     expected_diameter_px : float, optional
         Marker diameter, px. When omitted it is measured on the rest frame, and the rest frame
         and every later frame are then detected with that value, so the whole sequence uses
@@ -130,6 +137,8 @@ class FeaturePipeline:
         Pixel-noise sigma measured on the rest frame, as a fraction of full scale (frames of
         another bit depth get it in their own units).
     region : Polygon
+    search_region : Polygon
+        Where frames are searched for markers: ``region`` grown by ``search_margin_px``.
     voronoi : ClippedVoronoi
         Cell areas in ``region`` (reuses the triangulation from frame to frame).
     rest_areas : (m,) float64, px²
@@ -155,7 +164,12 @@ class FeaturePipeline:
         detection: DetectionParams | None = None,
         tracking: TrackingParams | None = None,
         contact: ContactParams | None = None,
+        search_margin_px: float | None = None,
     ) -> None:
+        margin = 0.0 if search_margin_px is None else float(search_margin_px)
+        if not (np.isfinite(margin) and margin >= 0):
+            raise PerceptionError(f"search_margin_px={search_margin_px!r} must be finite and "
+                                  ">= 0 (px)")
         grey = as_grey(rest_image)
         self.image_shape = grey.shape
         self.expected_count = expected_count
@@ -178,6 +192,8 @@ class FeaturePipeline:
         self.rest = rest
         self.region = user_region if user_region is not None else fit_region(rest.points)
         self.voronoi = ClippedVoronoi(self.region)
+        self.search_region = (self.region if margin == 0
+                              else self.region.buffer(margin, quad_segs=16))
         self.rest_areas = _ro(self.voronoi.areas(rest.points))
         self.voronoi.mark()  # every sequence starts from the rest frame's triangulation
         self.tracker = MarkerTracker(rest.points, rest_areas=rest.areas_px,
@@ -225,7 +241,7 @@ class FeaturePipeline:
         if grey.shape != self.image_shape:
             raise ImageError(f"frame shape {grey.shape} differs from the rest frame's "
                              f"{self.image_shape}")
-        det = self._detect(grey, self.region)
+        det = self._detect(grey, self.search_region)
         points = self.tracker.update(det.points, areas=det.areas_px)
         n_lost = self.tracker.n_lost
         # lost markers keep a placeholder seed at their last sighting so that their cell is

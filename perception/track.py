@@ -191,6 +191,8 @@ class MarkerTracker:
         new_pos = np.full((m, 2), np.nan)
         status = np.full(m, LOST, dtype=np.int8)
         good = ~merged_det[match]
+        if self.params.merge_needs_lost_neighbour and not good.all():
+            good = self._no_missing_partner(track, match, det, good)
         new_pos[track[good]] = det[match[good]]
         status[track[good]] = TRACKED
         status[track[~good]] = MERGED
@@ -209,6 +211,23 @@ class MarkerTracker:
         self.last_match = np.full(m, -1, dtype=np.intp)
         self.last_match[track] = det_idx[match]
         return new_pos.copy()
+
+    def _no_missing_partner(self, track: np.ndarray, match: np.ndarray, det: np.ndarray,
+                            good: np.ndarray) -> np.ndarray:
+        """``good`` with every oversized blob that has no unmatched track within the gate
+        (where its pair's other marker would be expected) taken as one grown marker."""
+        unmatched = np.ones(len(self.rest_points), dtype=bool)
+        unmatched[track] = False
+        out = good.copy()
+        if not unmatched.any():
+            out[:] = True
+            return out
+        big = np.flatnonzero(~good)
+        blobs = det[match[big]]
+        d = np.minimum(cdist(blobs, self.predicted()[unmatched]),
+                       cdist(blobs, self.rest_points[unmatched]))
+        out[big[d.min(axis=1) > self.gate_px]] = True
+        return out
 
     def _assign(self, det: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Gated optimal one-to-one assignment: (track indices, detection indices)."""

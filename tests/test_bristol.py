@@ -158,6 +158,12 @@ def test_malformed_folders_get_errors_naming_the_file(tmp_path, folder):
     cv2.imwrite(str(small_rest), np.zeros((128, 128), np.uint8))
     with pytest.raises(DatasetError, match="rest frame of another sensor"):
         BristolFolder.open(root, rest=small_rest)
+    other = tmp_path / "other_sensor.png"  # same size, a 37-marker sensor
+    cv2.imwrite(str(other), render_markers(pc.hex_lattice(37, SPACING, C), diameter_px=11.0,
+                                           noise_sigma=0.01, rng=np.random.default_rng(0)).image)
+    with pytest.raises(DatasetError, match=r"other_sensor.png: the reference frame shows 37 "
+                       r"markers but the folder.s first frames a median of 97"):
+        folder_features(BristolFolder.open(root, rest=other))
     blank = tmp_path / "blank.png"
     cv2.imwrite(str(blank), np.zeros((480, 640), np.uint8))
     with pytest.raises(DatasetError, match="reference frame cannot be used"):
@@ -194,14 +200,21 @@ def test_fit_never_overwrites_a_file_that_is_not_a_model(folder, tmp_path, capsy
                      "--no-progress"]) == 0
 
 
-def test_the_flow_feature_fits_evaluates_and_replaces_its_own_model(folder, tmp_path):
+def test_the_flow_feature_fits_evaluates_and_replaces_its_own_model(folder, tmp_path, capsys):
     from tactip_sim.commands import main
 
     root, _ = folder
     model, cv_json, ev_json = tmp_path / "m.json", tmp_path / "cv.json", tmp_path / "ev.json"
+    chart = tmp_path / "chart.png"
     for _ in range(2):  # the second fit replaces the first model file
         assert main(["fit", str(root), "--feature", "flow", "--order", "1", "--out", str(model),
-                     "--cv", "5", "--json", str(cv_json), "--no-progress"]) == 0
+                     "--cv", "5", "--json", str(cv_json), "--plot", str(chart),
+                     "--no-progress"]) == 0
+    assert chart.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    capsys.readouterr()
+    assert main(["fit", str(root), "--order", "1", "--out", str(model), "--plot", str(chart),
+                 "--no-progress"]) != 0
+    assert "give --cv K too" in capsys.readouterr().err
     saved = json.loads(model.read_text())
     assert saved["format"] == "perception.VectorRegressor"
     assert saved["fitted_on"]["feature"] == "flow"
@@ -214,3 +227,8 @@ def test_the_flow_feature_fits_evaluates_and_replaces_its_own_model(folder, tmp_
     ev = json.loads(ev_json.read_text())
     assert ev["feature"] == "flow" and ev["n_used"] == 24
     assert ev["r2_roll"] >= cv["r2_roll"] and ev["r2_pitch"] >= cv["r2_pitch"]
+    data = json.loads(model.read_text())
+    data["image_size"] = [128, 128]
+    model.write_text(json.dumps(data))
+    assert main(["evaluate", str(model), str(root), "--rescale", "--no-progress"]) != 0
+    assert "cannot be rescaled" in capsys.readouterr().err

@@ -233,3 +233,69 @@ def test_cross_validation_of_a_vector_feature_matches_scikit_learn():
                                           LinearRegression()), t.cop_px, t.angles_deg,
                             cv=PredefinedSplit(fold))
     np.testing.assert_allclose(ours["predicted_deg"], ref, atol=1e-6)
+
+
+def test_a_search_margin_finds_rim_markers_pushed_beyond_the_region():
+    from perception.synthetic import render_markers
+
+    s = 26.0
+    c = np.array([320.0, 240.0])
+    rest_pts = pc.hex_lattice(61, s, c)
+    r = np.linalg.norm(rest_pts - c, axis=1)
+    rim = r > r.max() - 1.0  # the outer ring (hull corners and edges)
+    pushed = rest_pts.copy()
+    pushed[rim] += 0.8 * s * (rest_pts[rim] - c) / r[rim, None]  # 0.8 spacing outward: past
+    # the region's edge (the hull grown by 0.5 spacing), within a one-spacing gate
+    rng = np.random.default_rng(4)
+    rest = render_markers(rest_pts, diameter_px=11.0, noise_sigma=0.01, rng=rng).image
+    frame = render_markers(pushed, diameter_px=11.0, noise_sigma=0.01, rng=rng).image
+    tracking = pc.TrackingParams(gate_fraction=1.0, use_velocity=False)
+    plain = pc.FeaturePipeline(rest, tracking=tracking)
+    assert plain.search_region is plain.region
+    f0 = plain.process(frame)
+    assert f0.n_lost >= rim.sum() - 6  # the corners' cells reach further: a few may be found
+    wide = pc.FeaturePipeline(rest, tracking=tracking, search_margin_px=0.5 * s)
+    f1 = wide.process(frame)
+    assert f1.n_lost == 0
+    # the tracks are in the rest detection's order: pair them with the lattice by rest position
+    from scipy.spatial import cKDTree
+
+    dist, k = cKDTree(rest_pts).query(wide.rest_points)
+    assert dist.max() < 0.1
+    np.testing.assert_allclose(f1.points, pushed[k], atol=0.1)
+    with pytest.raises(PerceptionError, match="search_margin_px=-1"):
+        pc.FeaturePipeline(rest, search_margin_px=-1)
+
+
+def test_a_grown_marker_is_a_merged_pair_only_if_its_partner_is_missing():
+    rest = pc.hex_lattice(37, 10.0, (50.0, 50.0))
+    areas = np.full(len(rest), 6.0)  # a 128x128 frame's 2-3 px markers
+    params = pc.TrackingParams(gate_fraction=1.0, use_velocity=False,
+                               merge_needs_lost_neighbour=True)
+    # marker 0 grew to 2.5x its rest area (pressed), every marker present: one grown marker
+    grown = np.r_[15.0, areas[1:]]
+    t = pc.MarkerTracker(rest, rest_areas=areas, params=params)
+    out = t.update(rest + 0.3, areas=grown)
+    assert t.n_lost == 0 and np.allclose(out, rest + 0.3)
+    plain = pc.MarkerTracker(rest, rest_areas=areas,
+                             params=pc.TrackingParams(gate_fraction=1.0, use_velocity=False))
+    plain.update(rest + 0.3, areas=grown)
+    assert plain.status[0] == pc.MERGED  # the area-only rule flags it
+    # a real merged pair: markers i and j (neighbours) seen as one big blob between them
+    i = 0
+    j = int(np.argsort(np.linalg.norm(rest - rest[i], axis=1))[1])
+    det = np.vstack([np.delete(rest, [i, j], axis=0), 0.5 * (rest[i] + rest[j])])
+    det_areas = np.r_[np.delete(areas, [i, j]), 12.0]
+    t.reset()
+    out = t.update(det, areas=det_areas)
+    assert np.isnan(out[[i, j]]).all()
+    assert sorted(t.status[[i, j]]) == [pc.LOST, pc.MERGED]
+    # the same big blob with the missing marker far away (outside the gate): a grown marker
+    k = int(np.argmax(np.linalg.norm(rest - rest[i], axis=1)))
+    det = np.vstack([np.delete(rest, [i, k], axis=0), rest[i]])
+    det_areas = np.r_[np.delete(areas, [i, k]), 12.0]
+    t.reset()
+    out = t.update(det, areas=det_areas)
+    assert t.status[i] == pc.TRACKED and np.allclose(out[i], rest[i])
+    assert t.status[k] == pc.LOST
+
