@@ -68,7 +68,8 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
     except ValueError:
         raise ValueError(f"--depth-range {args.depth_range!r} must be LOW,HIGH in mm") from None
     cfg = Sim2RealConfig(n=args.n, depth_range_mm=(lo, hi), seed=args.seed,
-                         feature=args.feature, order=args.order, k=args.k, axes=args.axes)
+                         feature=args.feature, order=args.order, k=args.k, axes=args.axes,
+                         reference=args.reference)
     cfg.check()
     if args.fidelity is None:
         args.fidelity = "fast"
@@ -141,10 +142,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "(default 2)")
     p.add_argument("--k", type=int, default=20, help="real taps for the few-shot affine "
                    "correction (default 20)")
-    p.add_argument("--axes", default="xy", choices=list(AXIS_MAPS),
+    p.add_argument("--axes", default="-x-y", choices=list(AXIS_MAPS),
                    help="the data set's (roll, pitch) columns in terms of the simulation's "
-                   "(roll about the sensor's x, pitch about y): xy = the same, -x-y = both "
-                   "flipped, yx = swapped... (default xy)")
+                   "(the indenter's roll about the sensor's x, pitch about y): xy = the same, "
+                   "-x-y = both flipped, yx = swapped... (default -x-y: Bristol poses are the "
+                   "sensor's rotation against the surface, the opposite rotation; "
+                   "docs/sim2real.md)")
+    p.add_argument("--reference", default="rest", choices=("rest", "shallow"),
+                   help="reference frame of the simulated 128x128 taps: the simulated rest "
+                   "frame (default) or a square-on tap at the shallowest depth, as the real "
+                   "data sets use their shallowest tap (docs/sim2real.md compares both)")
     p.add_argument("--seed", type=int, default=0, help="seed of the poses and the k draw")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")

@@ -7,8 +7,9 @@ Steps (``tactip sim2real``, docs/sim2real.md):
    (seeded), pressed, rendered and perceived by :func:`calibration.sweep.run_sweep` into
    ``OUT/sim`` (resumable). This is the raw 640x480 format.
 2. **The processed 128x128 format**: every simulated frame is cropped to a square round its
-   marker field, resized to 128x128 (area averaging) and binarised (Otsu's threshold, no
-   parameter) into the Bristol layout ``OUT/sim128``. The crop maps the simulated rest
+   marker field, resized to 128x128 (area averaging) and binarised at the grey level that
+   gives the simulated rest markers the real format's median blob area (:data:`BLOB_AREA_128`)
+   into the Bristol layout ``OUT/sim128``. The crop maps the simulated rest
    frame's marker field (centroid, RMS radius) onto the field of the 128x128 format
    (:data:`FIELD_128`, measured on the real frames; or measured on ``--real`` when given).
    Only unlabelled marker positions enter the crop, never an angle.
@@ -47,6 +48,13 @@ markers detected on the shallowest tap of ``../shared/real/tactip331_tap128`` (i
 measured 2026-11-25 with :func:`field_of`; over its first 40 taps: centre (63.27, 63.29) ±0.36,
 radius 36.98 ± 0.62 px). ``tactip sim2real --real`` re-measures it on the folder's reference."""
 
+REFERENCE_NOTE = """Reference of the simulated 128x128 taps: ``rest`` (default), the
+simulated rest frame; ``shallow``, a simulated tap at the shallowest depth of the range, square
+on (simulate's last pose), like the real data sets' reference (their shallowest tap). Measured
+both ways (docs/sim2real.md): against the rest frame the outer markers of taps deeper than
+~4 mm leave the region fitted to the rest markers and those taps are flagged (the fit then
+uses 2-4 mm taps); the shallow reference keeps more taps but transferred worse."""
+
 AXIS_MAPS = {
     "xy": ((1, 0), (0, 1)), "-x-y": ((-1, 0), (0, -1)), "x-y": ((1, 0), (0, -1)),
     "-xy": ((-1, 0), (0, 1)), "yx": ((0, 1), (1, 0)), "-y-x": ((0, -1), (-1, 0)),
@@ -83,9 +91,9 @@ def crop_box(sim_rest: np.ndarray, field_128: dict[str, Any], expected_count: in
             float(side))
 
 
-def to_128(image: np.ndarray, box: tuple[float, float, float]) -> np.ndarray:
-    """A raw frame in the processed format: the square ``box`` (x0, y0, side; padded with
-    black outside the frame) resized to 128x128 by area averaging, binarised by Otsu."""
+def resample_128(image: np.ndarray, box: tuple[float, float, float]) -> np.ndarray:
+    """The square ``box`` (x0, y0, side; black outside the frame) of a raw frame resized to
+    128x128 (grey, uint8), averaging like ``cv2.resize(..., INTER_AREA)``."""
     import cv2
 
     grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
@@ -96,10 +104,49 @@ def to_128(image: np.ndarray, box: tuple[float, float, float]) -> np.ndarray:
     # an affine warp averaging like INTER_AREA: blur to the output's pixel size, then sample
     sigma = max(0.5 / s - 0.5, 0.0) if s < 1 else 0.0
     src = cv2.GaussianBlur(grey, (0, 0), sigma) if sigma > 0 else grey
-    small = cv2.warpAffine(src, m, FRAME_128, flags=cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    _, out = cv2.threshold(small, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    return out
+    return cv2.warpAffine(src, m, FRAME_128, flags=cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+def to_128(image: np.ndarray, box: tuple[float, float, float], level: int | None = None
+           ) -> np.ndarray:
+    """A raw frame in the processed format: :func:`resample_128`, then binarised at grey
+    ``level`` (white above it), or by Otsu's threshold when ``level`` is None."""
+    import cv2
+
+    small = resample_128(image, box)
+    if level is None:
+        _, out = cv2.threshold(small, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+        return out
+    return np.where(small > level, 255, 0).astype(np.uint8)
+
+
+BLOB_AREA_128 = 6.0
+"""Median area (px, 8-connected components) of the markers of the processed 128x128 frames:
+6 px on each of image_101, image_501 and image_700 of ``../shared/real/tactip331_tap128``
+(10th-90th percentiles 5-8 px; measured 2026-11-25). Otsu's threshold gives the simulated
+markers 10 px, and deep taps then merge neighbours."""
+
+
+def blob_level(small: np.ndarray, area_px: float = BLOB_AREA_128) -> int:
+    """The grey level at which the markers of a resampled rest frame have median area
+    ``area_px`` (components of 1-60 px; the lowest level reaching it)."""
+    import cv2
+
+    best = None
+    for level in range(1, 255):
+        n, _, st, _ = cv2.connectedComponentsWithStats((small > level).astype(np.uint8),
+                                                       connectivity=8)
+        a = st[1:, cv2.CC_STAT_AREA]
+        a = a[a <= 60]
+        if len(a) < 10:
+            continue
+        gap = abs(float(np.median(a)) - area_px)
+        if best is None or gap < best[0]:
+            best = (gap, level)
+    if best is None:
+        raise ValueError("no grey level shows markers in the resampled rest frame")
+    return best[1]
 
 
 @dataclass(frozen=True)
@@ -110,7 +157,8 @@ class Sim2RealConfig:
     feature: str = "growth"
     order: int = 2
     k: int = 20
-    axes: str = "xy"
+    axes: str = "-x-y"
+    reference: str = "rest"
 
     def check(self) -> None:
         if not 10 <= self.n <= 100_000:
@@ -122,6 +170,8 @@ class Sim2RealConfig:
             raise ValueError(f"--order={self.order} is not allowed: 1, 2 or 3")
         if not 3 <= self.k <= 1000:
             raise ValueError(f"--k={self.k} is out of range: allowed [3, 1000]")
+        if self.reference not in ("rest", "shallow"):
+            raise ValueError(f"--reference={self.reference!r} is not allowed: rest or shallow")
         if self.axes not in AXIS_MAPS:
             raise ValueError(f"--axes={self.axes!r} is not one of {', '.join(AXIS_MAPS)}")
         from .fit import check_feature
@@ -140,60 +190,78 @@ def simulate(scene: ts.Scene, out: Path, cfg: Sim2RealConfig, *, workers: int = 
     poses = np.stack([rng.uniform(*p.roll_range_deg, cfg.n), rng.uniform(*p.pitch_range_deg,
                                                                           cfg.n),
                       rng.uniform(*cfg.depth_range_mm, cfg.n)], axis=1)
+    # the reference tap for reference="shallow" (last row): shallowest depth, square on
+    poses = np.vstack([poses, [0.0, 0.0, cfg.depth_range_mm[0]]])
     spec = SweepSpec(scene, p.tips[0], PoseSet(f"sim2real{cfg.n}", poses),
                      frames=1, nominal=True)
     run_sweep(spec, out / "sim", workers=workers, progress=progress)
     return out / "sim"
 
 
-def write_128(sim: Path, dest: Path, field_128: dict[str, Any], expected_count: int
-              ) -> Path:
+def write_128(sim: Path, dest: Path, field_128: dict[str, Any], expected_count: int, *,
+              reference: str = "rest") -> Path:
     """The simulated data set converted to the 128x128 format, in the Bristol layout
-    (``targets.csv`` with ``sensor_image``, ``pose_3``..``pose_5``; ``images/rest.png``)."""
+    (``targets.csv`` with ``sensor_image``, ``pose_3``..``pose_5``; ``images/rest.png`` is
+    the converted rest frame, or with ``reference="shallow"`` the converted reference tap).
+    The crop and the grey level come from the true rest frame."""
     import cv2
 
     from .dataset import Dataset
 
     t = Dataset(sim).table()
+    index = np.asarray(t["index"], dtype=int)
+    ref = int(index.max())  # the reference tap (simulate's last pose)
     rest = cv2.imread(str(sim / "images" / "rest.png"), cv2.IMREAD_GRAYSCALE)
     box = crop_box(rest, field_128, expected_count)
+    level = blob_level(resample_128(rest, box))
+    record = json.dumps(
+        {"box_px": {"x0": box[0], "y0": box[1], "side": box[2]}, "field_128": field_128,
+         "grey_level": level, "blob_area_px": BLOB_AREA_128, "reference": reference},
+        indent=2) + "\n"
+    old = dest / "crop.json"
+    redo = not old.is_file() or old.read_text() != record  # another processing: convert anew
     (dest / "images").mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(dest / "images" / "rest.png"), to_128(rest, box))
+    ref_frame = (rest if reference == "rest" else
+                 cv2.imread(str(sim / "images" / f"{ref:05d}.png"), cv2.IMREAD_GRAYSCALE))
+    cv2.imwrite(str(dest / "images" / "rest.png"), to_128(ref_frame, box, level))
     rows = []
-    for i, idx in enumerate(np.asarray(t["index"], dtype=int)):
+    for i, idx in enumerate(index):
+        if idx == ref:
+            continue
         name = f"image_{idx:05d}.png"
         target = dest / "images" / name
-        if not target.is_file():
+        if redo or not target.is_file():
             frame = cv2.imread(str(sim / "images" / f"{idx:05d}.png"), cv2.IMREAD_GRAYSCALE)
-            cv2.imwrite(str(target), to_128(frame, box))
+            cv2.imwrite(str(target), to_128(frame, box, level))
         rows.append([name, 0.0, 0.0, float(t["depth_mm"][i]), float(t["roll_deg"][i]),
                      float(t["pitch_deg"][i]), 0.0])
     lines = [",".join(["sensor_image", "pose_1", "pose_2", "pose_3", "pose_4", "pose_5",
                        "pose_6"])] + [",".join(str(v) for v in r) for r in rows]
     atomic_write_text(dest / "targets.csv", "\n".join(lines) + "\n")
-    atomic_write_text(dest / "crop.json", json.dumps(
-        {"box_px": {"x0": box[0], "y0": box[1], "side": box[2]}, "field_128": field_128},
-        indent=2) + "\n")
+    atomic_write_text(dest / "crop.json", record)
     return dest
 
 
 def perceived(folder: Path, cache: Path, *, expected_count: int, rest: Path | None = None,
-              progress: bool = True):
+              progress: bool = True, key: str = ""):
     """(FrameTable, cop arrays) of a Bristol folder, the perceived CoPs cached in ``cache``
-    (npz) so a rerun does not perceive again."""
+    (npz, valid for the same reference, frame count and ``key``) so a rerun does not perceive
+    again."""
     from .bristol import BristolFolder, FrameTable, perceive_folder
     from .fit import FEATURES
 
     f = BristolFolder.open(folder, rest=rest)
     if cache.is_file():
         z = np.load(cache, allow_pickle=False)
-        if str(z["rest"]) == str(f.rest) and len(z["reliable"]) == len(f):
+        if (str(z["rest"]) == str(f.rest) and len(z["reliable"]) == len(f)
+                and "key" in z.files and str(z["key"]) == key):
             cop = {name: z[f"cop_{name}"] for name in FEATURES}
             return FrameTable(f, cop, z["n_detected"], z["reliable"], list(z["reason"]),
                               int(z["rest_markers"]), z["detection_reliable"])
     table = perceive_folder(f, expected_count=expected_count, progress=progress)
     tmp = cache.with_name(cache.stem + ".tmp.npz")
-    np.savez(tmp, rest=str(f.rest), n_detected=table.n_detected, reliable=table.reliable,
+    np.savez(tmp, rest=str(f.rest), key=key, n_detected=table.n_detected,
+             reliable=table.reliable,
              reason=np.array(table.reason), rest_markers=table.rest_markers,
              detection_reliable=table.detection_reliable,
              **{f"cop_{k}": v for k, v in table.cop.items()})
@@ -282,15 +350,16 @@ def run(scene: ts.Scene, out: str | Path, cfg: Sim2RealConfig, *, real: str | Pa
                  "rms_radius_px": round(r, 3)}
         field_source = f"measured on {real_folder.rest}"
     sim = simulate(scene, out, cfg, workers=workers, progress=progress)
-    sim128 = write_128(sim, out / "sim128", field, count)
+    sim128 = write_128(sim, out / "sim128", field, count, reference=cfg.reference)
     t128 = perceived(sim128, out / "sim128_features.npz", expected_count=count,
-                     progress=progress)
+                     progress=progress, key=(sim128 / "crop.json").read_text())
     traw = stored_features(BristolFolder.open(sim))
     m = np.asarray(AXIS_MAPS[cfg.axes], dtype=float)
     summary: dict[str, Any] = {
         "scene": scene_source, "scene_hash": scene_hash(scene), "config": {
             "n": cfg.n, "depth_range_mm": list(cfg.depth_range_mm), "seed": cfg.seed,
-            "feature": cfg.feature, "order": cfg.order, "k": cfg.k, "axes": cfg.axes},
+            "feature": cfg.feature, "order": cfg.order, "k": cfg.k, "axes": cfg.axes,
+            "reference": cfg.reference},
         "field_128": field, "field_128_source": field_source, "formats": {}}
     tables = {"128x128": t128, "640x480": traw}
     sizes = {"128x128": FRAME_128, "640x480": tuple(scene.camera.resolution)}
