@@ -403,7 +403,7 @@ def run(scene: ts.Scene, out: str | Path, cfg: Sim2RealConfig, *, real: str | Pa
                                "rest_choice": rt.folder.rest_choice, "scores": scores}
         ft, s = chosen
         _chart(out / "predicted_vs_true.png", ft.angles_deg, s, cfg)
-        np.savez(out / "real_predictions.npz", truth_deg=ft.angles_deg,
+        np.savez(out / "real_predictions.npz", truth_deg=ft.angles_deg, depth_mm=ft.depth_mm,
                  zero_shot_deg=s["predicted_deg"], few_shot_rows=s["few_shot_rows"],
                  few_shot_deg=s["few_shot_predicted_deg"])
     if real_raw is not None:
