@@ -60,6 +60,37 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sim2real(args: argparse.Namespace) -> int:
+    from .sim2real import Sim2RealConfig, run
+
+    try:
+        lo, hi = (float(v) for v in args.depth_range.split(","))
+    except ValueError:
+        raise ValueError(f"--depth-range {args.depth_range!r} must be LOW,HIGH in mm") from None
+    cfg = Sim2RealConfig(n=args.n, depth_range_mm=(lo, hi), seed=args.seed,
+                         feature=args.feature, order=args.order, k=args.k, axes=args.axes,
+                         reference=args.reference)
+    cfg.check()
+    if args.fidelity is None:
+        args.fidelity = "fast"
+    scene = load_scene_args(args)
+    s = run(scene, args.out, cfg, real=args.real, real_raw=args.real_raw, workers=args.workers,
+            progress=not args.no_progress, scene_source=args.scene)
+    out = Path(args.out)
+    print(f"models fitted on {cfg.n} simulated taps: {out / 'model.json'} (128x128 processed "
+          f"frames), {out / 'model_raw.json'} (raw {scene.camera.resolution[0]}x"
+          f"{scene.camera.resolution[1]}); feature {cfg.feature}, order {cfg.order}, axes "
+          f"{cfg.axes}")
+    if "real_128" in s:
+        r = s["real_128"]["scores"][f"{cfg.feature}/{cfg.order}"]
+        z, f = r["zero_shot"], r["few_shot"]
+        print(f"real taps ({args.real}): zero-shot R² roll {z['r2_roll']:.3f}, pitch "
+              f"{z['r2_pitch']:.3f} (n={z['n']}); few-shot k={f['k']}: roll "
+              f"{f['r2_roll']:.3f}, pitch {f['r2_pitch']:.3f} (n={f['n']})")
+        print(f"every feature and order: {out / 'table.md'}")
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     from .identify import DEFAULT_FREE, PARAMETERS
 
@@ -85,3 +116,43 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "detected markers with the real ones (count, spacing, field radius)")
     p.add_argument("--json", metavar="OUT.json", help="write the identification report")
     p.set_defaults(func=_cmd_identify)
+
+    from .sim2real import AXIS_MAPS
+
+    p = sub.add_parser(
+        "sim2real", help="fit roll/pitch regressors on simulated taps only and score them on "
+        "real ones", description="Simulate N taps of a flat plate (roll, pitch uniform in the "
+        "scene's protocol ranges, depth uniform in --depth-range), convert them to the "
+        "processed 128x128 binarised format, fit every CoP feature and order, save "
+        "OUT/model.json (128x128) and OUT/model_raw.json (raw frames) for --feature/--order; "
+        "with --real, score all of them on real labelled taps zero-shot and few-shot (k taps "
+        "fit an affine correction). Resumable (the simulated taps are kept in OUT/sim).")
+    add_scene_argument(p)
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--real", metavar="DIR", help="real labelled taps, 128x128 processed "
+                   "frames in the Bristol layout (e.g. ../shared/real/tactip331_tap128)")
+    p.add_argument("--real-raw", metavar="DIR", help="real labelled taps, raw frames in the "
+                   "Bristol layout (scored with model_raw.json)")
+    p.add_argument("--n", type=int, default=300, help="simulated taps (default 300)")
+    p.add_argument("--depth-range", default="2,5", metavar="LOW,HIGH",
+                   help="tap depths, mm (default 2,5: the real data set's)")
+    p.add_argument("--feature", default="growth", help="CoP feature of the saved models "
+                   "(growth, area, hull; default growth)")
+    p.add_argument("--order", type=int, default=2, help="polynomial order of the saved models "
+                   "(default 2)")
+    p.add_argument("--k", type=int, default=20, help="real taps for the few-shot affine "
+                   "correction (default 20)")
+    p.add_argument("--axes", default="-x-y", choices=list(AXIS_MAPS),
+                   help="the data set's (roll, pitch) columns in terms of the simulation's "
+                   "(the indenter's roll about the sensor's x, pitch about y): xy = the same, "
+                   "-x-y = both flipped, yx = swapped... (default -x-y: Bristol poses are the "
+                   "sensor's rotation against the surface, the opposite rotation; "
+                   "docs/sim2real.md)")
+    p.add_argument("--reference", default="rest", choices=("rest", "shallow"),
+                   help="reference frame of the simulated 128x128 taps: the simulated rest "
+                   "frame (default) or a square-on tap at the shallowest depth, as the real "
+                   "data sets use their shallowest tap (docs/sim2real.md compares both)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the poses and the k draw")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cmd_sim2real)
