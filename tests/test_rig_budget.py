@@ -65,3 +65,19 @@ def test_report_and_chart(tmp_path):
     assert "load_path" in text and "UR5" in text  # not-modelled sources and the citations
     chart(r2, tmp_path / "b.png", "growth")
     assert (tmp_path / "b.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bad_input_is_refused_before_any_work(tmp_path, capsys):
+    from tactip_sim.commands import main
+
+    from .conftest import ROOT
+
+    scene = str(ROOT / "scenes" / "shadow_fingertip.toml")
+    out = tmp_path / "study"
+    assert main(["study", "rig", scene, "--out", str(out), "--sources", "robot,wind"]) != 0
+    assert "unknown rig source 'wind'" in capsys.readouterr().err
+    assert main(["study", "rig", scene, "--out", str(out), "--rig", "nonesuch"]) != 0
+    assert "--rig 'nonesuch' is neither a rig file nor a preset" in capsys.readouterr().err
+    assert main(["study", "rig", scene, "--out", str(out), "--workers", "0"]) != 0
+    assert "--workers=0" in capsys.readouterr().err
+    assert not out.exists()
