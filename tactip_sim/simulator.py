@@ -15,6 +15,8 @@ reduced model's compliance are formed on first use and the compliance is cached 
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 import time
 from collections.abc import Iterable
 
@@ -27,6 +29,7 @@ from .fem.indenters import Indenter, indenter_from_scene, place
 from .fem.model import ElasticBody
 from .fem.pose import Pose
 from .fem.reduced import ReducedModel
+from .fem.resolution import contact_resolution
 from .fem.state import ContactState
 from .fem.tolerances import TOL, Tolerances, single_threaded_blas
 from .fem.window import stop_at_window, window_generalised_forces
@@ -35,6 +38,7 @@ from .mesh import TetMesh, tetrahedralise
 from .scene import Scene
 
 SOLVERS = ("reduced", "full", "neo_hookean")
+log = logging.getLogger(__name__)
 
 
 class Simulator:
@@ -81,12 +85,17 @@ class Simulator:
         self.surface_vertices = space.candidates[is_vertex].astype(np.int32)
         self._reduced: ReducedModel | None = None
         self._renderer = None
+        self._refiner = None
+        self.lean_full = False  # FullOperator(lean=True): set on refined meshes (fem.refine)
+        self._lean_op = None
 
     def __getstate__(self) -> dict:
         """Pickle without the renderer (Mitsuba objects); the factorisation is dropped by the
         body and rebuilt on first use."""
         state = self.__dict__.copy()
         state["_renderer"] = None
+        state["_refiner"] = None
+        state["_lean_op"] = None
         return state
 
     # --- lazily built parts ----------------------------------------------------------------
@@ -133,7 +142,16 @@ class Simulator:
         if not isinstance(pose, Pose):
             raise TypeError(f"pose must be a tactip_sim.Pose, got {type(pose).__name__}")
         with single_threaded_blas():
-            return self._press(pose, indenter, solver, full_field)
+            state = self._press(pose, indenter, solver, full_field)
+        tolerance = self.scene.fidelity.contact_tolerance
+        if state.error_estimate > tolerance:
+            log.warning("%s: estimated discretisation error of the force %.1f %% exceeds "
+                        "fidelity.contact_tolerance = %.1f %% (node spacing %.3g mm at a "
+                        "contact of radius %.3g mm); refine the mesh there (fidelity."
+                        "contact_refinement = 'auto')", pose, 100 * state.error_estimate,
+                        100 * tolerance, state.node_spacing_mm,
+                        (state.contact_area_mm2 / np.pi) ** 0.5)
+        return state
 
     def _press(self, pose: Pose, indenter: Indenter | None, solver: str | None,
                full_field: bool) -> ContactState:
@@ -144,6 +162,10 @@ class Simulator:
                           skin_thickness_mm=self.body.skin_thickness_mm)
         if pose.depth_mm < 0:
             return self._rest_state(pose, indenter, solver, t0)
+        if self.scene.fidelity.contact_refinement == "auto" and solver != "neo_hookean":
+            refined = self._press_refined(pose, indenter, placement, t0)
+            if refined is not None:
+                return refined
         if solver == "neo_hookean":
             from .fem.neohookean import solve_neo_hookean
 
@@ -170,12 +192,33 @@ class Simulator:
                 u = self.body.displacement(self.body.space.candidates[sol.active], sol.forces,
                                            gen)
         else:
-            full = FullOperator(self.body)
+            if not self.lean_full:
+                full = FullOperator(self.body)
+            else:  # refined meshes: keep the columns from press to press (fem.refine)
+                if self._lean_op is None:
+                    self._lean_op = FullOperator(self.body, lean=True)
+                full = self._lean_op
             sol = solve_contact(placement, self._cand_rest, full, label=str(pose), tol=self.tol)
             u = full.field(sol.active, sol.forces)
             markers, dirs = self.body.markers.from_field(u)
         return self._state(pose, indenter, solver, sol, markers, dirs, u, sol.iterations, t0,
                            window)
+
+    def _press_refined(self, pose: Pose, indenter: Indenter, placement, t0: float
+                       ) -> ContactState | None:
+        """The pose solved on a mesh refined around its contact, or None when the scene's
+        mesh already resolves it (:mod:`~tactip_sim.fem.refine`)."""
+        from .fem.refine import ContactRefiner, plan
+
+        tolerance = self.scene.fidelity.contact_tolerance
+        p = plan(self.body.space, self.body.order, placement, self.scene, tolerance)
+        if p.edge_mm == 0.0:
+            return None
+        if self._refiner is None:
+            self._refiner = ContactRefiner(self)
+        state, edge = self._refiner.press(pose, indenter, p, tolerance)
+        return dataclasses.replace(state, refined_edge_mm=edge,
+                                   seconds=time.perf_counter() - t0)
 
     def press_many(self, poses: Iterable[Pose], indenter: Indenter | None = None, *,
                    solver: str | None = None) -> list[ContactState]:
@@ -253,6 +296,8 @@ class Simulator:
         weight = sol.pressures.sum()
         centre = (sol.pressures @ points[:, :2] / weight if weight > 0
                   else np.full(2, np.nan))
+        res = contact_resolution(space, self.body.order, self._cand_rest[sol.active],
+                                 sol.pressures, area)
         nv = space.n_vertices
         return ContactState(
             pose=pose, indenter=indenter, solver=solver, markers_mm=markers,
@@ -267,7 +312,8 @@ class Simulator:
             max_penetration_mm=max(0.0, -float(sol.gap.min(initial=0.0))),
             complementarity=sol.complementarity, in_contact=len(nodes) > 0,
             iterations=iterations, seconds=time.perf_counter() - t0,
-            window_forces_N=None if window is None else window / 1000.0)
+            window_forces_N=None if window is None else window / 1000.0,
+            error_estimate=res.error_estimate, node_spacing_mm=res.node_spacing_mm)
 
 
 def _check_solver(solver: str) -> str:

@@ -54,6 +54,12 @@ class ContactState:
         indenter does, :mod:`~tactip_sim.fem.window`, and the neo-Hookean solve with any
         indenter; the full solver and curved indenters in the reduced solve do not), so tips
         may then pass below it
+    error_estimate : estimated relative discretisation error of the force, from the contact's
+        radius against the node spacing where it is (:mod:`~tactip_sim.fem.resolution`;
+        0 without contact)
+    node_spacing_mm : that node spacing (NaN without contact)
+    refined_edge_mm : largest edge of the zone the mesh was refined to around this contact
+        (``fidelity.contact_refinement = "auto"``); 0 when solved on the scene's mesh
     """
 
     pose: Pose
@@ -79,6 +85,9 @@ class ContactState:
     iterations: int
     seconds: float
     window_forces_N: np.ndarray | None = None
+    error_estimate: float = 0.0
+    node_spacing_mm: float = float("nan")
+    refined_edge_mm: float = 0.0
 
     def __post_init__(self) -> None:
         if self.window_forces_N is None:
@@ -96,7 +105,7 @@ class ContactState:
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
         for name in ("force_N", "contact_area_mm2", "max_penetration_mm", "complementarity",
-                     "seconds"):
+                     "seconds", "error_estimate", "node_spacing_mm", "refined_edge_mm"):
             object.__setattr__(self, name, float(getattr(self, name)))
         object.__setattr__(self, "in_contact", bool(self.in_contact))
         object.__setattr__(self, "iterations", int(self.iterations))
@@ -142,6 +151,9 @@ class ContactState:
             "complementarity_mN_mm": self.complementarity,
             "iterations": self.iterations,
             "seconds": self.seconds,
+            "error_estimate": self.error_estimate,
+            "node_spacing_mm": None if np.isnan(self.node_spacing_mm) else self.node_spacing_mm,
+            "refined_edge_mm": self.refined_edge_mm,
             "window_modelled": self.window_modelled,
             "pins_on_window": self.pins_on_window,
             "window_force_N": float(np.nansum(self.window_forces_N)),

@@ -1,0 +1,118 @@
+"""Refinement where the contact is (``fidelity.contact_refinement = "auto"``): before a solve,
+the contact's radius is predicted from the geometry and the error it would have on the scene's
+mesh is estimated (:mod:`~tactip_sim.fem.resolution`); if that exceeds
+``fidelity.contact_tolerance``, the pose is solved instead on the mesh refined around the
+contact (:func:`~tactip_sim.mesh.local.refined_mesh`, full solver), one level finer again if
+the solved contact's own estimate still exceeds the tolerance.
+
+The refined zone's edge is a power-of-two fraction of ``fidelity.mesh_edge_mm`` and its centre
+is rounded to half that edge, so nearby presses of similar size share a mesh; refined meshes
+are cached on disk and the last few refined simulators (with their factorisations) in memory.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import OrderedDict
+from dataclasses import dataclass
+
+from .resolution import (
+    ERROR_COEFF,
+    ERROR_POWER,
+    Resolution,
+    error_estimate,
+    local_edge_mm,
+    predict_contact_radius,
+)
+
+log = logging.getLogger(__name__)
+
+__all__ = ["MAX_EXTRA_LEVELS", "ContactRefiner", "Plan", "plan"]
+
+MAX_EXTRA_LEVELS = 2  # refinements beyond the first, when a refined solve still estimates high
+MEAN_TO_MAX_EDGE = 0.6  # bisected zones' mean surface edge over their largest (measured, fem.md)
+KEEP = 1  # refined simulators kept in memory (each holds a factorisation of ~1-2 GB)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What :class:`ContactRefiner` decided before a solve.
+
+    predicted : resolution on the scene's mesh (predicted contact radius, local spacing)
+    edge_mm : largest edge of the refined zone (0: no refinement needed)
+    centre_mm : (x, y) of the zone
+    radius_mm : the zone's radius
+    """
+
+    predicted: Resolution
+    edge_mm: float
+    centre_mm: tuple[float, float]
+    radius_mm: float
+
+
+def plan(space, order: int, placement, scene, tolerance: float) -> Plan:
+    """Predict the contact's resolution on ``space`` and, if its estimate exceeds
+    ``tolerance``, the refined zone that brings it to half the tolerance."""
+    a, centre = predict_contact_radius(placement)
+    s = local_edge_mm(space, centre, max(a, 1e-9)) / order
+    pred = Resolution(a, s, error_estimate(s, a))
+    if not pred.exceeds(tolerance):
+        return Plan(pred, 0.0, (float(centre[0]), float(centre[1])), 0.0)
+    spacing = a * (0.5 * tolerance / ERROR_COEFF) ** (1.0 / ERROR_POWER)  # s/a for tol / 2
+    want = spacing * order / MEAN_TO_MAX_EDGE
+    base = scene.fidelity.mesh_edge_mm
+    level = max(1, math.ceil(math.log2(base / want)))
+    edge = base / 2.0**level
+    q = edge / 2.0
+    cx, cy = (round(float(centre[0]) / q) * q, round(float(centre[1]) / q) * q)
+    radius = math.ceil((1.5 * a + edge) / q) * q
+    return Plan(pred, edge, (cx, cy), radius)
+
+
+class ContactRefiner:
+    """Solves poses on meshes refined around their contacts, for one :class:`Simulator`."""
+
+    def __init__(self, sim) -> None:
+        self.sim = sim
+        self._children: OrderedDict[tuple, object] = OrderedDict()
+
+    def child(self, edge_mm: float, centre_mm: tuple[float, float], radius_mm: float):
+        """The simulator on the mesh refined to ``edge_mm`` in the zone (built or reused)."""
+        from ..mesh.local import Refinement, refined_mesh
+        from ..scene import replace_in
+        from ..simulator import Simulator
+
+        key = (edge_mm, centre_mm, radius_mm)
+        if key in self._children:
+            self._children.move_to_end(key)
+            return self._children[key]
+        sim = self.sim
+        ref = Refinement(centre_mm, edge_mm, radius_mm)
+        mesh = refined_mesh(sim.scene, ref, base=sim.mesh, use_cache=sim.use_cache)
+        scene = replace_in(sim.scene, fidelity={"contact_refinement": "off"})
+        child = Simulator(scene, pad=sim.pad, mesh=mesh, element_order=sim.body.order,
+                          solver="full", use_cache=sim.use_cache, tol=sim.tol)
+        child.lean_full = True
+        log.info("refined the contact zone at (%.2f, %.2f) mm, radius %.2f mm, to %.3g mm "
+                 "edges: %d tets", *centre_mm, radius_mm, edge_mm, len(mesh.tets))
+        self._children[key] = child
+        while len(self._children) > KEEP:
+            self._children.popitem(last=False)
+        return child
+
+    def press(self, pose, indenter, first: Plan, tolerance: float):
+        """Solve ``pose`` on refined meshes, from ``first``'s zone, until the solved contact's
+        estimate is within ``tolerance`` (at most :data:`MAX_EXTRA_LEVELS` more levels)."""
+        edge, radius = first.edge_mm, first.radius_mm
+        state = None
+        for _ in range(MAX_EXTRA_LEVELS + 1):
+            child = self.child(edge, first.centre_mm, radius)
+            state = child._press(pose, indenter, "full", False)
+            if state.error_estimate <= tolerance:
+                break
+            edge /= 2.0
+        return state, edge
+
+    def clear(self) -> None:
+        self._children.clear()
