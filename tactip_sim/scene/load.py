@@ -142,7 +142,18 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
 
     d = plain(dataclasses.asdict(scene))
     d.pop("source", None)
+    for (section, key), default in OMITTED_AT_DEFAULT.items():
+        if d[section].get(key) == default:
+            del d[section][key]
     return d
+
+
+# Keys added after scenes, caches and datasets were keyed on ``scene_hash``: left out of
+# ``scene_to_dict`` (so of the hash, manifests and ``tactip scene``) at their default value,
+# so every existing scene keeps its hash.
+OMITTED_AT_DEFAULT: dict[tuple[str, str], Any] = {
+    ("indenter", "friction_coefficient"): 0.0,
+}
 
 
 def scene_to_toml(scene: Scene) -> str:
