@@ -200,7 +200,9 @@ def coulomb_active_set(w_loc: np.ndarray, g0: np.ndarray, target: np.ndarray, mu
         a = len(act)
         if a == 0:
             return np.zeros((w, 3)), np.zeros((w, 3)), st, it
-        wa = w4[act][:, :, act, :].reshape(a, 3, 3 * a)  # (a, 3, 3a)
+        dofs = _dofs(act)
+        w_cols = w_loc[:, dofs]  # (3w, 3a): the active columns, reused for the displacements
+        wa = w_cols[dofs].reshape(a, 3, 3 * a)  # (a, 3, 3a)
         jac = np.empty((a, 3, 3 * a))
         rhs = np.empty((a, 3))
         jac[:, 0] = wa[:, 0]  # closed gaps
@@ -238,7 +240,7 @@ def coulomb_active_set(w_loc: np.ndarray, g0: np.ndarray, target: np.ndarray, mu
         x = sla.solve(jac.reshape(3 * a, 3 * a), rhs.ravel(), check_finite=False)
         lam = np.zeros((w, 3))
         lam[act] = x.reshape(a, 3)
-        disp = (w4[:, :, act, :].reshape(3 * w, 3 * a) @ x).reshape(w, 3)
+        disp = (w_cols @ x).reshape(w, 3)
     raise ContactError(f"{label or 'contact'}: the stick/slip iteration did not converge in "
                        f"{MAX_ITER} iterations")
 
@@ -312,7 +314,8 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
             y_move = indenter_motion(history.placement, placement, x0)
             target = np.einsum("iab,ia->ib", frames[:, :, 1:], start_of_step(work) + y_move)
             c4 = cw.reshape(w, 3, w, 3)
-            w_loc = np.einsum("iap,iajb,jbq->ipjq", frames, c4, frames).reshape(3 * w, 3 * w)
+            w_loc = np.einsum("iap,iajb,jbq->ipjq", frames, c4, frames,
+                              optimize=True).reshape(3 * w, 3 * w)
             lam0 = np.array([old.get(i, (0.0, 0.0, 0.0)) for i in work.tolist()])
             lam, disp, status, it = coulomb_active_set(
                 w_loc, g0[work], target, mu, forces=lam0.reshape(-1, 3), tol=tol, label=label)
