@@ -238,6 +238,69 @@ class Simulator:
                 out.append(self._press(pose, indenter, solver, False))
         return out
 
+    def press_path(self, pose: Pose, indenter: Indenter | None = None, *,
+                   start: Pose | None = None, steps: int = 10, friction: float | None = None,
+                   solver: str | None = None, progress=None) -> list[ContactState]:
+        """Press along a load path with Coulomb friction; one state per step, the last at
+        ``pose`` (:mod:`~tactip_sim.fem.loadpath`, :mod:`~tactip_sim.fem.friction`).
+
+        Parameters
+        ----------
+        pose : where the path ends (depth > 0)
+        indenter : a rigid indenter (default: the scene's)
+        start : ``None``: a vertical tap to ``pose``; else tap to ``start`` (depth > 0) and
+            re-orient from it to ``pose`` in contact
+        steps : steps of the tap and of the re-orientation, each, in [1, 10000]
+        friction : Coulomb coefficient in [0, 10] (default: the scene's
+            ``indenter.friction_coefficient``); 0 gives :meth:`press`'s answer at every step
+        solver : "reduced" or "full" (default: the simulator's; not "neo_hookean")
+        progress : called with the number of steps done after each
+
+        The pins are not stopped at the window on this path (``window_forces_N`` is NaN).
+
+        Raises
+        ------
+        ValueError
+            ``friction`` or ``steps`` out of range, a depth <= 0, the path leaves contact, or
+            the neo-Hookean solver.
+        """
+        from .fem.loadpath import check_friction, path_poses, run_path
+
+        indenter = self.indenter if indenter is None else indenter
+        solver = self.solver if solver is None else _check_solver(solver)
+        if solver == "neo_hookean":
+            raise ValueError("solver='neo_hookean' has no friction or load path: allowed "
+                             "'reduced' or 'full'")
+        mu = check_friction(self.scene.indenter.friction_coefficient if friction is None
+                            else friction, "friction" if friction is not None
+                            else "indenter.friction_coefficient")
+        poses = path_poses(pose, start=start, steps=steps)
+        op = self.reduced if solver == "reduced" else FullOperator(self.body)
+        sk = self.body.skin_thickness_mm
+
+        def placer(p: Pose):
+            return place(indenter, p, self._cand_rest, skin_thickness_mm=sk)
+
+        t0 = time.perf_counter()
+        with single_threaded_blas():
+            sols = run_path(poses, placer, self._cand_rest, op, mu=mu, tol=self.tol,
+                            progress=progress)
+            out = []
+            for p, fs in zip(poses, sols, strict=True):
+                sol = fs.contact
+                if solver == "reduced":
+                    markers, dirs = self.body.markers.from_values(
+                        op.marker_values(sol.active, sol.forces))
+                    u = None
+                else:
+                    u = op.field(sol.active, sol.forces)
+                    markers, dirs = self.body.markers.from_field(u)
+                out.append(self._state(p, indenter, solver, sol, markers, dirs, u,
+                                       sol.iterations, t0,
+                                       np.full(len(markers), np.nan) * 1000.0))
+                t0 = time.perf_counter()
+        return out
+
     def rest_state(self) -> ContactState:
         """The undeformed pad (no contact)."""
         return self._rest_state(Pose(0.0, 0.0, -1.0), self.indenter, self.solver,

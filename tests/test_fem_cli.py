@@ -64,3 +64,27 @@ def test_press_with_a_mesh_indenter(capsys):
                  "--depth", "0.5", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["in_contact"] and out["max_penetration_mm"] < 1e-6
+
+
+def test_press_with_friction_along_a_path(capsys):
+    argv = ["press", SCENE, *P1, "--indenter", "sphere", "--radius", "10", "--roll", "6",
+            "--depth", "1.0", "--steps", "2", "--json"]
+    assert main([*argv, "--friction", "0"]) == 0
+    frictionless = json.loads(capsys.readouterr().out)
+    assert main([*argv, "--friction", "0.5", "--path", "reorient", "--start", "0", "0"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["load_path"]["path"] == "reorient" and out["load_path"]["friction"] == 0.5
+    assert out["in_contact"] and out["max_penetration_mm"] < 1e-6
+    # friction along the turn leaves a tangential force the frictionless answer has not
+    assert out["force_vector_N"] != pytest.approx(frictionless["force_vector_N"], abs=1e-4)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--friction", "-1", "--path", "tap"], "friction=-1.0 is out of range: allowed [0, 10]"),
+    (["--friction", "0.5", "--steps", "0"], "--steps=0 is out of range: allowed [1, 10000]"),
+    (["--friction", "0.5", "--path", "direct"], "--path direct is frictionless"),
+    (["--friction", "0.5", "--depth", "-0.5"], "leaves contact"),
+])
+def test_press_friction_bad_input(capsys, argv, message):
+    assert main(["press", SCENE, *P1, *argv]) == 1
+    assert message in capsys.readouterr().err

@@ -15,7 +15,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "press",
         help="press the pad with a rigid indenter and print force, area, centre of pressure",
         description=(
-            "Press the scene's pad with a rigid, frictionless indenter at one pose and print "
+            "Press the scene's pad with a rigid indenter at one pose and print "
             "the total force (N), contact area (mm^2), centre of pressure (sensor x, y in mm), "
             "solver iterations and time. The approach axis is m = R_y(pitch) R_x(roll) e_z; "
             "the indenter moves along -m, DEPTH mm beyond first contact (negative: no "
@@ -23,7 +23,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "reduced solver, the surface compliance (tens of seconds at P2). Every solve "
             "reports its estimated discretisation error of the force and warns when it exceeds "
             "the scene's fidelity.contact_tolerance; with fidelity.contact_refinement = 'auto' "
-            "the contact zone is meshed finer first (minutes on a first press)."
+            "the contact zone is meshed finer first (minutes on a first press). With "
+            "--friction > 0 the pose is reached along a load path (--path, --steps; "
+            "docs/fem.md, Friction)."
         ),
         epilog="example: tactip press scenes/shadow_fingertip.toml --roll 4 --pitch -2 "
                "--depth 1.5",
@@ -52,6 +54,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="watertight mesh file for --indenter mesh")
     p.add_argument("--solver", choices=["reduced", "full", "neo_hookean"], default=None,
                    help="contact solver (default: the scene's fidelity settings)")
+    p.add_argument("--friction", type=float, default=None, metavar="MU",
+                   help="Coulomb friction coefficient indenter/skin, in [0, 10] (default: the "
+                        "scene's indenter.friction_coefficient; > 0 implies --path tap)")
+    p.add_argument("--path", choices=["direct", "tap", "reorient"], default=None,
+                   help="load path: 'direct' solves the pose alone (frictionless only); "
+                        "'tap' presses straight in, in --steps steps; 'reorient' taps to "
+                        "--start then turns to the pose in contact, in --steps more steps "
+                        "(default: direct, or tap with friction)")
+    p.add_argument("--start", type=float, nargs=2, default=(0.0, 0.0),
+                   metavar=("ROLL", "PITCH"),
+                   help="start orientation of --path reorient, degrees (same depth, offset "
+                        "and yaw as the pose; default 0 0)")
+    p.add_argument("--steps", type=int, default=10, metavar="N",
+                   help="steps of the tap and of the re-orientation, in [1, 10000] "
+                        "(default 10)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=_cmd_press)
 
@@ -88,8 +105,19 @@ def _cmd_press(args: argparse.Namespace) -> int:
     pose = Pose(args.roll, args.pitch, depth, offset_mm=tuple(args.offset), yaw_deg=args.yaw)
     indenter = _indenter(args, scene)
     sim = Simulator(scene, solver=args.solver)
+    mu = scene.indenter.friction_coefficient if args.friction is None else args.friction
+    path = args.path or ("tap" if mu > 0 else "direct")
+    if path == "direct" and mu != 0:
+        raise ValueError(f"--path direct is frictionless: friction={mu:g} needs --path tap "
+                         "or reorient (allowed friction for direct: 0)")
     try:
-        state = sim.press(pose, indenter)
+        if path == "direct":
+            state = sim.press(pose, indenter)
+        else:
+            start = None if path == "tap" else Pose(
+                args.start[0], args.start[1], depth, offset_mm=tuple(args.offset),
+                yaw_deg=args.yaw)
+            state = _press_path(sim, pose, indenter, start, args.steps, mu)
     except ContactError as exc:
         raise RuntimeError(str(exc)) from exc
     summary = state.summary()
@@ -100,6 +128,10 @@ def _cmd_press(args: argparse.Namespace) -> int:
               f"{100 * tolerance:g} %: the mesh (node spacing {state.node_spacing_mm:.3g} mm) "
               f"under-resolves this contact; set fidelity.contact_refinement = 'auto' to mesh "
               f"it finer", file=sys.stderr)
+    if path != "direct":
+        summary["load_path"] = {"path": path, "steps": args.steps, "friction": mu,
+                                "start_roll_pitch_deg": list(args.start) if path ==
+                                "reorient" else None}
     if args.json:
         print(json.dumps(summary, indent=2))
         return 0
@@ -121,4 +153,18 @@ def _cmd_press(args: argparse.Namespace) -> int:
                  if state.refined_edge_mm else "on the scene's mesh")
         print(f"  estimated force error {100 * state.error_estimate:.2f} % (tolerance "
               f"{100 * tolerance:g} %), node spacing {state.node_spacing_mm:.3g} mm, {where}")
+    if path != "direct":
+        print(f"  load path {path}, {args.steps} steps, friction {mu:g}")
     return 0
+
+
+def _press_path(sim, pose, indenter, start, steps, mu):
+    from tqdm import tqdm
+
+    from ..fem.loadpath import check_steps
+
+    total = check_steps(steps, "--steps") * (1 if start is None else 2)
+    with tqdm(total=total, desc="load steps", unit="step", leave=False) as bar:
+        states = sim.press_path(pose, indenter, start=start, steps=steps, friction=mu,
+                                progress=lambda k: bar.update(1))
+    return states[-1]

@@ -184,6 +184,9 @@ class Indenter:
     radius_mm: float = positive(10.0, "sphere/cylinder/edge-rounding radius", hi=1e4)
     length_mm: float = positive(60.0, "cylinder/edge length", hi=1e4)
     mesh: str = spec("", "str", "path of a watertight mesh (kind = 'mesh'), relative to the scene")
+    friction_coefficient: float = nonneg(
+        0.0, "Coulomb friction between indenter and skin (0 = frictionless; docs/fem.md, "
+        "Friction)", hi=10)
 
 
 @dataclass(frozen=True)

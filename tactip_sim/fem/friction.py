@@ -1,0 +1,374 @@
+"""Coulomb friction between a rigid indenter and the pad: one load step of stick and slip.
+
+The pad is linear elastic, so its candidate displacements are ``u = C f`` for the contact
+forces ``f`` (mN) on the candidates, whatever the history; friction makes the answer depend
+on the path through the slip law. A load step takes the indenter from the placement at the
+end of the last step (``history.placement``) to ``placement``. Each node ``i`` starts the
+step at ``x0_i = X_i + u0_i`` (``u0 = C f0``, ``f0`` the last step's forces): its **anchor**
+is the indenter's material point there (local coordinates ``a_i = R0' (x0_i - o0)``), which
+the step carries to ``y_i = R1 a_i + o1``. With the indenter's outward normal ``n_i`` and two
+tangents ``t_i`` at the node, the force ``f_i = p_i n_i + q_i`` (normal ``p_i``, tangential
+``q_i``) and the node's tangential slip over the step ``s_i = P_t (X_i + u_i - y_i)`` obey
+
+    p_i >= 0,  g_i >= 0,  p_i g_i = 0                          (normal contact)
+    |q_i| <= mu p_i;  s_i = 0 (stick)  or  q_i = -mu p_i s_i/|s_i| (slip)   (Coulomb)
+
+with the gap ``g_i = g0_i + n_i . u_i`` linearised as in :mod:`.contact`.
+
+:func:`solve_friction` solves it on a working set of candidates by an active set over three
+states per node, open / stick / slip, with the slip directions updated as a fixed point:
+given the states and directions, one square linear system (closed gaps for every contact node,
+zero slip for every stuck node, ``|q| = mu p`` along the direction for every slipping node)
+gives ``p`` and the stuck ``q``; then nodes with ``p <= 0`` open, open nodes that penetrate
+stick, stuck nodes whose ``|q|`` exceeds ``mu p`` slip along ``q``, slipping nodes whose slip
+turns against their force stick, and the others take ``-s/|s|`` as their new direction, until
+nothing changes. The working set grows as in :func:`~.contact.solve_contact` (candidates
+cleared by the operator's far-field bound are skipped) and curved indenters repeat it around
+the deformed positions. At ``mu = 0`` no node ever sticks and the system is the frictionless
+one (same answer as :func:`~.contact.solve_contact` to round-off; tested).
+
+It needs the full 3x3 blocks of the compliance between candidates, which the reduced model
+holds (:class:`~.reduced.ReducedModel`): a step costs a few dense solves of the contact
+nodes' block, as a frictionless pose does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+
+from .contact import ComplianceOperator, ContactError, ContactSolution
+from .indenters import Placement
+from .tolerances import TOL, Tolerances
+
+OPEN, STICK, SLIP = 0, 1, 2
+# the active set stops when no slip direction moves the slip force by more than this fraction
+# of the largest normal force (the directions converge linearly; 1e-10 is far below the
+# discretisation error and costs ~2 more iterations than 1e-6)
+DIRECTION_RTOL = 1e-10
+MAX_ITER = 200
+_REVISITS = 4  # a set of states seen this often while the sets still change: a cycle
+
+
+@dataclass(frozen=True)
+class FrictionHistory:
+    """What one load step hands the next: the indenter's placement and the contact forces.
+
+    The anchors (the indenter's material points each node was at when the step began) follow
+    from them: ``u0 = C f0`` at any candidate, mapped into the indenter's frame
+    (:meth:`anchors_mm`).
+
+    placement : the indenter at the end of the step (the next step starts from it)
+    nodes : (k,) int, candidates carrying force
+    forces : (k, 3) mN, force of the indenter on the pad at each, sensor frame
+    """
+
+    placement: Placement
+    nodes: np.ndarray
+    forces: np.ndarray
+
+    def __post_init__(self) -> None:
+        nodes = np.ascontiguousarray(self.nodes, dtype=np.int64)
+        forces = np.ascontiguousarray(self.forces, dtype=np.float64).reshape(len(nodes), 3)
+        for arr in (nodes, forces):
+            arr.setflags(write=False)
+        object.__setattr__(self, "nodes", nodes)
+        object.__setattr__(self, "forces", forces)
+
+    @classmethod
+    def at_rest(cls, placement: Placement) -> FrictionHistory:
+        """The pad at rest, the indenter at ``placement`` (e.g. just touching)."""
+        return cls(placement, np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
+
+    def displacements(self, operator: ComplianceOperator, nodes: np.ndarray) -> np.ndarray:
+        """(r, 3) mm: displacements of candidates ``nodes`` under these forces."""
+        nodes = np.asarray(nodes, dtype=np.int64)
+        if self.nodes.size == 0 or nodes.size == 0:
+            return np.zeros((len(nodes), 3))
+        return (operator.block(nodes, self.nodes) @ self.forces.ravel()).reshape(-1, 3)
+
+    def anchors_mm(self, operator: ComplianceOperator, rest_mm: np.ndarray) -> np.ndarray:
+        """(k, 3) mm: the contact nodes' positions in the indenter's local frame (where each
+        is held on the indenter while it sticks)."""
+        x = rest_mm[self.nodes] + self.displacements(operator, self.nodes)
+        return (x - self.placement.origin_mm) @ self.placement.rotation
+
+
+@dataclass(frozen=True)
+class FrictionSolution:
+    """One load step with friction.
+
+    contact : the contact solution (``forces`` include the tangential parts; ``pressures``
+        are the normal parts)
+    stick : (k,) bool, for each active candidate: stuck (True) or slipping
+    slip_mm : (k,) mm, magnitude of each active candidate's slip over the step
+    tangential : (k, 3) mN, tangential parts of the forces
+    history : the state for the next step
+    """
+
+    contact: ContactSolution
+    stick: np.ndarray
+    slip_mm: np.ndarray
+    tangential: np.ndarray
+    history: FrictionHistory
+
+
+def tangent_frames(normals: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(w, 3, 3) orthonormal frames, columns ``(n, t1, t2)``: ``t1`` is ``reference`` (3,)
+    made orthogonal to each normal, ``t2 = n x t1`` (continuous in ``n`` away from
+    ``n || reference``)."""
+    n = np.asarray(normals, dtype=np.float64)
+    t1 = reference[None, :] - (n @ reference)[:, None] * n
+    t1 /= np.linalg.norm(t1, axis=1)[:, None]
+    t2 = np.cross(n, t1)
+    return np.stack([n, t1, t2], axis=2)
+
+
+def indenter_motion(start: Placement, end: Placement, points: np.ndarray) -> np.ndarray:
+    """(r, 3) mm: how far the indenter's material points at ``points`` (sensor frame, when it
+    is at ``start``) move when it goes to ``end``."""
+    local = (points - start.origin_mm) @ start.rotation
+    return local @ end.rotation.T + end.origin_mm - points
+
+
+def coulomb_active_set(w_loc: np.ndarray, g0: np.ndarray, target: np.ndarray, mu: float, *,
+                       forces: np.ndarray | None = None, tol: Tolerances = TOL,
+                       label: str = "") -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Normal contact with Coulomb friction on ``w`` nodes in their local frames: a
+    semi-smooth Newton (primal-dual active set) iteration.
+
+    Each node is open, stuck or slipping, decided from the last iterate by
+    ``p~ = p - c_n g`` (contact if ``p~ > 0``) and ``z = q - c_t s`` (stuck if
+    ``|z| <= mu p~``, else slipping along ``z``), the complementarity functions of
+    Hüeber, Stadler & Wohlmuth (SIAM J. Sci. Comput. 30, 2008) with ``c_n``, ``c_t`` each
+    node's own stiffness. Then one linear system: zero force on open nodes, closed gaps on
+    contact nodes, zero slip on stuck nodes, and on slipping nodes the Newton linearisation of
+    ``max(mu p, |z|) q - mu p z = 0`` (which says ``q = mu p z/|z|``), with their
+    modification that keeps it defined (``q`` projected onto the friction disc in the
+    ``q z'/|z|`` term). At ``mu = 0`` slipping nodes carry no tangential force: the
+    frictionless system.
+
+    Parameters
+    ----------
+    w_loc : (3 w, 3 w) mm/mN, compliance in the nodes' frames (node-major, (n, t1, t2))
+    g0 : (w,) mm, gaps at zero force
+    target : (w, 2) mm, tangential displacement (t1, t2) each node has when it sticks
+    mu : friction coefficient
+    forces : (w, 3) mN, local forces (p, q1, q2) to start from (default: none)
+    tol : tolerances (``gap_mm``)
+
+    Returns
+    -------
+    lam : (w, 3) mN, local forces (p, q1, q2)
+    disp : (w, 3) mm, local displacements
+    status : (w,) int, OPEN / STICK / SLIP
+    iterations : int
+    """
+    w = len(g0)
+    w4 = w_loc.reshape(w, 3, w, 3)
+    diag = np.einsum("iaia->ia", w4)
+    c_n = 1.0 / diag[:, 0]
+    c_t = 2.0 / diag[:, 1:].sum(axis=1)
+    lam = np.zeros((w, 3)) if forces is None else np.array(forces, dtype=np.float64)
+    disp = np.einsum("iajb,jb->ia", w4, lam)
+    seen: dict[bytes, int] = {}
+    st = np.full(w, -1)
+    for it in range(1, MAX_ITER + 1):
+        gap = g0 + disp[:, 0]
+        slip = disp[:, 1:] - target
+        p_t = lam[:, 0] - c_n * gap
+        z = lam[:, 1:] - c_t[:, None] * slip
+        z_norm = np.linalg.norm(z, axis=1)
+        new = np.where(p_t > 0, np.where((mu > 0) & (z_norm <= mu * p_t), STICK, SLIP), OPEN)
+        pmax = max(float(np.max(lam[:, 0], initial=0.0)), 1e-300)
+        if it > 1 and np.array_equal(new, st):
+            sl = st == SLIP
+            resid = np.linalg.norm(lam[sl, 1:] - mu * lam[sl, :1] * z[sl]
+                                   / np.maximum(z_norm[sl], 1e-300)[:, None], axis=1)
+            if np.max(resid, initial=0.0) <= DIRECTION_RTOL * pmax:
+                return lam, disp, st, it - 1
+        key = new.tobytes()
+        seen[key] = seen.get(key, 0) + 1
+        if seen[key] > _REVISITS and not np.array_equal(new, st):
+            raise ContactError(f"{label or 'contact'}: the stick/slip sets cycled (iteration "
+                               f"{it}, {int(np.sum(new == STICK))} stuck, "
+                               f"{int(np.sum(new == SLIP))} slipping)")
+        st = new
+        act = np.flatnonzero(st != OPEN)
+        a = len(act)
+        if a == 0:
+            return np.zeros((w, 3)), np.zeros((w, 3)), st, it
+        dofs = _dofs(act)
+        w_cols = w_loc[:, dofs]  # (3w, 3a): the active columns, reused for the displacements
+        wa = w_cols[dofs].reshape(a, 3, 3 * a)  # (a, 3, 3a)
+        jac = np.empty((a, 3, 3 * a))
+        rhs = np.empty((a, 3))
+        jac[:, 0] = wa[:, 0]  # closed gaps
+        rhs[:, 0] = -g0[act]
+        ka = st[act] == STICK
+        jac[ka, 1:] = wa[ka, 1:]  # no slip
+        rhs[ka, 1:] = target[act[ka]]
+        sa = np.flatnonzero(st[act] == SLIP)
+        if sa.size and mu == 0:
+            jac[sa, 1:] = 0.0
+            jac[sa, 1, 3 * sa + 1] = 1.0
+            jac[sa, 2, 3 * sa + 2] = 1.0
+            rhs[sa, 1:] = 0.0
+        elif sa.size:
+            i = act[sa]
+            q, p, zi, zn = lam[i, 1:], lam[i, 0], z[i], z_norm[i]
+            zh = zi / zn[:, None]
+            q_bar = q * (mu * np.maximum(p, 0.0) / np.maximum(
+                np.maximum(mu * np.maximum(p, 0.0), np.linalg.norm(q, axis=1)), 1e-300)
+            )[:, None]
+            eye = np.eye(2)
+            m_q = (zn - mu * p)[:, None, None] * eye + q_bar[:, :, None] * zh[:, None, :]
+            m_s = c_t[i][:, None, None] * (mu * p[:, None, None] * eye
+                                            - q_bar[:, :, None] * zh[:, None, :])
+            m_p = -mu * zi
+            # M_q q + M_s s + m_p p = M_q q_k + M_s s_k + m_p p_k - C_k, s = (W lam)_t - target
+            c_k = zn[:, None] * q - mu * p[:, None] * zi
+            rhs_s = (np.einsum("kab,kb->ka", m_q, q) + np.einsum("kab,kb->ka", m_s, slip[i])
+                     + m_p * p[:, None] - c_k)
+            jac[sa, 1:] = np.einsum("kab,kbj->kaj", m_s, wa[sa, 1:])
+            rhs[sa, 1:] = rhs_s + np.einsum("kab,kb->ka", m_s, target[i])
+            for col in range(2):
+                jac[sa, 1:, 3 * sa + 1 + col] += m_q[:, :, col]
+            jac[sa, 1:, 3 * sa] += m_p
+        x = sla.solve(jac.reshape(3 * a, 3 * a), rhs.ravel(), check_finite=False)
+        lam = np.zeros((w, 3))
+        lam[act] = x.reshape(a, 3)
+        disp = (w_cols @ x).reshape(w, 3)
+    raise ContactError(f"{label or 'contact'}: the stick/slip iteration did not converge in "
+                       f"{MAX_ITER} iterations")
+
+
+def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: ComplianceOperator, *,
+                   mu: float, history: FrictionHistory, label: str = "",
+                   tol: Tolerances = TOL) -> FrictionSolution:
+    """One load step with Coulomb friction, from ``history`` to ``placement``.
+
+    Parameters
+    ----------
+    placement : the indenter at the end of the step
+    rest_mm : (s, 3) rest positions of the candidates
+    operator : compliance of the candidates (reduced or full)
+    mu : friction coefficient, >= 0
+    history : the state at the start of the step (:meth:`FrictionHistory.at_rest` to start)
+    label : named in error messages (the pose)
+    tol : tolerances
+
+    Raises
+    ------
+    ValueError
+        ``mu`` is negative or not finite.
+    ContactError
+        The stick/slip sets or the closest-point updates did not converge.
+    """
+    if not (np.isfinite(mu) and mu >= 0):
+        raise ValueError(f"friction_coefficient={mu!r} is out of range: allowed [0, 10]")
+    s = len(rest_mm)
+    everyone = np.arange(s)
+    g_rest, _ = placement.gap(rest_mm)
+    flat = bool(getattr(placement.indenter, "flat", False))
+    reference = placement.rotation[:, 0]
+    # the linearisation point: the last step's displacements near the contact
+    near0 = np.union1d(history.nodes, np.flatnonzero(g_rest < 0))
+    u = np.zeros((s, 3))
+    u[near0] = history.displacements(operator, near0)
+    u0_cache: dict[int, np.ndarray] = {}
+
+    def start_of_step(nodes: np.ndarray) -> np.ndarray:
+        missing = np.array([i for i in nodes if int(i) not in u0_cache], dtype=np.int64)
+        if missing.size:
+            for i, v in zip(missing, history.displacements(operator, missing), strict=True):
+                u0_cache[int(i)] = v
+        return np.array([u0_cache[int(i)] for i in nodes]).reshape(-1, 3)
+
+    status = np.zeros(0, dtype=np.int64)
+    work = np.zeros(0, dtype=np.int64)
+    iterations, geo, change, bound = 0, 0, 0.0, None
+    lam = np.zeros((0, 3))
+    frames = np.zeros((0, 3, 3))
+    slip = np.zeros((0, 2))
+    near = everyone[:0]
+    for _ in range(tol.geometry_max_iter):
+        geo += 1
+        g, nu = placement.gap(rest_mm + u)
+        g0 = g - np.einsum("ij,ij->i", nu, u)
+        keep = work[status != OPEN] if work.size else work
+        seed = np.union1d(np.flatnonzero(g < 0.0), keep)
+        old = dict(zip(work.tolist(), lam, strict=True))
+        work = seed
+        cw = operator.block(work, work) if work.size else np.zeros((0, 0))
+        while True:
+            u_new = np.zeros((s, 3))
+            if work.size == 0:
+                lam, near, status = np.zeros((0, 3)), everyone[:0], status[:0]
+                break
+            w = len(work)
+            frames = tangent_frames(nu[work], reference)
+            x0 = rest_mm[work] + start_of_step(work)
+            y_move = indenter_motion(history.placement, placement, x0)
+            target = np.einsum("iab,ia->ib", frames[:, :, 1:], start_of_step(work) + y_move)
+            c4 = cw.reshape(w, 3, w, 3)
+            w_loc = np.einsum("iap,iajb,jbq->ipjq", frames, c4, frames,
+                              optimize=True).reshape(3 * w, 3 * w)
+            lam0 = np.array([old.get(i, (0.0, 0.0, 0.0)) for i in work.tolist()])
+            lam, disp, status, it = coulomb_active_set(
+                w_loc, g0[work], target, mu, forces=lam0.reshape(-1, 3), tol=tol, label=label)
+            iterations += it
+            slip = disp[:, 1:] - target
+            f_glob = np.einsum("iab,ib->ia", frames, lam)
+            on = status != OPEN
+            act = work[on]
+            f_act = f_glob[on].ravel()
+            u_new[work] = (cw[:, _dofs(np.flatnonzero(on))] @ f_act).reshape(w, 3)
+            others = np.setdiff1d(everyone, work)
+            bound = operator.far_bound(act, np.linalg.norm(f_glob[on], axis=1))
+            check = others if bound is None else others[g_rest[others] <= bound[others]]
+            if check.size:
+                u_new[check] = (operator.block(check, act) @ f_act).reshape(-1, 3)
+            near = np.union1d(work, check)
+            gl = g0[check] + np.einsum("ij,ij->i", nu[check], u_new[check])
+            extra = check[gl < -tol.gap_mm]
+            if extra.size == 0:
+                break
+            old = dict(zip(work.tolist(), lam, strict=True))
+            cross = operator.block(work, extra)
+            cw = np.block([[cw, cross], [cross.T, operator.block(extra, extra)]])
+            work = np.concatenate([work, extra])
+        change = float(np.abs(u_new[near] - u[near]).max(initial=0.0))
+        u[:] = 0.0
+        u[near] = u_new[near]
+        if flat or change <= tol.geometry_mm:
+            break
+    else:
+        raise ContactError(
+            f"{label or 'contact'}: closest-point updates did not converge in "
+            f"{tol.geometry_max_iter} iterations (last change {change:.3g} mm)")
+    on = status != OPEN
+    active = work[on]
+    forces = np.einsum("iab,ib->ia", frames[on], lam[on]) if work.size else np.zeros((0, 3))
+    pressures = lam[on, 0] if work.size else np.zeros(0)
+    surface = operator.surface(active, forces)
+    surface[near] = u[near]
+    known = ~np.isnan(surface[:, 0])
+    gap = np.empty(s)
+    gap[known], _ = placement.gap(rest_mm[known] + surface[known])
+    if not known.all():
+        gap[~known] = g_rest[~known] - (bound[~known] if bound is not None else 0.0)
+    comp = float(np.max(np.abs(pressures * gap[active]), initial=0.0))
+    contact = ContactSolution(surface, active, forces, pressures, gap, comp, iterations, geo)
+    tang = np.einsum("iab,ib->ia", frames[on][:, :, 1:], lam[on, 1:]) if work.size \
+        else np.zeros((0, 3))
+    return FrictionSolution(
+        contact=contact, stick=(status[on] == STICK) if work.size else np.zeros(0, bool),
+        slip_mm=np.linalg.norm(slip[on], axis=1) if work.size else np.zeros(0),
+        tangential=tang, history=FrictionHistory(placement, active, forces))
+
+
+def _dofs(nodes: np.ndarray) -> np.ndarray:
+    return (3 * np.asarray(nodes, dtype=np.int64)[:, None] + np.arange(3)).ravel()

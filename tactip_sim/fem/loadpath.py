@@ -1,0 +1,139 @@
+"""Load paths: how the indenter reaches a pose, in steps, with friction's history carried.
+
+Without friction the pad's answer at a pose does not depend on how the indenter got there;
+with Coulomb friction it does (:mod:`.friction`). Two paths are built here:
+
+* **tap**: straight in along the pose's approach axis, from first contact (depth 0) to the
+  pose's depth in ``steps`` equal steps;
+* **re-orientation in contact** (the paper's rig, which kept the pad on the plate and turned
+  it): a tap to the ``start`` pose, then the pose's roll, pitch, yaw, offset and depth
+  interpolated linearly from ``start`` to the target in ``steps`` more steps.
+
+Each step is one :func:`~.friction.solve_friction` from the previous step's
+:class:`~.friction.FrictionHistory` (the stick anchors: the indenter's material points the
+contact nodes were at). A path that loses contact after its first step is refused: the
+anchors would be lost and the "in contact" path would be a different one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from .contact import ComplianceOperator
+from .friction import FrictionHistory, FrictionSolution, solve_friction
+from .indenters import Placement
+from .pose import Pose
+from .tolerances import TOL, Tolerances
+
+MAX_STEPS = 10_000
+MAX_FRICTION = 10.0  # the scene key's range ([indenter] friction_coefficient)
+
+
+class LoadPathError(ValueError):
+    """A load path is not valid (the message names the parameter and its allowed range)."""
+
+
+def check_friction(mu: float, name: str = "friction_coefficient") -> float:
+    """``mu`` as a float in [0, 10], else :class:`ValueError` naming ``name`` and the range."""
+    try:
+        value = float(mu)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}={mu!r} must be a number in [0, {MAX_FRICTION:g}]") from None
+    if not (np.isfinite(value) and 0.0 <= value <= MAX_FRICTION):
+        raise ValueError(f"{name}={mu!r} is out of range: allowed [0, {MAX_FRICTION:g}]")
+    return value
+
+
+def check_steps(steps: int, name: str = "steps") -> int:
+    """``steps`` as an int in [1, 10000], else :class:`LoadPathError` naming it."""
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)):
+        raise LoadPathError(f"{name}={steps!r} must be an integer in [1, {MAX_STEPS}]")
+    if not 1 <= int(steps) <= MAX_STEPS:
+        raise LoadPathError(f"{name}={steps!r} is out of range: allowed [1, {MAX_STEPS}]")
+    return int(steps)
+
+
+def _lerp(a: Pose, b: Pose, t: float) -> Pose:
+    oa, ob = np.asarray(a.offset_mm), np.asarray(b.offset_mm)
+    return Pose(roll_deg=a.roll_deg + t * (b.roll_deg - a.roll_deg),
+                pitch_deg=a.pitch_deg + t * (b.pitch_deg - a.pitch_deg),
+                depth_mm=a.depth_mm + t * (b.depth_mm - a.depth_mm),
+                offset_mm=tuple(float(v) for v in oa + t * (ob - oa)),
+                yaw_deg=a.yaw_deg + t * (b.yaw_deg - a.yaw_deg))
+
+
+def path_poses(pose: Pose, *, start: Pose | None = None, steps: int = 10) -> list[Pose]:
+    """The poses of a load path after each step (the last is ``pose``; the first element of
+    the list is the first step's end, first contact itself is not included).
+
+    Parameters
+    ----------
+    pose : where the path ends; its depth must be > 0 (in contact)
+    start : ``None`` for a vertical tap to ``pose``; else the pose tapped to first (depth > 0)
+        and re-oriented from, in contact, to ``pose``
+    steps : steps of the tap and of the re-orientation, each, in [1, 10000]
+
+    Raises
+    ------
+    LoadPathError
+        ``steps`` out of range, or a depth <= 0 (a path that is not in contact).
+    """
+    steps = check_steps(steps)
+    if pose.depth_mm <= 0:
+        raise LoadPathError(f"pose depth_mm={pose.depth_mm:g} leaves contact: a load path ends "
+                            "in contact, allowed depth_mm > 0")
+    first = pose if start is None else start
+    if first.depth_mm <= 0:
+        raise LoadPathError(f"start depth_mm={first.depth_mm:g} leaves contact: the path "
+                            "re-orients in contact, allowed depth_mm > 0")
+    touch = Pose(first.roll_deg, first.pitch_deg, 0.0, first.offset_mm, first.yaw_deg)
+    out = [_lerp(touch, first, k / steps) for k in range(1, steps + 1)]
+    if start is not None:
+        out += [_lerp(start, pose, k / steps) for k in range(1, steps + 1)]
+    return out
+
+
+def run_path(poses: list[Pose], placer: Callable[[Pose], Placement], rest_mm: np.ndarray,
+             operator: ComplianceOperator, *, mu: float, tol: Tolerances = TOL,
+             progress: Callable[[int], None] | None = None) -> list[FrictionSolution]:
+    """Solve the steps of a load path (from :func:`path_poses`) in order.
+
+    The first step starts from the pad at rest with the indenter just touching at the first
+    pose's orientation and offset (depth 0).
+
+    Parameters
+    ----------
+    poses : the poses after each step
+    placer : places the indenter at a pose (``indenters.place`` bound to the pad)
+    rest_mm : (s, 3) rest positions of the candidates
+    operator : their compliance
+    mu : friction coefficient in [0, 10]
+    progress : called with the number of steps done after each
+
+    Raises
+    ------
+    ValueError
+        ``mu`` out of range.
+    LoadPathError
+        A step after the first carries no contact force (the path left contact).
+    """
+    mu = check_friction(mu)
+    if not poses:
+        raise LoadPathError("a load path needs at least one step")
+    p0 = poses[0]
+    history = FrictionHistory.at_rest(
+        placer(Pose(p0.roll_deg, p0.pitch_deg, 0.0, p0.offset_mm, p0.yaw_deg)))
+    out: list[FrictionSolution] = []
+    for k, pose in enumerate(poses):
+        sol = solve_friction(placer(pose), rest_mm, operator, mu=mu, history=history,
+                             label=f"{pose} (step {k + 1} of {len(poses)})", tol=tol)
+        if k > 0 and sol.contact.active.size == 0:
+            raise LoadPathError(f"the load path leaves contact at step {k + 1} ({pose}): "
+                                "every step after the first must keep depth_mm > 0 in contact")
+        out.append(sol)
+        history = sol.history
+        if progress is not None:
+            progress(k + 1)
+    return out
