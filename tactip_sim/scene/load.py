@@ -125,7 +125,8 @@ def preset_of(scene: Scene) -> str | None:
     has, or None: which level a scene is at."""
     d = scene_to_dict(scene)
     for name in preset_names(scene):
-        if all(d[s][k] == v for s, kv in scene.presets[name].items() for k, v in kv.items()):
+        if all(d[s].get(k, _default_of(s, k)) == v for s, kv in scene.presets[name].items()
+               for k, v in kv.items()):
             return name
     return None
 
@@ -142,7 +143,23 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
 
     d = plain(dataclasses.asdict(scene))
     d.pop("source", None)
+    for section, key in OMITTED_AT_DEFAULT:  # keys added later: old scenes keep their hash
+        if d[section].get(key) == _default_of(section, key):
+            d[section].pop(key)
     return d
+
+
+OMITTED_AT_DEFAULT = (("imaging", "cap_layer"),)
+"""(section, key) pairs left out of :func:`scene_to_dict` (hence :func:`scene_hash`) when
+they hold their default value: keys added after scenes, caches and data sets were keyed on the
+hash."""
+
+
+def _default_of(section: str, key: str) -> Any:
+    field = {f.name: f for f in dataclasses.fields(Scene)}[section]
+    sec_type = field.default_factory() if field.default_factory is not dataclasses.MISSING \
+        else field.default
+    return getattr(sec_type, key)
 
 
 def scene_to_toml(scene: Scene) -> str:
