@@ -75,8 +75,14 @@ def polygon_coverage(poly, x0, y0, width, height, sub_rows, out):  # pragma: no 
         m = count[q]
         if m < 2:
             continue
-        row = xs[q, :m]
-        row.sort()
+        row = xs[q]
+        for a in range(1, m):  # insertion sort: m is 2 for a convex outline
+            v = row[a]
+            b = a - 1
+            while b >= 0 and row[b] > v:
+                row[b + 1] = row[b]
+                b -= 1
+            row[b + 1] = v
         iy = iy0 + q // sub_rows
         for p in range(0, m - 1, 2):
             xa = row[p] - x0
