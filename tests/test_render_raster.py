@@ -184,3 +184,24 @@ def test_bad_cap_layer_is_refused(scene):
         Renderer(s, shading="lambert")
     with pytest.raises(ValueError, match="cap_layer='raster'"):
         Renderer(s, pins=True)
+
+
+# ----------------------------------------------------------------------------- fidelity study
+def test_raster_levels_are_in_the_fidelity_study_and_auto_applies_them(scene):
+    from calibration.fidelity_auto import scene_for_level
+    from calibration.studies.fidelity import study_levels
+
+    levels = {lv.name: lv for lv in study_levels(scene)}
+    one, fast = levels["raster caps"], levels["raster caps + 1 frame"]
+    balanced = levels["balanced"].scene(scene)
+    s1, s2 = one.scene(scene), fast.scene(scene)
+    assert s1.imaging.cap_layer == "raster" and s2.imaging.cap_layer == "raster"
+    assert s1.protocol.frames_per_sample == balanced.protocol.frames_per_sample
+    assert s2.protocol.frames_per_sample == 1
+    # the rest of the level is balanced: switching the layer back gives balanced's scene
+    assert scene_hash(ts.replace_in(s1, imaging={"cap_layer": "mitsuba"})) == \
+        scene_hash(balanced)
+    # --fidelity auto applies a chosen level from its summary entry (full overrides)
+    for lv, s in ((one, s1), (fast, s2)):
+        assert scene_hash(scene_for_level(scene, {"settings": lv.overrides(scene)})) == \
+            scene_hash(s)
