@@ -3,8 +3,9 @@
 Levels are the scene's presets (``fast``, ``balanced``, ``reference`` and any the scene file
 adds) and one-knob variants of ``balanced``, one per modelling choice (element order, pin model,
 contact solve, material law, refraction, samples per pixel, shading, render resolution, frames
-averaged). Every level runs the same chain as a calibration sweep (FEM press, Mitsuba render,
-the camera noise model, the perception pipeline) on the nominal tip, and is scored on:
+averaged, the raster cap layer). Every level runs the same chain as a calibration sweep (FEM
+press, Mitsuba render, the camera noise model, the perception pipeline) on the nominal tip, and
+is scored on:
 
 * **accuracy poses** (a few poses inside the protocol box, at the training depth), against the
   reference level run on the same poses: marker position error in mm (the FEM's marker
@@ -95,6 +96,11 @@ def study_levels(scene: ts.Scene) -> list[Level]:
          f"{w // 2}x{h // 2} px of twice the pitch"),
         ("1 frame", "perception", {"protocol": {"frames_per_sample": 1}}, "no averaging"),
         ("8 frames", "perception", {"protocol": {"frames_per_sample": 8}}, "8 frames averaged"),
+        ("raster caps", "render", {"imaging": {"cap_layer": "raster"}},
+         "caps drawn by the compiled rasteriser over a cached Mitsuba background"),
+        ("raster caps + 1 frame", "render",
+         {"imaging": {"cap_layer": "raster"}, "protocol": {"frames_per_sample": 1}},
+         "raster caps and no averaging (two knobs: the fastest combination)"),
     ]
     return levels + [Level(n, st, s, base=BASE, note=note) for n, st, s, note in variants]
 

@@ -6,6 +6,10 @@ rim, body, protrusion, LEDs; ``direct`` integrator) is rendered once per mode at
 camera rays only, cropped to the image of the gel cavity where caps can be) at the scene's spp
 and composites it over the background. ``lambert`` shading and ``path`` refraction render the
 full scene every frame.
+
+``imaging.cap_layer = "raster"``: the same background (also kept in the on-disk cache, so a
+new process needs no Mitsuba launch), with the caps drawn per frame by the compiled rasteriser
+of :mod:`tactip_sim.render.raster` instead of the Mitsuba cap layer.
 """
 
 from __future__ import annotations
@@ -39,6 +43,17 @@ from .scene import (
 )
 
 VARIANT = "llvm_ad_rgb"
+
+
+def _mitsuba_version() -> str:
+    """Mitsuba's version without importing it (a background cache key)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("mitsuba")
+    except PackageNotFoundError:
+        return "unknown"
+
 BACKGROUND_SPP = 16
 """Samples per pixel of the static background (rendered once per refraction mode)."""
 CROP_MARGIN_PX = 4
@@ -114,6 +129,11 @@ class Renderer:
         self._weight: dict[str, np.ndarray] = {}
         self._mi: Any = None
         self._hash = scene_hash(scene)
+        self.cap_layer = scene.imaging.cap_layer
+        self._raster: dict[str, Any] = {}
+        if self.cap_layer == "raster" and (pins or shading != "diffused"):
+            raise ValueError(f"imaging.cap_layer='raster' draws diffused caps without pins: got "
+                             f"shading={shading!r}, pins={pins!r} (use cap_layer='mitsuba')")
 
     # ------------------------------------------------------------------ set-up
     @property
@@ -221,21 +241,62 @@ class Renderer:
         loaded.markers = markers.copy()
         loaded.directions = directions.copy()
 
+    def _background_key(self, refraction: str) -> str:
+        """Cache key of a background: everything it depends on (scene, pad surfaces, LEDs,
+        window, materials, spp, Mitsuba's version)."""
+        import hashlib
+
+        pad = self.pad
+        surf = pad.interface if pad.interface is not None else pad.surface
+        h = hashlib.sha256()
+        h.update(f"{self._hash}|{refraction}|{self.shading}|{self.albedo}|{BACKGROUND_SPP}|"
+                 f"{VARIANT}|{_mitsuba_version()}".encode())
+        for a in (np.asarray(surf.vertices, float), np.asarray(surf.faces, np.int64),
+                  pad.leds_mm, pad.window_semi_axes_mm, pad.protrusion_box_mm):
+            h.update(np.ascontiguousarray(a).tobytes())
+        return h.hexdigest()[:24]
+
     def background(self, refraction: str) -> np.ndarray:
-        """The static scene without caps and pins, (H, W[, 3]) float32 radiance (cached)."""
+        """The static scene without caps and pins, (H, W[, 3]) float32 radiance (cached; with
+        ``cap_layer = "raster"`` also on disk)."""
+        if refraction not in self._background and self.cap_layer == "raster":
+            from .. import cache
+
+            path = cache.path_for("background", self._background_key(refraction), ".npz")
+            got = cache.load_npz(path, ["radiance"])
+            if got is None:
+                img = self._render_background(refraction)
+                cache.save_npz(path, radiance=img)
+            else:
+                img = got["radiance"]
+            self._background[refraction] = img
         if refraction not in self._background:
-            mi = self.mi
-            sd = scene_dict(mi, self.scene, self.pad,
-                            sensor=self.sensor_dict(refraction, BACKGROUND_SPP),
-                            integrator={"type": "direct", "emitter_samples": 1,
-                                        "bsdf_samples": 0},
-                            layer="background", refraction=refraction, shading=self.shading,
-                            pins=False, markers_mm=self.pad.markers_mm,
-                            directions=self.pad.pins.directions, albedo=self.albedo)
-            img = np.array(mi.render(mi.load_dict(sd), spp=BACKGROUND_SPP, seed=0),
-                           dtype=np.float32)
-            self._background[refraction] = img[..., 0] if img.shape[2] == 1 else img
+            self._background[refraction] = self._render_background(refraction)
         return self._background[refraction]
+
+    def _render_background(self, refraction: str) -> np.ndarray:
+        """Render the static scene (caps and pins left out) with Mitsuba."""
+        mi = self.mi
+        sd = scene_dict(mi, self.scene, self.pad,
+                        sensor=self.sensor_dict(refraction, BACKGROUND_SPP),
+                        integrator={"type": "direct", "emitter_samples": 1,
+                                    "bsdf_samples": 0},
+                        layer="background", refraction=refraction, shading=self.shading,
+                        pins=False, markers_mm=self.pad.markers_mm,
+                        directions=self.pad.pins.directions, albedo=self.albedo)
+        img = np.array(mi.render(mi.load_dict(sd), spp=BACKGROUND_SPP, seed=0),
+                       dtype=np.float32)
+        return img[..., 0] if img.shape[2] == 1 else img
+
+    def raster(self, refraction: str) -> Any:
+        """The :class:`~tactip_sim.render.raster.CapRaster` of a refraction mode (built once)."""
+        if refraction not in self._raster:
+            from .raster import CapRaster
+
+            self._raster[refraction] = CapRaster(
+                self.optics, self._config(refraction, self.crop), self.pad.protrusion_box_mm,
+                self.scene.pins.marker_diameter_mm / 2)
+        return self._raster[refraction]
 
     def _layer_weight(self, refraction: str) -> np.ndarray:
         """(h, w) sensor weight at the crop's pixel centres (converts layer coverage)."""
@@ -292,21 +353,33 @@ class Renderer:
             out = np.array(mi.render(loaded.scene, spp=spp, seed=int(seed)), dtype=np.float32)
             return out[..., 0] if out.shape[2] == 1 else out
         background = self.background(mode)
+        if self.cap_layer == "raster":
+            if shade != "diffused":
+                raise ValueError(f"shading={shade!r} is not allowed with imaging.cap_layer="
+                                 "'raster': expected 'diffused' (or use cap_layer='mitsuba')")
+            glow = cap_radiance(self.scene, self.pad.leds_mm, m, d, self.albedo.cap)
+            layer, cover = self.raster(mode).draw(m, d, glow)
+            return self._composite(background, layer, cover)
         loaded = self._scene_for("layer", mode, shade)
         self._move_markers(loaded, m, d)
         layer = np.array(mi.render(loaded.scene, spp=spp, seed=int(seed)), dtype=np.float32)
         weight = self._layer_weight(mode)
         with np.errstate(invalid="ignore", divide="ignore"):
             cover = np.where(weight > 0, np.clip(layer[..., 1] / weight, 0.0, 1.0), 0.0)
+        return self._composite(background, layer[..., 0], cover)
+
+    def _composite(self, background: np.ndarray, layer: np.ndarray, cover: np.ndarray
+                   ) -> np.ndarray:
+        """``background * (1 - cover) + layer`` over the crop; layer, cover (h, w)."""
         x0, y0, cw, ch = self.crop
         out = background.copy()
         win = out[y0:y0 + ch, x0:x0 + cw]
         if out.ndim == 3:
             win *= (1.0 - cover)[..., None]
-            win += layer[..., :1]
+            win += layer[..., None]
         else:
             win *= 1.0 - cover
-            win += layer[..., 0]
+            win += layer
         return out
 
     def ground_truth(self, markers_mm: np.ndarray | None = None,

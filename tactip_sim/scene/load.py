@@ -137,7 +137,8 @@ def preset_of(scene: Scene) -> str | None:
     has, or None: which level a scene is at."""
     d = scene_to_dict(scene)
     for name in preset_names(scene):
-        if all(d[s][k] == v for s, kv in scene.presets[name].items() for k, v in kv.items()):
+        if all(d[s].get(k, _default_of(s, k)) == v for s, kv in scene.presets[name].items()
+               for k, v in kv.items()):
             return name
     return None
 
@@ -176,7 +177,7 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
 #: (section, key) pairs left out of :func:`scene_to_dict` (so of the hash) at their default.
 _OMIT_AT_DEFAULT = (("pins", "layout"), ("pins", "rotation_deg"),
                     ("fidelity", "contact_tolerance"), ("fidelity", "contact_refinement"),
-                    ("indenter", "friction_coefficient"))
+                    ("indenter", "friction_coefficient"), ("imaging", "cap_layer"))
 
 
 def _default_of(section: str, key: str) -> Any:

@@ -20,6 +20,7 @@ MATERIAL_MODELS = ("linear", "neo_hookean")
 CONTACT_SOLVERS = ("reduced", "full")
 CONTACT_REFINEMENTS = ("off", "auto")
 SHADINGS = ("diffused", "lambert")
+CAP_LAYERS = ("mitsuba", "raster")
 
 
 @dataclass(frozen=True)
@@ -174,6 +175,11 @@ class Imaging:
     blur_px: float = nonneg(0.6, "Gaussian blur sigma (px)", hi=100)
     vignetting: float = spec(0.3, "float", "relative fall-off at the image corner", lo=0, hi=1)
     colour: bool = spec(False, "bool", "render RGB (true) or grey (false)")
+    cap_layer: str = spec(
+        "mitsuba", "str", "per-pose marker caps: rendered by Mitsuba (mitsuba) or drawn by the "
+        "compiled rasteriser over the cached Mitsuba background (raster; diffused caps, "
+        "analytic or no refraction; docs/speed.md)", choices=CAP_LAYERS,
+    )
 
 
 @dataclass(frozen=True)
