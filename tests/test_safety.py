@@ -421,3 +421,39 @@ def test_ctrl_c_during_a_swallowing_import_still_stops_the_command(monkeypatch, 
     assert ran == []
     assert "interrupted before the command started" in capsys.readouterr().err
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+# --- item 3, the class of bug: every cache kind is checked when loaded -------------------
+
+def test_a_damaged_mesh_cache_entry_is_rebuilt_and_a_bundled_mesh_never_removed(
+        tmp_path, monkeypatch):
+    from tactip_sim import cache
+    from tactip_sim.mesh import tetra
+
+    monkeypatch.setenv("TACTIP_CACHE_DIR", str(tmp_path / "cache"))
+    base = ts.load_scene(SCENE)
+    with np.load(tetra.bundled_path(tetra.mesh_key(base))) as d:
+        arrays = {k: d[k] for k in ("nodes", "tets", "regions")}
+    # the same pad under another key (the envelope is only part of the key): not bundled
+    scene = ts.load_scene(SCENE, {"fidelity.tetwild_epsilon": 0.0031})
+    key = tetra.mesh_key(scene)
+    assert not tetra.bundled_path(key).is_file()
+    entry = cache.path_for("mesh", key, ".npz")
+    cache.save_npz(entry, **arrays)
+    assert tetra.tetrahedralise(scene).from_cache
+    builds = []
+    monkeypatch.setattr(tetra, "_build", lambda sc: builds.append(sc) or (
+        arrays["nodes"], arrays["tets"], arrays["regions"]))
+    entry.write_bytes(entry.read_bytes()[:1000])   # torn: was a BadZipFile traceback
+    with pytest.warns(cache.CacheWarning, match="unusable"):
+        mesh = tetra.tetrahedralise(scene)
+    assert not mesh.from_cache and len(builds) == 1
+    np.testing.assert_array_equal(mesh.tets, arrays["tets"])
+    assert tetra.tetrahedralise(scene).from_cache       # the rebuilt entry is used again
+    # a damaged bundled mesh (a project file) is named, never removed
+    fake = tmp_path / "bundled.npz"
+    fake.write_bytes(b"PK\x03\x04 torn")
+    monkeypatch.setattr(tetra, "bundled_path", lambda k: fake)
+    with pytest.raises(ValueError, match="bundled mesh .*bundled.npz is unreadable"):
+        tetra.tetrahedralise(scene)
+    assert fake.read_bytes() == b"PK\x03\x04 torn"
