@@ -457,3 +457,14 @@ def test_a_damaged_mesh_cache_entry_is_rebuilt_and_a_bundled_mesh_never_removed(
     with pytest.raises(ValueError, match="bundled mesh .*bundled.npz is unreadable"):
         tetra.tetrahedralise(scene)
     assert fake.read_bytes() == b"PK\x03\x04 torn"
+
+
+@pytest.mark.parametrize("payload", [b"", b"{not json", b"[1, 2]", bytes(range(256))])
+def test_a_damaged_fidelity_study_summary_is_named(tmp_path, payload):
+    from calibration.fidelity_auto import resolve_auto
+
+    (tmp_path / "summary.json").write_bytes(payload)
+    args = argparse.Namespace(study=str(tmp_path), max_cop_error_px=None, min_r2=None,
+                              fidelity="auto")
+    with pytest.raises(ValueError, match="summary.json is unreadable"):  # was "Expecting value"
+        resolve_auto(ts.load_scene(SCENE), args)
