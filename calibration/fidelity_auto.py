@@ -97,7 +97,13 @@ def resolve_auto(scene: ts.Scene, args: argparse.Namespace) -> tuple[ts.Scene, d
     if not path.is_file():
         raise ValueError(f"--study {args.study!r}: no summary.json there (run `tactip study "
                          "fidelity SCENE --out DIR` first)")
-    summary = json.loads(path.read_text())
+    try:
+        summary = json.loads(path.read_text())
+        if not isinstance(summary, dict):
+            raise ValueError("not a JSON object")
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f"--study {args.study!r}: {path} is unreadable ({exc}); rerun "
+                         "`tactip study fidelity SCENE --out DIR`") from None
     if summary.get("scene_hash") != scene_hash(scene):
         raise ValueError(f"--study {args.study!r} was measured on a different scene (hash "
                          f"{summary.get('scene_hash')} vs {scene_hash(scene)}); rerun the study")

@@ -391,3 +391,22 @@ def test_quick_study_of_the_whole_library(tmp_path):
     assert res.returncode == 0, res.stderr
     m = json.loads((sel / "summary.json").read_text())
     assert m["cv_accuracy"]["object"]["all"] > 4 * s["chance"]
+
+
+def test_a_torn_contacts_file_is_named_and_rebuilt_from_the_records(two_objects, tmp_path):
+    import shutil
+
+    from calibration.dataset import DatasetError
+    from calibration.recognition.store import ContactDataset, _readable
+
+    spec, cs, out = two_objects
+    copy = tmp_path / "contacts"
+    shutil.copytree(out, copy)
+    stacked = copy / "contacts.npz"
+    stacked.write_bytes(stacked.read_bytes()[:500])  # was a BadZipFile traceback
+    ds = ContactDataset(copy)
+    with pytest.raises(DatasetError, match="contacts.npz is unreadable"):
+        ds.load()
+    assert not _readable(stacked)  # what generate() checks to rebuild it on a rerun
+    ds.finalise(spec.n_contacts)
+    assert np.array_equal(ds.load().disp_px, cs.disp_px, equal_nan=True)

@@ -96,11 +96,14 @@ def test_number_options_name_option_and_range(argv, needle):
     (["validate-lens", str(SCENE), "--views", "-2"], "--views: -2 is out of range"),
     (["render", str(SCENE), "-o", "x.jpg"], "give a name ending in .png"),
 ])
-def test_cli_refuses_before_any_work(tmp_path, argv, needle):
-    proc = subprocess.run([sys.executable, "-m", "tactip_sim.commands", *argv], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2
-    assert needle in proc.stderr and "Traceback" not in proc.stderr
+def test_cli_refuses_before_any_work(tmp_path, monkeypatch, capsys, argv, needle):
+    from tactip_sim.commands import main
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert needle in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
 
 
@@ -182,12 +185,11 @@ def test_non_watertight_mesh_still_named_so():
 # --- item 10: calibrate --tips with an empty name ran every tip / skipped it -------------
 
 @pytest.mark.parametrize("tips", ["", "A,,B", " , "])
-def test_calibrate_empty_tip_name_refused(tmp_path, tips):
-    proc = subprocess.run([sys.executable, "-m", "tactip_sim.commands", "calibrate", str(SCENE),
-                           "--tips", tips, "--out", str(tmp_path / "cal")], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode != 0
-    assert "--tips" in proc.stderr and "Traceback" not in proc.stderr
+def test_calibrate_empty_tip_name_refused(tmp_path, capsys, tips):
+    from tactip_sim.commands import main
+
+    assert main(["calibrate", str(SCENE), "--tips", tips, "--out", str(tmp_path / "cal")]) != 0
+    assert "--tips" in capsys.readouterr().err
     assert not (tmp_path / "cal").exists()
 
 
@@ -419,3 +421,50 @@ def test_ctrl_c_during_a_swallowing_import_still_stops_the_command(monkeypatch, 
     assert ran == []
     assert "interrupted before the command started" in capsys.readouterr().err
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+# --- item 3, the class of bug: every cache kind is checked when loaded -------------------
+
+def test_a_damaged_mesh_cache_entry_is_rebuilt_and_a_bundled_mesh_never_removed(
+        tmp_path, monkeypatch):
+    from tactip_sim import cache
+    from tactip_sim.mesh import tetra
+
+    monkeypatch.setenv("TACTIP_CACHE_DIR", str(tmp_path / "cache"))
+    base = ts.load_scene(SCENE)
+    with np.load(tetra.bundled_path(tetra.mesh_key(base))) as d:
+        arrays = {k: d[k] for k in ("nodes", "tets", "regions")}
+    # the same pad under another key (the envelope is only part of the key): not bundled
+    scene = ts.load_scene(SCENE, {"fidelity.tetwild_epsilon": 0.0031})
+    key = tetra.mesh_key(scene)
+    assert not tetra.bundled_path(key).is_file()
+    entry = cache.path_for("mesh", key, ".npz")
+    cache.save_npz(entry, **arrays)
+    assert tetra.tetrahedralise(scene).from_cache
+    builds = []
+    monkeypatch.setattr(tetra, "_build", lambda sc: builds.append(sc) or (
+        arrays["nodes"], arrays["tets"], arrays["regions"]))
+    entry.write_bytes(entry.read_bytes()[:1000])   # torn: was a BadZipFile traceback
+    with pytest.warns(cache.CacheWarning, match="unusable"):
+        mesh = tetra.tetrahedralise(scene)
+    assert not mesh.from_cache and len(builds) == 1
+    np.testing.assert_array_equal(mesh.tets, arrays["tets"])
+    assert tetra.tetrahedralise(scene).from_cache       # the rebuilt entry is used again
+    # a damaged bundled mesh (a project file) is named, never removed
+    fake = tmp_path / "bundled.npz"
+    fake.write_bytes(b"PK\x03\x04 torn")
+    monkeypatch.setattr(tetra, "bundled_path", lambda k: fake)
+    with pytest.raises(ValueError, match="bundled mesh .*bundled.npz is unreadable"):
+        tetra.tetrahedralise(scene)
+    assert fake.read_bytes() == b"PK\x03\x04 torn"
+
+
+@pytest.mark.parametrize("payload", [b"", b"{not json", b"[1, 2]", bytes(range(256))])
+def test_a_damaged_fidelity_study_summary_is_named(tmp_path, payload):
+    from calibration.fidelity_auto import resolve_auto
+
+    (tmp_path / "summary.json").write_bytes(payload)
+    args = argparse.Namespace(study=str(tmp_path), max_cop_error_px=None, min_r2=None,
+                              fidelity="auto")
+    with pytest.raises(ValueError, match="summary.json is unreadable"):  # was "Expecting value"
+        resolve_auto(ts.load_scene(SCENE), args)

@@ -44,7 +44,7 @@ import tactip_sim as ts
 
 from ..chain import Chain, set_tag
 from .objects import Library, ObjectSpec
-from .store import FORMAT_VERSION, ContactDataset, ContactSet, load_contacts
+from .store import FORMAT_VERSION, ContactDataset, ContactSet, _readable, load_contacts
 
 MAX_ATTEMPTS = 8
 GEOMETRY_TOL_MM = 1e-6
@@ -336,7 +336,7 @@ def generate(spec: ContactSpec, out: str | Path, *, workers: int = 1,
             "seconds": time.perf_counter() - t0, "contact_seconds": contact_s}
     if len(ds.done()) < spec.n_contacts:
         return None, info
-    if not (ds.root / "contacts.npz").is_file() or todo:
+    if not _readable(ds.root / "contacts.npz") or todo:  # missing or torn: rebuilt
         ds.finalise(spec.n_contacts)
     return ds.load(), info
 

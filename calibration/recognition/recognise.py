@@ -57,7 +57,10 @@ class Steps:
                                   ).hexdigest()[:16]
         self.folder.mkdir(parents=True, exist_ok=True)
         key_file = self.folder / "identity.json"
-        old = json.loads(key_file.read_text()).get("key") if key_file.is_file() else None
+        try:  # an unreadable key file counts as another key: the folder is recomputed
+            old = json.loads(key_file.read_text()).get("key") if key_file.is_file() else None
+        except (ValueError, UnicodeDecodeError, AttributeError):
+            old = None
         if old != self.key:
             for p in self.folder.glob("*.json"):
                 p.unlink()

@@ -190,6 +190,9 @@ class ContactDataset:
         if not path.is_file():
             raise DatasetError(f"{self.root} is not finished (no contacts.npz): rerun the "
                                "command that made it to resume")
+        if not _readable(path):  # (np.load of a torn file was a BadZipFile traceback)
+            raise DatasetError(f"{path} is unreadable (torn or edited): rerun the command that "
+                               "made it, which rebuilds it from the records")
         with np.load(path) as z:
             d = {k: z[k] for k in z.files}
         ident = meta["identity"]

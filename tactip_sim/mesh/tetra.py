@@ -9,6 +9,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from importlib.metadata import version
@@ -238,14 +239,25 @@ def tetrahedralise(scene: Scene, *, use_cache: bool = True) -> TetMesh:
     """
     key = mesh_key(scene)
     path = bundled_path(key)
-    if not path.is_file():
+    bundled = path.is_file()
+    if not bundled:
         path = cache.path_for("mesh", key, ".npz")
     t0 = time.perf_counter()
     from_cache = use_cache and path.is_file()
-    if from_cache:
-        with np.load(path) as data:
+    if from_cache and bundled:  # a file of the project: read, never removed
+        try:
+            # opened here: np.load(path) leaves the file open when it is not a zip
+            with path.open("rb") as fh, np.load(fh) as data:
+                raw, tets, regions = data["nodes"], data["tets"], data["regions"]
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+            raise ValueError(f"bundled mesh {path} is unreadable ({exc}); restore it "
+                             f"(git checkout -- {path.name} in {path.parent})") from None
+    elif from_cache:  # a cache entry: checked (digest, keys, finite); a bad one is rebuilt
+        data = cache.load_npz(path, ["nodes", "tets", "regions"])
+        from_cache = data is not None
+        if from_cache:
             raw, tets, regions = data["nodes"], data["tets"], data["regions"]
-    else:
+    if not from_cache:
         raw, tets, regions = _build(scene)
     raw = np.ascontiguousarray(raw, dtype=np.float64)
     tets = np.ascontiguousarray(tets, dtype=np.int32)
