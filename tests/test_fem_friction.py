@@ -162,7 +162,8 @@ def test_bad_input(fingertip):
         path_poses(pose, start=ts.Pose(0, 0, -0.5))
     with pytest.raises(LoadPathError, match=r"pose depth_mm=0 leaves contact"):
         path_poses(ts.Pose(0, 0, 0.0))
-    with pytest.raises(SceneError, match=r"friction_coefficient.*-1"):
+    with pytest.raises(SceneError, match=r"indenter\.friction_coefficient=-1\.0 is out of "
+                                         r"range: allowed \[0, 10\]"):
         ts.replace_in(fingertip.scene, indenter={"friction_coefficient": -1.0})
 
 
