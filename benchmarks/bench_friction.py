@@ -5,8 +5,9 @@ Run:  python benchmarks/bench_friction.py [--edges 0.4 0.3 0.25] [--steps 10] [-
 1. Cattaneo–Mindlin partial slip on ``scenes/hertz_block.toml`` (nu = 0.45, refined to each
    ``--edges`` size within 3 mm of the top centre, P2, reduced model): a 10 mm sphere pressed
    0.2 mm frictionless (a ~ 1.4 mm), then shifted sideways at mu = 0.5; per shift the measured
-   ``Q / mu P``, stick radius ``c/a`` (from the lumped areas of stuck and of all contact nodes)
-   against ``(1 - Q/mu P)^(1/3)``, and the initial tangential stiffness against ``8 G* a``
+   ``Q / mu P``, stick radius ``c/a`` (outermost stuck over outermost contact node, and from
+   the lumped areas of stuck and of all contact nodes) against ``(1 - Q/mu P)^(1/3)``, and
+   the initial tangential stiffness against ``8 G* a``
    and against ``2 (1 - nu)/(2 - nu)`` times the measured normal stiffness.
 2. Path dependence on ``scenes/shadow_fingertip.toml`` (reduced, P2): the plate re-oriented in
    contact from (0, 0) to (roll 8, pitch 0) at the training depth against a vertical tap to
@@ -50,9 +51,10 @@ def mindlin_table(edges, shifts):
         t0 = time.perf_counter()
         res = mindlin(sim, radius, depth, 0.5, [0.001, *shifts])
         solve = (time.perf_counter() - t0) / len(res)
-        k_t = res[0, 3] / 0.001
+        k_t = res[0, 4] / 0.001
         a_h = np.sqrt(radius * depth)
-        errs = [(r, ca, ca / (1 - r) ** (1 / 3) - 1) for r, ca, _, _ in res[1:]]
+        errs = [(r, ca, ca / (1 - r) ** (1 / 3) - 1, cb / (1 - r) ** (1 / 3) - 1, share)
+                for r, ca, cb, _, _, share in res[1:]]
         curves[edge] = errs
         rows.append((edge, len(sim._cand_rest), build, solve, errs,
                      k_t / (8 * g / (2 - nu) * a_h) - 1,
@@ -104,11 +106,13 @@ def main() -> None:
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     if not args.skip_mindlin:
         rows, curves = mindlin_table(args.edges, args.shifts)
-        print("\n| refined edge (mm) | candidates | build (s) | s / step | c/a error at Q/muP "
+        print("\n| refined edge (mm) | candidates | build (s) | s / step | c/a error at Q/muP: "
+              "outermost nodes (lumped areas; normal-force share of slipping nodes inside c) "
               "| k_t vs 8G*a | k_t/k_n vs 2(1-nu)/(2-nu) | k_n vs Hertz 2E*a |")
         print("|---|---|---|---|---|---|---|---|")
         for e, n, b, s, errs, kt, ratio, kn in rows:
-            ca = ", ".join(f"{r:.2f}: {100 * x:+.1f} %" for r, _, x in errs)
+            ca = ", ".join(f"{r:.2f}: {100 * x:+.1f} % ({100 * y:+.1f} %; {100 * z:.1f} %)"
+                           for r, _, x, y, z in errs)
             print(f"| {e:g} | {n} | {b:.1f} | {s:.2f} | {ca} | {100 * kt:+.1f} % "
                   f"| {100 * ratio:+.1f} % | {100 * kn:+.1f} % |")
         if args.chart:

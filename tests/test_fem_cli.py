@@ -79,6 +79,20 @@ def test_press_with_friction_along_a_path(capsys):
     assert out["force_vector_N"] != pytest.approx(frictionless["force_vector_N"], abs=1e-4)
 
 
+def test_press_takes_friction_from_the_scene(capsys):
+    argv = ["press", SCENE, *P1, "--indenter", "sphere", "--radius", "10", "--roll", "6",
+            "--depth", "1.0", "--steps", "2", "--json"]
+    assert main([*argv, "--friction", "0.5"]) == 0
+    given = json.loads(capsys.readouterr().out)
+    assert main([*argv, "--set", "indenter.friction_coefficient=0.5"]) == 0
+    scene = json.loads(capsys.readouterr().out)
+    for out in (scene, given):
+        assert out["load_path"].pop("seconds") > 0
+    assert scene["load_path"] == given["load_path"] == {
+        "path": "tap", "steps": 2, "friction": 0.5, "start_roll_pitch_deg": None}
+    assert scene["force_vector_N"] == given["force_vector_N"]
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--friction", "-1", "--path", "tap"], "friction=-1.0 is out of range: allowed [0, 10]"),
     (["--friction", "0.5", "--steps", "0"], "--steps=0 is out of range: allowed [1, 10000]"),

@@ -44,7 +44,15 @@ def centre(sim: ts.Simulator) -> tuple[float, float]:
 
 def mindlin(sim: ts.Simulator, radius: float, depth: float, mu: float, shifts):
     """Frictionless press to ``depth``, then tangential shifts (x) at fixed depth with
-    friction; per shift: (Q/muP, c/a, a, Q) from the solve."""
+    friction. Per shift: (Q/muP, c/a from the outermost stuck and contact nodes, c/a from the
+    lumped areas of stuck and contact nodes, a (outermost), Q (mN), share of the normal force
+    on slipping nodes inside the outermost stuck one).
+
+    The outermost-node radii (about the centre of pressure, deformed positions) are the ones
+    compared with Cattaneo–Mindlin: at P2 some vertex nodes deep inside the stick zone carry
+    almost no normal force (node-to-surface P2 forces oscillate between vertices and edge
+    midpoints), so they have no friction capacity and register as slipping; that makes the
+    area estimate small (docs/fem.md, Friction)."""
     rest, op = sim._cand_rest, sim.reduced
     off = centre(sim)
     ind = ts.Sphere(radius)
@@ -60,10 +68,16 @@ def mindlin(sim: ts.Simulator, radius: float, depth: float, mu: float, shifts):
     for dx in shifts:
         s = solve_friction(pl(dx), rest, op, mu=mu, history=pressed.history)
         f = s.contact.forces.sum(axis=0)
-        act = s.contact.active
-        a = np.sqrt(areas[act].sum() / np.pi)
-        c = np.sqrt(areas[act[s.stick]].sum() / np.pi)
-        out.append((abs(f[0]) / (mu * abs(f[2])), c / a, a, abs(f[0])))
+        act, p, stick = s.contact.active, s.contact.pressures, s.stick
+        x = rest[act, :2] + s.contact.u[act, :2]
+        r = np.hypot(*(x - p @ x / p.sum()).T)
+        a = float(r.max())
+        c = float(r[stick].max(initial=0.0))
+        inner = ~stick & (r < c)
+        a_area = np.sqrt(areas[act].sum() / np.pi)
+        c_area = np.sqrt(areas[act[stick]].sum() / np.pi)
+        out.append((abs(f[0]) / (mu * abs(f[2])), c / a, c_area / a_area, a, abs(f[0]),
+                    p[inner].sum() / p.sum()))
     return np.array(out)
 
 
@@ -73,9 +87,10 @@ def coarse_block():
 
 
 def test_cattaneo_mindlin_stick_radius_small(coarse_block):
-    """a ~ 1.4 mm on 0.4 mm elements: c/a within 10 % (measured -5.4 to -8.1 % here)."""
+    """a ~ 1.4 mm on 0.4 mm elements (one node spacing is 0.2 mm = 14 % of a): c/a within
+    10 %; the slow test checks 5 % on 0.25 mm."""
     res = mindlin(coarse_block, 10.0, 0.2, 0.5, [0.02, 0.05])
-    for ratio, c_over_a, _, _ in res:
+    for ratio, c_over_a, *_ in res:
         assert 0.1 < ratio < 0.8
         assert c_over_a == pytest.approx((1 - ratio) ** (1 / 3), rel=0.10)
 
@@ -83,7 +98,7 @@ def test_cattaneo_mindlin_stick_radius_small(coarse_block):
 def tangential_stiffness(sim: ts.Simulator, nu: float = 0.45) -> tuple[float, float]:
     """(measured initial tangential stiffness, 8 G* a with Hertz's a), mN/mm."""
     g = 100.0 / (2 * (1 + nu))  # kPa = mN/mm^2 (the block's E = 100 kPa)
-    ratio, _, _, q = mindlin(sim, 10.0, 0.2, 0.5, [0.001])[0]
+    ratio, _, _, _, q, _ = mindlin(sim, 10.0, 0.2, 0.5, [0.001])[0]
     assert ratio < 0.02  # full stick
     return q / 0.001, 8 * g / (2 - nu) * np.sqrt(10.0 * 0.2)
 
@@ -97,15 +112,14 @@ def test_tangential_stiffness_small(coarse_block):
 
 @pytest.mark.slow
 def test_cattaneo_mindlin_refined():
-    """On 0.25 mm elements: tangential stiffness within 3 % of 8 G* a; the stick radius within
-    10 % of Cattaneo–Mindlin (the issue's 5 % is missed: -4.8 to -9.2 % measured at P2,
-    docs/fem.md, Friction)."""
+    """On 0.25 mm elements: tangential stiffness within 3 % of 8 G* a, the stick radius within
+    5 % of Cattaneo–Mindlin."""
     sim = block_sim(0.25)
     k_t, expect = tangential_stiffness(sim)
     assert k_t == pytest.approx(expect, rel=0.03)
     res = mindlin(sim, 10.0, 0.2, 0.5, [0.01, 0.02, 0.04, 0.06, 0.08])
-    for ratio, c_over_a, _, _ in res:
-        assert c_over_a == pytest.approx((1 - ratio) ** (1 / 3), rel=0.10)
+    for ratio, c_over_a, *_ in res:
+        assert c_over_a == pytest.approx((1 - ratio) ** (1 / 3), rel=0.05)
 
 
 @pytest.fixture(scope="module")
@@ -148,7 +162,8 @@ def test_bad_input(fingertip):
         path_poses(pose, start=ts.Pose(0, 0, -0.5))
     with pytest.raises(LoadPathError, match=r"pose depth_mm=0 leaves contact"):
         path_poses(ts.Pose(0, 0, 0.0))
-    with pytest.raises(SceneError, match=r"friction_coefficient.*-1"):
+    with pytest.raises(SceneError, match=r"indenter\.friction_coefficient=-1\.0 is out of "
+                                         r"range: allowed \[0, 10\]"):
         ts.replace_in(fingertip.scene, indenter={"friction_coefficient": -1.0})
 
 
