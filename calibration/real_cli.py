@@ -126,7 +126,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "processed 128x128 binarised format, fit every CoP feature and order, save "
         "OUT/model.json (128x128) and OUT/model_raw.json (raw frames) for --feature/--order; "
         "with --real, score all of them on real labelled taps zero-shot and few-shot (k taps "
-        "fit an affine correction). Resumable (the simulated taps are kept in OUT/sim).")
+        "fit an affine correction). Resumable (the simulated taps are kept in OUT/sim). "
+        "Without --fidelity the scene's 'fast' preset is used.")
     add_scene_argument(p)
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--real", metavar="DIR", help="real labelled taps, 128x128 processed "

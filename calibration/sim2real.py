@@ -443,6 +443,8 @@ def table_markdown(summary: dict[str, Any]) -> str:
             z, f = s["zero_shot"], s["few_shot"]
             lines.append(f"| {feature} | {order} | {z['r2_roll']:.3f} | {z['r2_pitch']:.3f} | "
                          f"{f['r2_roll']:.3f} | {f['r2_pitch']:.3f} | {z['n']} |")
+    else:
+        lines.append("No real taps given (--real): models only, nothing scored.")
     return "\n".join(lines) + "\n"
 
 

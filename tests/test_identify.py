@@ -71,6 +71,7 @@ def test_identify_refuses_frames_of_another_format(tmp_path):
         rest_image(tmp_path / "two")
 
 
+@pytest.mark.slow  # ~70 s on 2 loaded cores
 def test_identify_command_on_the_real_331_rest_frame(tmp_path):
     real = SHARED / "real" / "tactip331_raw"
     if not real.is_dir():

@@ -143,13 +143,20 @@ def test_sim2real_command_smoke(tmp_path):
 
 
 def test_sim2real_bad_input(tmp_path):
+    from calibration.sim2real import Sim2RealConfig
+
+    for kw, msg in (({"n": 3}, "--n=3 is out of range"),
+                    ({"depth_range_mm": (5.0, 2.0)}, "--depth-range=5.0,2.0 is out of range"),
+                    ({"feature": "nope"}, "feature='nope' is not allowed"),
+                    ({"order": 4}, "--order=4 is not allowed"),
+                    ({"reference": "x"}, "--reference='x' is not allowed")):
+        with pytest.raises(ValueError, match=msg.replace("(", r"\(").replace(")", r"\)")):
+            Sim2RealConfig(**kw).check()
+    # through the command: the message reaches the user and nothing is written
     cmd = [sys.executable, "-m", "tactip_sim.commands", "sim2real",
-           str(SCENES / "tactip_331.toml"), "--out", str(tmp_path / "o")]
-    for extra, msg in ((["--n", "3"], "--n=3 is out of range"),
-                       (["--depth-range", "5,2"], "--depth-range=5.0,2.0 is out of range"),
-                       (["--feature", "nope"], "feature='nope' is not allowed")):
-        done = subprocess.run(cmd + extra, cwd=ROOT, capture_output=True, text=True)
-        assert done.returncode != 0 and msg in done.stderr, done.stderr[-500:]
+           str(SCENES / "tactip_331.toml"), "--out", str(tmp_path / "o"), "--n", "3"]
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    assert done.returncode != 0 and "--n=3 is out of range" in done.stderr, done.stderr[-500:]
     assert not (tmp_path / "o").exists()
 
 
