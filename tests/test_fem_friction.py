@@ -83,11 +83,13 @@ def mindlin(sim: ts.Simulator, radius: float, depth: float, mu: float, shifts):
 
 @pytest.fixture(scope="module")
 def coarse_block():
-    return block_sim(0.4)
+    # 0.35 mm: on 0.4 mm the tangential stiffness depends on pytetwild's (non-deterministic)
+    # mesh more than the test can allow (+8.9 % and +11.0 % on two builds; +3.6 % here)
+    return block_sim(0.35)
 
 
 def test_cattaneo_mindlin_stick_radius_small(coarse_block):
-    """a ~ 1.4 mm on 0.4 mm elements (one node spacing is 0.2 mm = 14 % of a): c/a within
+    """a ~ 1.4 mm on 0.35 mm elements (one node spacing is 0.175 mm = 13 % of a): c/a within
     10 %; the slow test checks 5 % on 0.25 mm."""
     res = mindlin(coarse_block, 10.0, 0.2, 0.5, [0.02, 0.05])
     for ratio, c_over_a, *_ in res:
@@ -104,7 +106,7 @@ def tangential_stiffness(sim: ts.Simulator, nu: float = 0.45) -> tuple[float, fl
 
 
 def test_tangential_stiffness_small(coarse_block):
-    """Mindlin's ``8 G* a`` on 0.4 mm elements: within 10 % (the 20 mm layer on its rigid base
+    """Mindlin's ``8 G* a`` on 0.35 mm elements: within 10 % (the 20 mm layer on its rigid base
     and the coarse mesh both stiffen it; 3 % on 0.25 mm in the slow test)."""
     k_t, expect = tangential_stiffness(coarse_block)
     assert k_t == pytest.approx(expect, rel=0.10)
