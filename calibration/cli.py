@@ -10,11 +10,7 @@ import numpy as np
 
 from tactip_sim.commands import add_scene_argument, load_scene_args, parse_overrides, with_overrides
 
-QUICK = {  # a reduced protocol for a first look (and for tests): same ranges, coarser grids
-    "protocol.roll_step_deg": 8.0,
-    "protocol.pitch_step_deg": 3.5,
-    "protocol.test_poses": 30,
-}
+from .protocol import QUICK  # --quick (defined with the protocol)
 
 
 def _scale_args(p: argparse.ArgumentParser) -> None:
