@@ -31,6 +31,12 @@ from .runlog import RunLog
 from .sweep import SweepSpec, run_sweep
 from .versions import package_versions
 
+QUICK = {  # overrides of `calibrate --quick`: a reduced protocol for a first look (and for
+    # tests): same ranges, coarser grids
+    "protocol.roll_step_deg": 8.0,
+    "protocol.pitch_step_deg": 3.5,
+    "protocol.test_poses": 30,
+}
 ORDERS = (1, 2, 3)
 # The CoP feature the regressors use. "growth" (cells weighted by their growth against the
 # rest frame) is the default: with Voronoi cells clipped to the sensor region, as they must be

@@ -10,8 +10,6 @@ import numpy as np
 
 from tactip_sim.commands import add_scene_argument, load_scene_args, parse_overrides, with_overrides
 
-from .protocol import QUICK  # --quick (defined with the protocol)
-
 
 def _scale_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=1,
@@ -60,6 +58,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
     _check_scale(args)
     if args.quick:
+        from .calibrate import QUICK
+
         args.overrides = [f"{k}={v}" for k, v in QUICK.items()] + list(args.overrides)
     scene, fidelity = _scene_and_fidelity(args)
     tips = None if args.tips is None else [t.strip() for t in args.tips.split(",") if t.strip()]

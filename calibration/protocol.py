@@ -13,13 +13,6 @@ import numpy as np
 
 from tactip_sim import Scene, replace_in
 
-QUICK = {  # a reduced protocol for a first look (and for tests): same ranges, coarser grids
-    "protocol.roll_step_deg": 8.0,
-    "protocol.pitch_step_deg": 3.5,
-    "protocol.test_poses": 30,
-}
-"""``--quick``'s scene overrides (``tactip calibrate``, ``tactip study rig``)."""
-
 
 @dataclass(frozen=True)
 class PoseSet:

@@ -222,7 +222,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     from tactip_sim.commands import load_scene_args
 
-    from ..protocol import QUICK
+    from ..calibrate import QUICK
 
     if args.workers < 1:
         raise ValueError(f"--workers={args.workers} must be at least 1")
