@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-KINDS = ("mesh", "compliance", "marker_response", "background")
+KINDS = ("mesh", "compliance", "marker_response", "background", "raster_maps")
 """Sub-folders the tool writes entries into."""
 FILES = ("llvm.json",)
 """Files the tool writes at the top of the cache folder."""
