@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-KINDS = ("mesh", "compliance", "marker_response", "background")
+KINDS = ("mesh", "compliance", "marker_response", "background", "raster_maps")
 """Sub-folders the tool writes entries into."""
 DRJIT = "drjit"
 """Sub-folder given to Dr.Jit as its kernel cache (``DRJIT_CACHE_DIR``), instead of

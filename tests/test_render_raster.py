@@ -195,3 +195,19 @@ def test_raster_levels_are_in_the_fidelity_study_and_auto_applies_them(scene):
     for lv, s in ((one, s1), (fast, s2)):
         assert scene_hash(scene_for_level(scene, {"settings": lv.overrides(scene)})) == \
             scene_hash(s)
+
+
+def test_static_maps_from_the_disk_cache_are_the_computed_ones(both):
+    from tactip_sim.render.raster import CapRaster
+
+    raster, _, _, _ = both
+    fresh = Renderer(raster.scene, raster.pad)  # a new renderer: its maps come from the cache
+    got = fresh.raster("analytic")
+    box, radius = raster.pad.protrusion_box_mm, raster.scene.pins.marker_diameter_mm / 2
+    computed = CapRaster(fresh.optics, fresh._config("analytic", fresh.crop), box, radius)
+    assert np.array_equal(got.weight, computed.weight)
+    assert np.array_equal(got.visible, computed.visible)
+    assert 0.0 < got.visible.mean() < 1.0  # some crop pixels see the cavity, some do not
+    with pytest.raises(ValueError, match="maps"):
+        CapRaster(fresh.optics, fresh._config("analytic", fresh.crop), box, radius,
+                  maps=(got.weight[1:], got.visible))

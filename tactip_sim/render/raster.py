@@ -64,6 +64,8 @@ class CapRaster:
         mount, window layers, the rim's opening, the gel cavity and the crop window
     box_mm : (2, 3) the distal protrusion (an occluder in air below the window)
     radius_mm : cap radius (mm)
+    maps : optional (weight, visible) computed before for this camera and crop (the renderer
+        keeps them in the on-disk cache); computed here when None
 
     Attributes
     ----------
@@ -73,7 +75,7 @@ class CapRaster:
     """
 
     def __init__(self, camera: Camera, config: _sensor.SensorConfig, box_mm: np.ndarray,
-                 radius_mm: float) -> None:
+                 radius_mm: float, maps: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         if config.refraction not in ("analytic", "none"):
             raise ValueError(f"refraction={config.refraction!r} is not allowed with "
                              "imaging.cap_layer='raster': expected 'analytic' or 'none'")
@@ -85,7 +87,12 @@ class CapRaster:
         self.radius_mm = float(radius_mm)
         self.x0, self.y0 = (int(v) for v in config.crop_offset)
         self.width, self.height = (int(v) for v in config.crop_size)
-        self.weight, self.visible = self._static_maps(np.asarray(box_mm, float))
+        if maps is None:
+            maps = self._static_maps(np.asarray(box_mm, float))
+        elif any(np.shape(a) != (self.height, self.width) for a in maps):
+            raise ValueError(f"maps: expected two ({self.height}, {self.width}) arrays, got "
+                             f"{[np.shape(a) for a in maps]}")
+        self.weight, self.visible = (np.asarray(a, np.float32) for a in maps)
 
     def _static_maps(self, box: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The pixel-mean sensor weight and the fraction of each pixel that sees the cavity."""

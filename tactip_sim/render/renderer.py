@@ -291,11 +291,22 @@ class Renderer:
     def raster(self, refraction: str) -> Any:
         """The :class:`~tactip_sim.render.raster.CapRaster` of a refraction mode (built once)."""
         if refraction not in self._raster:
-            from .raster import CapRaster
+            import hashlib
 
-            self._raster[refraction] = CapRaster(
-                self.optics, self._config(refraction, self.crop), self.pad.protrusion_box_mm,
-                self.scene.pins.marker_diameter_mm / 2)
+            from .. import cache
+            from .raster import MASK_SUB, CapRaster
+
+            key = hashlib.sha256(f"{self._background_key(refraction)}|{self.crop}|{MASK_SUB}"
+                                 .encode()).hexdigest()[:24]
+            path = cache.path_for("raster_maps", key, ".npz")
+            got = cache.load_npz(path, ["weight", "visible"])
+            maps = None if got is None else (got["weight"], got["visible"])
+            r = CapRaster(self.optics, self._config(refraction, self.crop),
+                          self.pad.protrusion_box_mm, self.scene.pins.marker_diameter_mm / 2,
+                          maps=maps)
+            if got is None:
+                cache.save_npz(path, weight=r.weight, visible=r.visible)
+            self._raster[refraction] = r
         return self._raster[refraction]
 
     def _layer_weight(self, refraction: str) -> np.ndarray:
