@@ -215,7 +215,7 @@ class Simulator:
         if p.edge_mm == 0.0:
             return None
         if self._refiner is None:
-            self._refiner = ContactRefiner(self)
+            self._refiner = ContactRefiner(self, type(self))
         state, edge = self._refiner.press(pose, indenter, p, tolerance)
         return dataclasses.replace(state, refined_edge_mm=edge,
                                    seconds=time.perf_counter() - t0)

@@ -71,17 +71,19 @@ def plan(space, order: int, placement, scene, tolerance: float) -> Plan:
 
 
 class ContactRefiner:
-    """Solves poses on meshes refined around their contacts, for one :class:`Simulator`."""
+    """Solves poses on meshes refined around their contacts, for one :class:`Simulator`
+    (``sim``); ``make`` builds the refined simulators (the Simulator class: passed in, as
+    this layer does not import the simulator's)."""
 
-    def __init__(self, sim) -> None:
+    def __init__(self, sim, make) -> None:
         self.sim = sim
+        self.make = make
         self._children: OrderedDict[tuple, object] = OrderedDict()
 
     def child(self, edge_mm: float, centre_mm: tuple[float, float], radius_mm: float):
         """The simulator on the mesh refined to ``edge_mm`` in the zone (built or reused)."""
         from ..mesh.local import Refinement, refined_mesh
         from ..scene import replace_in
-        from ..simulator import Simulator
 
         key = (edge_mm, centre_mm, radius_mm)
         if key in self._children:
@@ -91,7 +93,7 @@ class ContactRefiner:
         ref = Refinement(centre_mm, edge_mm, radius_mm)
         mesh = refined_mesh(sim.scene, ref, base=sim.mesh, use_cache=sim.use_cache)
         scene = replace_in(sim.scene, fidelity={"contact_refinement": "off"})
-        child = Simulator(scene, pad=sim.pad, mesh=mesh, element_order=sim.body.order,
+        child = self.make(scene, pad=sim.pad, mesh=mesh, element_order=sim.body.order,
                           solver="full", use_cache=sim.use_cache, tol=sim.tol)
         child.lean_full = True
         log.info("refined the contact zone at (%.2f, %.2f) mm, radius %.2f mm, to %.3g mm "
