@@ -62,6 +62,10 @@ class Simulator:
     mesh : the tet mesh discretised
     body : the :class:`~tactip_sim.fem.model.ElasticBody` (space, stiffness, markers)
     surface_vertices : (k,) int32, mesh vertex ids of the outer (non-window) surface
+    under_resolved : presses so far whose estimated force error exceeded
+        ``fidelity.contact_tolerance``; the first is logged as a warning, the others at DEBUG
+        level (a sweep would otherwise repeat it for every pose)
+    warn_under_resolved : set False to log none of them as warnings (the caller reports them)
     """
 
     def __init__(self, scene: Scene, *, pad: Pad | None = None, mesh: TetMesh | None = None,
@@ -87,6 +91,8 @@ class Simulator:
         self._renderer = None
         self._refiner = None
         self.lean_full = False  # FullOperator(lean=True): set on refined meshes (fem.refine)
+        self.under_resolved = 0
+        self.warn_under_resolved = True
         self._lean_op = None
 
     def __getstate__(self) -> dict:
@@ -145,12 +151,17 @@ class Simulator:
             state = self._press(pose, indenter, solver, full_field)
         tolerance = self.scene.fidelity.contact_tolerance
         if state.error_estimate > tolerance:
-            log.warning("%s: estimated discretisation error of the force %.1f %% exceeds "
-                        "fidelity.contact_tolerance = %.1f %% (node spacing %.3g mm at a "
-                        "contact of radius %.3g mm); refine the mesh there (fidelity."
-                        "contact_refinement = 'auto')", pose, 100 * state.error_estimate,
-                        100 * tolerance, state.node_spacing_mm,
-                        (state.contact_area_mm2 / np.pi) ** 0.5)
+            self.under_resolved += 1
+            first = self.under_resolved == 1 and self.warn_under_resolved
+            log.log(logging.WARNING if first else logging.DEBUG,
+                    "%s: estimated discretisation error of the force %.1f %% exceeds "
+                    "fidelity.contact_tolerance = %.1f %% (node spacing %.3g mm at a "
+                    "contact of radius %.3g mm); refine the mesh there (fidelity."
+                    "contact_refinement = 'auto')%s", pose, 100 * state.error_estimate,
+                    100 * tolerance, state.node_spacing_mm,
+                    (state.contact_area_mm2 / np.pi) ** 0.5,
+                    "; further such poses of this simulator are counted in "
+                    "Simulator.under_resolved, not repeated" if first else "")
         return state
 
     def _press(self, pose: Pose, indenter: Indenter | None, solver: str | None,

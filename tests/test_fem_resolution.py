@@ -189,3 +189,19 @@ def test_press_reports_the_estimate_and_warns_when_under_resolved(capsys):
     out, err = capsys.readouterr()
     summary = json.loads(out)
     assert summary["error_estimate"] < 0.03 and "warning" not in err
+
+
+def test_under_resolved_presses_warn_once_per_simulator(caplog):
+    """A sweep of under-resolved poses gets one warning, not one per pose; all are counted."""
+    import logging
+
+    sim = ts.Simulator(ts.load_scene(SCENES / "shadow_fingertip.toml"), element_order=1)
+    poses = [ts.Pose(0, 0, 0.05), ts.Pose(3, -2, 0.05), ts.Pose(-4, 1, 0.06)]
+    with caplog.at_level(logging.DEBUG, logger="tactip_sim.simulator"):
+        states = [sim.press(p, ts.Sphere(2.0)) for p in poses]
+    over = sum(s.error_estimate > sim.scene.fidelity.contact_tolerance for s in states)
+    assert over == 3 and sim.under_resolved == 3
+    warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warnings) == 1 and "counted in Simulator.under_resolved" in warnings[0].message
+    assert sum(r.levelno == logging.DEBUG and "exceeds" in r.message
+               for r in caplog.records) == 2

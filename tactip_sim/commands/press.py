@@ -106,6 +106,7 @@ def _cmd_press(args: argparse.Namespace) -> int:
     pose = Pose(args.roll, args.pitch, depth, offset_mm=tuple(args.offset), yaw_deg=args.yaw)
     indenter = _indenter(args, scene)
     sim = Simulator(scene, solver=args.solver)
+    sim.warn_under_resolved = False  # this command prints its own warning below
     mu = scene.indenter.friction_coefficient if args.friction is None else args.friction
     path = args.path or ("tap" if mu > 0 else "direct")
     if path == "direct" and mu != 0:
