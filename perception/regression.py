@@ -98,6 +98,19 @@ class RegressionScore:
     angle_names: tuple[str, str] = ("roll_deg", "pitch_deg")
 
 
+def score_predictions(angles_deg: np.ndarray, predicted_deg: np.ndarray,
+                      angle_names: tuple[str, ...]) -> RegressionScore:
+    """R² (1 - residual / total sum of squares) and RMSE per angle of predictions against the
+    true angles, both (n, k) with n >= 2."""
+    y, pred = np.asarray(angles_deg, dtype=np.float64), np.asarray(predicted_deg)
+    res = ((y - pred) ** 2).sum(axis=0)
+    tot = ((y - y.mean(axis=0)) ** 2).sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r2 = np.where(tot > 0, 1.0 - res / tot, np.nan)
+    return RegressionScore(r2=r2, r2_overall=float(np.mean(r2)),
+                           rmse_deg=np.sqrt(res / len(y)), n=len(y), angle_names=angle_names)
+
+
 class PoseRegressor:
     """Polynomial regression from CoP (x, y) to two angles (roll, pitch).
 
@@ -249,13 +262,7 @@ class PoseRegressor:
             raise PerceptionError(f"cop_xy has {len(pred)} rows but angles_deg has {len(y)}")
         if len(y) < 2:
             raise PerceptionError("R² needs at least 2 samples")
-        res = ((y - pred) ** 2).sum(axis=0)
-        tot = ((y - y.mean(axis=0)) ** 2).sum(axis=0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r2 = np.where(tot > 0, 1.0 - res / tot, np.nan)
-        return RegressionScore(r2=r2, r2_overall=float(np.mean(r2)),
-                               rmse_deg=np.sqrt(res / len(y)), n=len(y),
-                               angle_names=self.angle_names)
+        return score_predictions(y, pred, self.angle_names)
 
     # -- persistence ----------------------------------------------------------------------
     def to_dict(self) -> dict:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ModelError, PerceptionError
-from .regression import RegressionScore, _check_size
+from .regression import RegressionScore, _check_size, score_predictions
 
 __all__ = ["VectorRegressor", "vector_powers"]
 
@@ -144,13 +144,7 @@ class VectorRegressor:
         pred = self.predict(x)
         if y.shape != pred.shape or len(y) < 2:
             raise PerceptionError(f"angles_deg must have shape {pred.shape} (at least 2 rows)")
-        res = ((y - pred) ** 2).sum(axis=0)
-        tot = ((y - y.mean(axis=0)) ** 2).sum(axis=0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r2 = np.where(tot > 0, 1.0 - res / tot, np.nan)
-        return RegressionScore(r2=r2, r2_overall=float(np.mean(r2)),
-                               rmse_deg=np.sqrt(res / len(y)), n=len(y),
-                               angle_names=self.angle_names)
+        return score_predictions(y, pred, self.angle_names)
 
     # -- persistence ----------------------------------------------------------------------
     def to_dict(self) -> dict:

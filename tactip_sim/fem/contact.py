@@ -139,6 +139,26 @@ def _dofs(nodes: np.ndarray) -> np.ndarray:
     return (3 * np.asarray(nodes, dtype=np.int64)[:, None] + np.arange(3)).ravel()
 
 
+def spread_forces(operator: ComplianceOperator, cw: np.ndarray, work: np.ndarray,
+                  on: np.ndarray, f_act: np.ndarray, magnitudes: np.ndarray,
+                  everyone: np.ndarray, g_rest: np.ndarray, g0: np.ndarray, nu: np.ndarray,
+                  u_new: np.ndarray, tol: Tolerances) -> tuple[np.ndarray, np.ndarray]:
+    """Displacements (into ``u_new``) of the working set and of the candidates the forces
+    ``f_act`` (flat (3 a,), on ``work[on]``, of sizes ``magnitudes``) may reach (the operator's
+    far-field bound), and the candidates outside the working set that they push through the
+    indenter. ``cw`` is the working set's compliance block. Returns (the nodes whose
+    displacement was formed, the penetrating ones to add)."""
+    act = work[on]
+    u_new[work] = (cw[:, _dofs(np.flatnonzero(on))] @ f_act).reshape(len(work), 3)
+    others = np.setdiff1d(everyone, work)
+    bound = operator.far_bound(act, magnitudes)
+    check = others if bound is None else others[g_rest[others] <= bound[others]]
+    if check.size:
+        u_new[check] = (operator.block(check, act) @ f_act).reshape(-1, 3)
+    gl = g0[check] + np.einsum("ij,ij->i", nu[check], u_new[check])
+    return np.union1d(work, check), check[gl < -tol.gap_mm]
+
+
 def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: ComplianceOperator, *,
                   guess: np.ndarray | None = None, label: str = "",
                   tol: Tolerances = TOL) -> ContactSolution:
@@ -206,15 +226,8 @@ def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: Complianc
             iterations += it
             on = p_work > 0
             act, f_act = work[on], (p_work[on, None] * nw[on]).ravel()
-            u_new[work] = (cw[:, _dofs(np.flatnonzero(on))] @ f_act).reshape(w, 3)
-            others = np.setdiff1d(everyone, work)
-            bound = operator.far_bound(act, p_work[on])
-            check = others if bound is None else others[g_rest[others] <= bound[others]]
-            if check.size:
-                u_new[check] = (operator.block(check, act) @ f_act).reshape(-1, 3)
-            near = np.union1d(work, check)
-            gl = g0[check] + np.einsum("ij,ij->i", nu[check], u_new[check])
-            extra = check[gl < -tol.gap_mm]
+            near, extra = spread_forces(operator, cw, work, on, f_act, p_work[on], everyone,
+                                        g_rest, g0, nu, u_new, tol)
             if extra.size == 0:
                 break
             prev[:] = False

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from .contact import ComplianceOperator, ContactError, ContactSolution
+from .contact import ComplianceOperator, ContactError, ContactSolution, spread_forces
 from .indenters import Placement
 from .tolerances import TOL, Tolerances
 
@@ -323,17 +323,10 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
             slip = disp[:, 1:] - target
             f_glob = np.einsum("iab,ib->ia", frames, lam)
             on = status != OPEN
-            act = work[on]
             f_act = f_glob[on].ravel()
-            u_new[work] = (cw[:, _dofs(np.flatnonzero(on))] @ f_act).reshape(w, 3)
-            others = np.setdiff1d(everyone, work)
-            bound = operator.far_bound(act, np.linalg.norm(f_glob[on], axis=1))
-            check = others if bound is None else others[g_rest[others] <= bound[others]]
-            if check.size:
-                u_new[check] = (operator.block(check, act) @ f_act).reshape(-1, 3)
-            near = np.union1d(work, check)
-            gl = g0[check] + np.einsum("ij,ij->i", nu[check], u_new[check])
-            extra = check[gl < -tol.gap_mm]
+            near, extra = spread_forces(operator, cw, work, on, f_act,
+                                        np.linalg.norm(f_glob[on], axis=1), everyone, g_rest,
+                                        g0, nu, u_new, tol)
             if extra.size == 0:
                 break
             old = dict(zip(work.tolist(), lam, strict=True))
