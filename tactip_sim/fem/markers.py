@@ -8,9 +8,15 @@ Two models (``scene.pins.model``):
 ``rod``
     The pin is a rigid rod clamped in the skin: the tip is the deformed root plus the skin's
     local rotation applied to the rest pin vector, ``tip = root + u(root) + L R d``. ``R`` is
-    taken at the middle of the skin under the root (a skin element): for linear elasticity the
-    rotation by the small-rotation vector ``w = 1/2 curl u`` (exact Rodrigues formula), for the
-    neo-Hookean solve the rotation of the polar decomposition of ``F = I + grad u``.
+    the mean rotation of the skin the pin's base is bonded to: ``grad u`` averaged over the
+    base disk (the pin's diameter, laid on the curved skin around the root) by a 7-point disk
+    rule (exact for cubics) at two Gauss points through the skin's thickness; for linear
+    elasticity the rotation by the small-rotation vector ``w = 1/2 curl u`` of that mean
+    (exact Rodrigues formula), for the neo-Hookean solve the rotation of the polar
+    decomposition of the mean ``F = I + grad u``. The average is what makes the tips converge
+    with the mesh: the P2 gradient at a single point jumps between elements, and over a 3 mm
+    lever arm that jump moved single markers by 0.02-0.04 mm from one mesh to the next
+    (docs/convergence.md).
 
 Both are linear maps of the nodal displacements up to the final rotation, so the reduced
 model stores their response to contact forces (:attr:`Markers.operator`, 6 rows per pin).
@@ -23,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from ..geometry import Pad
+from ..geometry import Pad, map_to_dome
 from ..mesh import REGION_SKIN
 from .space import Space, gradient_operator, interpolation_operator, locate
 
@@ -103,7 +109,44 @@ def rodrigues(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
 
 
-def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: float) -> Markers:
+# 7-point rule on the unit disk, exact for polynomials of degree 3 (Stroud's S2:3-1 family):
+# the centre with weight 1/4 and six points at radius sqrt(2/3) with weight 1/8 each
+_DISK_R = np.concatenate([[0.0], np.full(6, np.sqrt(2.0 / 3.0))])
+_DISK_T = np.concatenate([[0.0], np.arange(6) * np.pi / 3.0])
+_DISK_W = np.concatenate([[0.25], np.full(6, 0.125)])
+
+
+def _base_points(pad: Pad, radius_mm: float, thickness_mm: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Quadrature points (p, k, 3) and weights (k,) of each pin's base: the 7-point disk rule
+    laid on the skin's inner face in the pins' own layout coordinates (the map that placed
+    the roots, so the disk follows the dome's curvature), each point at two Gauss depths
+    (``t/2 -+ t/(2 sqrt 3)``) along the skin's outward normal."""
+    ring = radius_mm * _DISK_R[:, None] * np.stack([np.cos(_DISK_T), np.sin(_DISK_T)], axis=1)
+    uv = pad.pins.lattice_uv[:, None, :] + ring[None]  # (p, 7, 2)
+    on_face = map_to_dome(pad.inner, uv.reshape(-1, 2))
+    normal = pad.inner.outward_normal(on_face)
+    depth = thickness_mm * (0.5 + np.array([-1.0, 1.0]) / (2.0 * np.sqrt(3.0)))
+    pts = on_face[:, None, :] + depth[None, :, None] * normal[:, None, :]  # (7 p, 2, 3)
+    weights = np.repeat(_DISK_W, len(depth)) / len(depth)  # sums to 1
+    return pts.reshape(len(pad.pins.roots), -1, 3), weights
+
+
+def _mean_gradient(space: Space, points: np.ndarray, weights: np.ndarray) -> sp.csr_matrix:
+    """(9 p, n_dofs) operator of ``grad u`` averaged over each pin's quadrature points
+    ``points`` (p, k, 3) with ``weights`` (k,), in the skin's elements."""
+    p, k = points.shape[:2]
+    el, lam, _ = locate(space, points.reshape(-1, 3), region=REGION_SKIN)
+    per_point = gradient_operator(space, el, lam)  # (9 p k, n_dofs), pin-major
+    rows = np.broadcast_to((9 * np.arange(p))[:, None, None] + np.arange(9), (p, k, 9))
+    cols = (9 * (np.arange(p)[:, None] * k + np.arange(k)))[:, :, None] + np.arange(9)
+    vals = np.broadcast_to(np.asarray(weights)[None, :, None], (p, k, 9))
+    average = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(9 * p, 9 * p * k))
+    return (average @ per_point).tocsr()
+
+
+def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: float,
+                  footprint_radius_mm: float = 0.0) -> Markers:
     """Locate the pins of ``pad`` in ``space`` and build the marker operators.
 
     Parameters
@@ -112,6 +155,8 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
     pad : the pad (its pins give roots, directions and tips)
     model : "embedded" or "rod"
     skin_thickness_mm : the rod's rotation is taken half this far outside the root
+    footprint_radius_mm : the radius of the pin's base over which the skin's rotation is
+        averaged (0: at the point under the root)
     """
     if model not in ("embedded", "rod"):
         raise ValueError(f"pins.model={model!r} is not allowed: 'embedded' or 'rod'")
@@ -124,9 +169,11 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
     length = float(np.mean(np.linalg.norm(pins.tips - pins.roots, axis=1)))
     root_el, root_lam, _ = locate(space, pins.roots)
     root_op = interpolation_operator(space, root_el, root_lam)
-    skin_pts = pins.roots - 0.5 * skin_thickness_mm * pins.directions
-    skin_el, skin_lam, _ = locate(space, skin_pts, region=REGION_SKIN)
-    grad = gradient_operator(space, skin_el, skin_lam)
+    if footprint_radius_mm > 0.0 and pad.inner is not None:
+        grad = _mean_gradient(space, *_base_points(pad, footprint_radius_mm, skin_thickness_mm))
+    else:  # at the point under the root, in the middle of the skin
+        centre = pins.roots - 0.5 * skin_thickness_mm * pins.directions
+        grad = _mean_gradient(space, centre[:, None, :], np.ones(1))
     if model == "embedded":
         tip_el, tip_lam, _ = locate(space, pins.tips)
         first = interpolation_operator(space, tip_el, tip_lam)

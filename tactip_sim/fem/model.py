@@ -59,13 +59,15 @@ class ElasticBody:
         self.space: Space = build_space(mesh, self.order)
         self.lam, self.mu = element_moduli(self.space, scene)
         self.skin_thickness_mm = 0.0 if scene.is_block else scene.skin.thickness_mm
-        self.markers: Markers = build_markers(self.space, pad, model=scene.pins.model,
-                                              skin_thickness_mm=self.skin_thickness_mm or 1.0)
+        self.markers: Markers = build_markers(
+            self.space, pad, model=scene.pins.model,
+            skin_thickness_mm=self.skin_thickness_mm or 1.0,
+            footprint_radius_mm=0.0 if scene.is_block else 0.5 * scene.pins.diameter_mm)
         self.key = _digest(FEM_VERSION, mesh.nodes, mesh.tets, mesh.regions, self.order,
                            self.lam, self.mu, tol.window_rel, self.space.candidates)
         m = self.markers
         self.markers_key = _digest(self.key, m.model, m.rest_mm, m.roots_mm, m.directions,
-                                   self.skin_thickness_mm)
+                                   self.skin_thickness_mm, m.operator.indices, m.operator.data)
         free = self.space.free_dofs
         self.free = free
         self.free_index = np.full(self.space.n_dofs, -1, dtype=np.int64)

@@ -192,8 +192,10 @@ class _NoConvergence(Exception):
 class _BlockPattern:
     """The tangent's sparsity as 3x3 node blocks, built once per body.
 
-    Every element adds a full 3x3 block to each pair of its nodes, so the node-pair blocks are
-    the tangent's whole pattern. Assembly is one ``bincount`` into the blocks; a change of
+    Every element adds a full 3x3 block to each pair of its nodes; so does every rod pin for
+    each pair of the nodes its mean skin rotation reads (the tips' curvature term when they
+    press on the window couples them; :func:`_rod_pairs`). These node-pair blocks are the
+    tangent's whole pattern. Assembly is one ``bincount`` into the blocks; a change of
     basis at some nodes and the elimination of prescribed dofs act on the blocks in place, so
     the CSC pattern (and with it CHOLMOD's symbolic analysis) never changes between Newton
     iterations or active sets.
@@ -205,7 +207,9 @@ class _BlockPattern:
         m, nl = nodes.shape
         n = space.n_nodes
         pair = (nodes[:, :, None] * n + nodes[:, None, :]).ravel()  # (m nl nl,)
-        keys, self.block_of = np.unique(pair, return_inverse=True)
+        keys, inverse = np.unique(np.concatenate([pair, _rod_pairs(nh.body.markers, n)]),
+                                  return_inverse=True)
+        self.block_of = inverse[:len(pair)]
         self.keys = keys
         self.bi, self.bj = keys // n, keys % n
         self.n_blocks, self.n_nodes, self.nl = len(keys), n, nl
@@ -448,8 +452,8 @@ class _Tips:
     def curvature(self, u: np.ndarray, rows: np.ndarray, forces: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Dof pairs and values of ``sum_j q_j d2 z_j / du2`` for tips ``rows`` with forces
-        ``q`` (rods only: the height is linear in ``u`` for embedded markers). Each tip's
-        gradient point lies in one element, so the pairs are within the tangent's pattern."""
+        ``q`` (rods only: the height is linear in ``u`` for embedded markers). The pairs of a
+        tip's gradient nodes are in the tangent's pattern (:func:`_rod_pairs`)."""
         empty = np.zeros(0, dtype=np.int64)
         if self.markers.model != "rod" or len(rows) == 0:
             return empty, empty, np.zeros(0)
@@ -494,6 +498,20 @@ def _height_gradient(grad: np.ndarray, dirs: np.ndarray, length: float) -> np.nd
     cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -b[:, 2], b[:, 1], -b[:, 0]
     cross[:, 1, 0], cross[:, 2, 0], cross[:, 2, 1] = b[:, 2], -b[:, 1], b[:, 0]
     return length * (rot @ cross).reshape(-1, 9)
+
+
+def _rod_pairs(markers: Markers, n_nodes: int) -> np.ndarray:
+    """Node-pair keys (``a n + b``) of every pair of nodes one rod's rotation reads (its
+    gradient rows' columns): a rod pressed on the window couples them in the tangent."""
+    if markers.model != "rod" or markers.count == 0:
+        return np.zeros(0, dtype=np.int64)
+    grad = markers.gradient.tocsr()
+    out = []
+    for tip in range(markers.count):
+        rows = grad[9 * tip:9 * tip + 9]
+        nodes = np.unique(rows.indices // 3).astype(np.int64)
+        out.append((nodes[:, None] * n_nodes + nodes[None, :]).ravel())
+    return np.concatenate(out)
 
 
 def _pattern(nh: NeoHookeanBody) -> _BlockPattern:

@@ -1,7 +1,7 @@
 """Pad geometry: analytic surfaces, pins on the skin, window, LEDs, occluders."""
 
 from .pad import Pad, build_pad, dome_shapes, rot_x, rot_y
-from .pins import PinLayout, place_pins, triangular_lattice
+from .pins import PinLayout, map_to_dome, place_pins, triangular_lattice
 from .surfaces import DomeShape, block_mesh
 
 __all__ = [
@@ -11,6 +11,7 @@ __all__ = [
     "block_mesh",
     "build_pad",
     "dome_shapes",
+    "map_to_dome",
     "place_pins",
     "rot_x",
     "rot_y",
