@@ -99,7 +99,8 @@ def summarise(sizes, depths, poses, instances: int, cases_dir: Path, tolerance: 
                              "pitch_deg": pose[1], "instance": 0, "tets": int(r["tets"]),
                              "dofs": int(r["dofs"]), "force_N": float(r["force"]),
                              "seconds": float(r["seconds"])})
-            for (h0, a), (h1, b) in zip(zip(sizes, runs), zip(sizes[1:], runs[1:]), strict=False):
+            for k in range(len(sizes) - 1):
+                h0, h1, a, b = sizes[k], sizes[k + 1], runs[k], runs[k + 1]
                 d = np.linalg.norm(a["markers"] - b["markers"], axis=1)
                 pairs.append({"coarse_mm": h0, "fine_mm": h1, "depth_mm": depth,
                               "roll_deg": pose[0], "pitch_deg": pose[1],
@@ -185,8 +186,9 @@ def main() -> None:
     sizes = sorted(a.sizes, reverse=True)
     if len(sizes) < 2:
         ap.error("--sizes: give at least two mesh sizes")
-    import tactip_sim as ts
     from tqdm import tqdm
+
+    import tactip_sim as ts
 
     scene = ts.load_scene(SCENE)
     depths = a.depths or [scene.protocol.training_depth_mm, 2.0]
