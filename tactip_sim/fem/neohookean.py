@@ -243,8 +243,9 @@ class _BlockPattern:
                  values: np.ndarray) -> np.ndarray:
         """``blocks`` plus the entries ``values`` at dof pairs (``dofs_a``, ``dofs_b``), which
         must lie in the pattern (nodes of one element)."""
-        na, ca = np.divmod(np.asarray(dofs_a), 3)
-        nb, cb = np.divmod(np.asarray(dofs_b), 3)
+        # int64: the pair key n_a * n_nodes + n_b passes 2^31 from ~46 000 nodes (P2, 1 mm)
+        na, ca = np.divmod(np.asarray(dofs_a, dtype=np.int64), 3)
+        nb, cb = np.divmod(np.asarray(dofs_b, dtype=np.int64), 3)
         key = na * self.n_nodes + nb
         block = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
         if not np.array_equal(self.keys[block], key):
