@@ -12,6 +12,8 @@ Usage::
 
     python benchmarks/bench_convergence.py                        # rewrites docs/convergence/
     python benchmarks/bench_convergence.py --sizes 2 1.5 --depths 1 --out /tmp/conv   # quick
+    python benchmarks/bench_convergence.py --sizes 1 0.8 --depths 1 --instances 0   # add 0.8 mm
+    python benchmarks/bench_convergence.py --sizes 2 1.5 1.25 1 0.8 --no-solve      # tables only
 
 Each press is stored in ``OUT/cases/`` as it finishes; a rerun (e.g. after an interruption)
 solves only the missing ones. Prints the table and writes ``summary.json``, ``cases.csv`` and
@@ -85,7 +87,7 @@ def solve_size(scene, size: float, cases: list[tuple[float, tuple[float, float]]
         bar.update(1)
 
 
-def summarise(sizes, depths, poses, instances: int, cases_dir: Path, tolerance: float) -> dict:
+def summarise(sizes, depths, poses, cases_dir: Path, tolerance: float) -> dict:
     def load(size, depth, pose, instance=0):
         with np.load(cases_dir / f"{case_name(size, depth, pose, instance)}.npz") as z:
             return {k: z[k] for k in z.files}
@@ -93,38 +95,54 @@ def summarise(sizes, depths, poses, instances: int, cases_dir: Path, tolerance: 
     rows, pairs = [], []
     for depth in depths:
         for pose in poses:
-            runs = [load(h, depth, pose) for h in sizes]
-            for h, r in zip(sizes, runs, strict=True):
+            have = [h for h in sizes if (cases_dir / f"{case_name(h, depth, pose, 0)}.npz")
+                    .is_file()]
+            runs = [load(h, depth, pose) for h in have]
+            for h, r in zip(have, runs, strict=True):
                 rows.append({"size_mm": h, "depth_mm": depth, "roll_deg": pose[0],
                              "pitch_deg": pose[1], "instance": 0, "tets": int(r["tets"]),
                              "dofs": int(r["dofs"]), "force_N": float(r["force"]),
                              "seconds": float(r["seconds"])})
-            for k in range(len(sizes) - 1):
-                h0, h1, a, b = sizes[k], sizes[k + 1], runs[k], runs[k + 1]
+            for k in range(len(have) - 1):
+                h0, h1, a, b = have[k], have[k + 1], runs[k], runs[k + 1]
                 d = np.linalg.norm(a["markers"] - b["markers"], axis=1)
                 pairs.append({"coarse_mm": h0, "fine_mm": h1, "depth_mm": depth,
                               "roll_deg": pose[0], "pitch_deg": pose[1],
                               "marker_max_mm": float(d.max()), "marker_mean_mm": float(d.mean()),
                               "force_rel": float(b["force"] / a["force"] - 1.0)})
-            for i in range(1, instances + 1):
-                a, b = runs[-1], load(sizes[-1], depth, pose, i)
-                d = np.linalg.norm(a["markers"] - b["markers"], axis=1)
-                rows.append({"size_mm": sizes[-1], "depth_mm": depth, "roll_deg": pose[0],
-                             "pitch_deg": pose[1], "instance": i, "tets": int(b["tets"]),
-                             "dofs": int(b["dofs"]), "force_N": float(b["force"]),
-                             "seconds": float(b["seconds"])})
-                pairs.append({"coarse_mm": sizes[-1], "fine_mm": sizes[-1], "instance": i,
-                              "depth_mm": depth, "roll_deg": pose[0], "pitch_deg": pose[1],
-                              "marker_max_mm": float(d.max()), "marker_mean_mm": float(d.mean()),
-                              "force_rel": float(b["force"] / a["force"] - 1.0)})
-    converged = None
+            for h, a in zip(have, runs, strict=True):  # other pytetwild meshes of a size
+                for i in range(1, 4):
+                    if not (cases_dir / f"{case_name(h, depth, pose, i)}.npz").is_file():
+                        continue
+                    b = load(h, depth, pose, i)
+                    d = np.linalg.norm(a["markers"] - b["markers"], axis=1)
+                    rows.append({"size_mm": h, "depth_mm": depth, "roll_deg": pose[0],
+                                 "pitch_deg": pose[1], "instance": i, "tets": int(b["tets"]),
+                                 "dofs": int(b["dofs"]), "force_N": float(b["force"]),
+                                 "seconds": float(b["seconds"])})
+                    pairs.append({"coarse_mm": h, "fine_mm": h, "instance": i,
+                                  "depth_mm": depth, "roll_deg": pose[0], "pitch_deg": pose[1],
+                                  "marker_max_mm": float(d.max()),
+                                  "marker_mean_mm": float(d.mean()),
+                                  "force_rel": float(b["force"] / a["force"] - 1.0)})
+    converged = None  # the finer of the first pair of sizes within tolerance at every case
     for h0, h1 in zip(sizes, sizes[1:], strict=False):
-        worst = max(p["marker_max_mm"] for p in pairs
-                    if p["coarse_mm"] == h0 and p["fine_mm"] == h1)
-        if worst <= tolerance:
+        these = [p["marker_max_mm"] for p in pairs
+                 if p["coarse_mm"] == h0 and p["fine_mm"] == h1 and "instance" not in p]
+        if len(these) == len(depths) * len(poses) and max(these) <= tolerance:
             converged = h1
             break
+    by_depth = {}
+    for depth in depths:
+        by_depth[f"{depth:g}"] = None
+        for h0, h1 in zip(sizes, sizes[1:], strict=False):
+            these = [p["marker_max_mm"] for p in pairs if p["coarse_mm"] == h0 and
+                     p["fine_mm"] == h1 and p["depth_mm"] == depth and "instance" not in p]
+            if len(these) == len(poses) and max(these) <= tolerance:
+                by_depth[f"{depth:g}"] = h1
+                break
     return {"scene": str(SCENE.relative_to(ROOT)), "tolerance_mm": tolerance,
+            "converged_size_mm_by_depth": by_depth,
             "physics": "P2, neo-Hookean, rods stopped by the window, plate",
             "converged_size_mm": converged, "cases": rows, "pairs": pairs}
 
@@ -182,6 +200,8 @@ def main() -> None:
                     help="agreement of successive sizes that counts as converged (0.01)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "convergence",
                     help="output folder (default docs/convergence)")
+    ap.add_argument("--no-solve", action="store_true",
+                    help="only summarise the presses already stored in OUT/cases")
     a = ap.parse_args()
     sizes = sorted(a.sizes, reverse=True)
     if len(sizes) < 2:
@@ -196,12 +216,13 @@ def main() -> None:
     cases_dir = a.out / "cases"
     cases_dir.mkdir(parents=True, exist_ok=True)
     total = len(cases) * (len(sizes) + a.instances)
-    with tqdm(total=total, desc="presses", unit="press") as bar:
-        for h in sizes:
+    with tqdm(total=0 if a.no_solve else total, desc="presses", unit="press",
+              disable=a.no_solve or None) as bar:
+        for h in [] if a.no_solve else sizes:
             solve_size(scene, h, cases, 0, cases_dir, bar)
-        for i in range(1, a.instances + 1):
+        for i in range(1, 0 if a.no_solve else a.instances + 1):
             solve_size(scene, sizes[-1], cases, i, cases_dir, bar)
-    summary = summarise(sizes, depths, a.poses, a.instances, cases_dir, a.tolerance_mm)
+    summary = summarise(sizes, depths, a.poses, cases_dir, a.tolerance_mm)
     (a.out / "summary.json").write_text(json.dumps(summary, indent=1))
     with (a.out / "cases.csv").open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(summary["cases"][0]))
@@ -220,9 +241,11 @@ def main() -> None:
         print(f"  {what:>16} {p['depth_mm']:g} mm {p['roll_deg']:g}/{p['pitch_deg']:g}: "
               f"{p['marker_max_mm']:.4f} / {p['marker_mean_mm']:.4f} mm, "
               f"force {100 * p['force_rel']:+.2f} %")
-    conv = summary["converged_size_mm"]
-    print(f"converged (successive sizes within {a.tolerance_mm:g} mm at every pose): "
-          + (f"{conv:g} mm" if conv else "not reached on these sizes"))
+    for depth, conv in [("every depth", summary["converged_size_mm"]),
+                        *summary["converged_size_mm_by_depth"].items()]:
+        where = depth if depth == "every depth" else f"{depth} mm deep"
+        print(f"converged ({where}: successive sizes within {a.tolerance_mm:g} mm at every "
+              "pose): " + (f"{conv:g} mm" if conv else "not reached on these sizes"))
 
 
 if __name__ == "__main__":
