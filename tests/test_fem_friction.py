@@ -83,8 +83,12 @@ def mindlin(sim: ts.Simulator, radius: float, depth: float, mu: float, shifts):
 
 @pytest.fixture(scope="module")
 def coarse_block():
-    # 0.35 mm: on 0.4 mm the tangential stiffness depends on pytetwild's (non-deterministic)
-    # mesh more than the test can allow (+8.9 % and +11.0 % on two builds; +3.6 % here)
+    # 0.35 mm, the bundled mesh (scenes/meshes/mesh-73953b3c2dd60ec9.npz). The tangential
+    # stiffness on meshes this coarse depends on pytetwild's (non-deterministic) build more than
+    # the test can allow: +8.9 % and +11.0 % on two 0.4 mm builds; +3.6 %, -7.0 % and +16.4 % on
+    # three 0.35 mm builds (the last on a fresh clone, which failed this test). So that every
+    # machine checks the same mesh, the -7.0 % build ships; the accuracy claim is the slow
+    # test's (0.25 mm).
     return block_sim(0.35)
 
 
