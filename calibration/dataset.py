@@ -213,6 +213,9 @@ class Dataset:
                                    "where that mesh is cached, or ship it in scenes/meshes/)",
                     "perception_results": "; it was perceived by another perception version, "
                                           "whose features would not match this one's",
+                    "physics_results": "; its samples were simulated by another version of "
+                                       "the FEM's results (tactip_sim.fem.RESULTS_VERSION; "
+                                       "docs/fem.md, Markers), which moves the markers",
                 }.get(k, "")
                 raise DatasetError(
                     f"{self.root} already holds a different sweep ({k}: {was!r} there, "

@@ -28,7 +28,7 @@ from .executor import execute
 from .executor import progress as progress_bar
 from .protocol import PoseSet, make_tip
 from .rig import RigModel, find_zero, jpeg_roundtrip, motion_blur
-from .versions import package_versions, perception_results_version
+from .versions import package_versions, perception_results_version, physics_results_version
 
 
 @dataclass(frozen=True)
@@ -83,6 +83,8 @@ class SweepSpec:
             "indenter": dict(sorted(self.indenter.items())),
             # features computed by another perception version must not be mixed in
             "perception_results": perception_results_version(),
+            # nor samples simulated by another version of the FEM's results
+            "physics_results": physics_results_version(),
             # the rig's imperfections (None: an ideal rig, as datasets made before it)
             "rig": None if self.rig.ideal else self.rig.record(),
         }

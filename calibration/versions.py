@@ -20,6 +20,13 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+def physics_results_version() -> int:
+    """``tactip_sim.fem.RESULTS_VERSION``: samples of another version must not be mixed in."""
+    from tactip_sim.fem import RESULTS_VERSION
+
+    return RESULTS_VERSION
+
+
 def perception_results_version() -> int:
     """``perception.RESULTS_VERSION``: features of another version must not be mixed in."""
     import perception
@@ -27,4 +34,5 @@ def perception_results_version() -> int:
     return perception.RESULTS_VERSION
 
 
-__all__ = ["PACKAGES", "package_versions", "perception_results_version"]
+__all__ = ["PACKAGES", "package_versions", "perception_results_version",
+           "physics_results_version"]

@@ -117,6 +117,16 @@ def test_dataset_of_another_perception_version_is_refused(spec, serial, monkeypa
         run_sweep(spec, serial, progress=False)
 
 
+def test_dataset_of_another_physics_version_is_refused(spec, serial, monkeypatch):
+    import tactip_sim.fem
+
+    assert Dataset(serial).manifest()["identity"]["physics_results"] == \
+        tactip_sim.fem.RESULTS_VERSION
+    monkeypatch.setattr(tactip_sim.fem, "RESULTS_VERSION", tactip_sim.fem.RESULTS_VERSION + 1)
+    with pytest.raises(DatasetError, match=r"\(physics_results: .*another version of the FEM"):
+        run_sweep(spec, serial, progress=False)
+
+
 def test_workers_are_byte_identical_to_serial(spec, serial, tmp_path):
     out = tmp_path / "workers"
     run_sweep(spec, out, workers=2, progress=False, chunk=2)

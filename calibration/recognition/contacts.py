@@ -110,7 +110,7 @@ class ContactSpec:
     def identity(self) -> dict[str, Any]:
         from tactip_sim.scene import scene_hash
 
-        from ..versions import perception_results_version
+        from ..versions import perception_results_version, physics_results_version
 
         return {"scene_hash": scene_hash(self.scene), "library_digest": self.library.digest,
                 "objects": self.library.names, "actions_mm": list(self.library.actions_mm),
@@ -119,6 +119,7 @@ class ContactSpec:
                 "image_size": [int(v) for v in self.image_size],
                 "mesh_digest": None if self.mesh is None else self.mesh.digest,
                 "perception_results": perception_results_version(),
+                "physics_results": physics_results_version(),
                 "format_version": FORMAT_VERSION}
 
     def chain_key(self) -> str:

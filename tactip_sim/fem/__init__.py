@@ -8,7 +8,14 @@ from .pose import Pose, PoseError
 from .state import ContactState
 from .tolerances import TOL, Tolerances
 
+RESULTS_VERSION = 2
+"""Bumped when the same scene and mesh give other contact or marker results, so that a
+sweep does not mix samples of two versions (it is part of a dataset's identity). 2: rods turn
+with the mean rotation of the skin under their base (2026-11-25; 1: the gradient at one
+point)."""
+
 __all__ = [
+    "RESULTS_VERSION",
     "TOL",
     "ContactError",
     "ContactState",

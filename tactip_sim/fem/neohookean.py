@@ -242,7 +242,7 @@ class _BlockPattern:
     def add_dofs(self, blocks: np.ndarray, dofs_a: np.ndarray, dofs_b: np.ndarray,
                  values: np.ndarray) -> np.ndarray:
         """``blocks`` plus the entries ``values`` at dof pairs (``dofs_a``, ``dofs_b``), which
-        must lie in the pattern (nodes of one element)."""
+        must lie in the pattern (nodes of one element, or read by one rod's rotation)."""
         # int64: the pair key n_a * n_nodes + n_b passes 2^31 from ~46 000 nodes (P2, 1 mm)
         na, ca = np.divmod(np.asarray(dofs_a, dtype=np.int64), 3)
         nb, cb = np.divmod(np.asarray(dofs_b, dtype=np.int64), 3)
