@@ -16,7 +16,9 @@ Usage::
     python benchmarks/bench_convergence.py --sizes 2 1.5 1.25 1 0.8 --no-solve      # tables only
 
 Each press is stored in ``OUT/cases/`` as it finishes; a rerun (e.g. after an interruption)
-solves only the missing ones. Prints the table and writes ``summary.json``, ``cases.csv`` and
+solves only the missing ones. (The extra pytetwild meshes are not stored: an interrupted
+``--instances`` run builds another one for the presses it has left, and each press records its
+mesh's tet count.) Prints the table and writes ``summary.json``, ``cases.csv`` and
 ``convergence.png`` to ``OUT``.
 """
 
@@ -223,6 +225,8 @@ def main() -> None:
         for i in range(1, 0 if a.no_solve else a.instances + 1):
             solve_size(scene, sizes[-1], cases, i, cases_dir, bar)
     summary = summarise(sizes, depths, a.poses, cases_dir, a.tolerance_mm)
+    if not summary["cases"]:
+        ap.error(f"no stored presses of these sizes, depths and poses in {cases_dir}")
     (a.out / "summary.json").write_text(json.dumps(summary, indent=1))
     with (a.out / "cases.csv").open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(summary["cases"][0]))
