@@ -98,6 +98,15 @@ class RegressionScore:
     angle_names: tuple[str, str] = ("roll_deg", "pitch_deg")
 
 
+def model_json(data: dict, path: str | PathLike[str] | None = None) -> str:
+    """A fitted model's dict as JSON text (floats at full precision), also written to ``path``
+    when given; shared by :class:`PoseRegressor` and the vector regressor."""
+    text = json.dumps(data, indent=2)
+    if path is not None:
+        Path(path).write_text(text + "\n", encoding="utf-8")
+    return text
+
+
 def score_predictions(angles_deg: np.ndarray, predicted_deg: np.ndarray,
                       angle_names: tuple[str, ...]) -> RegressionScore:
     """R² (1 - residual / total sum of squares) and RMSE per angle of predictions against the
@@ -293,10 +302,7 @@ class PoseRegressor:
         -------
         text : str
         """
-        text = json.dumps(self.to_dict(), indent=2)
-        if path is not None:
-            Path(path).write_text(text + "\n", encoding="utf-8")
-        return text
+        return model_json(self.to_dict(), path)
 
     @classmethod
     def from_dict(cls, data: dict) -> PoseRegressor:

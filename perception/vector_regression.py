@@ -11,15 +11,13 @@ plain JSON, as for :class:`~perception.PoseRegressor`.
 
 from __future__ import annotations
 
-import json
 from itertools import combinations_with_replacement
 from os import PathLike
-from pathlib import Path
 
 import numpy as np
 
 from .errors import ModelError, PerceptionError
-from .regression import RegressionScore, _check_size, score_predictions
+from .regression import RegressionScore, _check_size, model_json, score_predictions
 
 __all__ = ["VectorRegressor", "vector_powers"]
 
@@ -158,10 +156,7 @@ class VectorRegressor:
                 "intercept": self.intercept_.tolist()}
 
     def to_json(self, path: str | PathLike[str] | None = None) -> str:
-        text = json.dumps(self.to_dict(), indent=2)
-        if path is not None:
-            Path(path).write_text(text + "\n", encoding="utf-8")
-        return text
+        return model_json(self.to_dict(), path)
 
     @classmethod
     def from_dict(cls, data: dict) -> VectorRegressor:

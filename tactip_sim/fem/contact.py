@@ -31,6 +31,13 @@ from .indenters import Placement
 from .tolerances import TOL, Tolerances
 
 
+def closest_point_error(label: str, tol: Tolerances, change: float) -> ContactError:
+    """The error when the closest-point updates of a contact loop (frictionless or with
+    friction) have not settled in ``tol.geometry_max_iter`` iterations."""
+    return ContactError(f"{label or 'contact'}: closest-point updates did not converge in "
+                        f"{tol.geometry_max_iter} iterations (last change {change:.3g} mm)")
+
+
 class ContactError(RuntimeError):
     """A contact or Newton solve did not converge; the message names the pose."""
 
@@ -240,9 +247,7 @@ def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: Complianc
         if flat or change <= tol.geometry_mm:
             break
     else:
-        raise ContactError(
-            f"{label or 'contact'}: closest-point updates did not converge in "
-            f"{tol.geometry_max_iter} iterations (last change {change:.3g} mm)")
+        raise closest_point_error(label, tol, change)
     on = p_work > 0
     active, pressures = work[on], p_work[on]
     surface = operator.surface(active, pressures[:, None] * nu[active])

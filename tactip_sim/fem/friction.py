@@ -39,7 +39,13 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from .contact import ComplianceOperator, ContactError, ContactSolution, spread_forces
+from .contact import (
+    ComplianceOperator,
+    ContactError,
+    ContactSolution,
+    closest_point_error,
+    spread_forces,
+)
 from .indenters import Placement
 from .tolerances import TOL, Tolerances
 
@@ -339,9 +345,7 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
         if flat or change <= tol.geometry_mm:
             break
     else:
-        raise ContactError(
-            f"{label or 'contact'}: closest-point updates did not converge in "
-            f"{tol.geometry_max_iter} iterations (last change {change:.3g} mm)")
+        raise closest_point_error(label, tol, change)
     on = status != OPEN
     active = work[on]
     forces = np.einsum("iab,ib->ia", frames[on], lam[on]) if work.size else np.zeros((0, 3))
