@@ -33,26 +33,26 @@ from pathlib import Path
 
 import numpy as np
 
+from tactip_sim.commands.args import float_in, scene_key_type
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
 SIZES = (2.0, 1.5, 1.25, 1.0)
 POSES = ((4.0, -2.0), (12.0, -8.8))  # (roll, pitch) deg: near the centre, a corner of the box
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not np.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: must be a number > 0")
-    return value
-
-
 def _pose(text: str) -> tuple[float, float]:
+    """``ROLL,PITCH`` in degrees, checked by :class:`tactip_sim.Pose`'s own ranges."""
+    import tactip_sim as ts
+    from tactip_sim.fem import PoseError
+
     try:
         roll, pitch = (float(v) for v in text.split(","))
+        ts.Pose(roll, pitch, 1.0)
+    except PoseError as exc:  # a ValueError: first
+        raise argparse.ArgumentTypeError(str(exc)) from None
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: a pose is ROLL,PITCH in degrees") from None
-    if not (abs(roll) <= 30 and abs(pitch) <= 30):
-        raise argparse.ArgumentTypeError(f"{text!r}: roll and pitch must lie in [-30, 30] deg")
     return roll, pitch
 
 
@@ -190,15 +190,16 @@ def chart(summary: dict, path: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sizes", type=_positive, nargs="+", default=list(SIZES),
+    ap.add_argument("--sizes", type=scene_key_type("fidelity.mesh_edge_mm"), nargs="+",
+                    default=list(SIZES),
                     help="mesh edges in mm, coarse to fine (default %(default)s)")
-    ap.add_argument("--depths", type=_positive, nargs="+", default=None,
+    ap.add_argument("--depths", type=float_in(0.0, lo_open=True), nargs="+", default=None,
                     help="press depths in mm (default: the training depth and 2 mm)")
     ap.add_argument("--poses", type=_pose, nargs="+", default=list(POSES),
                     help="ROLL,PITCH pairs in degrees (default 4,-2 12,-8.8)")
     ap.add_argument("--instances", type=int, default=1, choices=range(0, 4),
                     help="extra pytetwild meshes of the finest size (default 1)")
-    ap.add_argument("--tolerance-mm", type=_positive, default=0.01,
+    ap.add_argument("--tolerance-mm", type=float_in(0.0, lo_open=True), default=0.01,
                     help="agreement of successive sizes that counts as converged (0.01)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "convergence",
                     help="output folder (default docs/convergence)")
