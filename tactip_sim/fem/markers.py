@@ -156,7 +156,8 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
     model : "embedded" or "rod"
     skin_thickness_mm : the rod's rotation is taken half this far outside the root
     footprint_radius_mm : the radius of the pin's base over which the skin's rotation is
-        averaged (0: at the point under the root)
+        averaged for rods (0, and for embedded tips, whose direction is their chord: at the
+        point under the root)
     """
     if model not in ("embedded", "rod"):
         raise ValueError(f"pins.model={model!r} is not allowed: 'embedded' or 'rod'")
@@ -169,7 +170,7 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
     length = float(np.mean(np.linalg.norm(pins.tips - pins.roots, axis=1)))
     root_el, root_lam, _ = locate(space, pins.roots)
     root_op = interpolation_operator(space, root_el, root_lam)
-    if footprint_radius_mm > 0.0 and pad.inner is not None:
+    if model == "rod" and footprint_radius_mm > 0.0 and pad.inner is not None:
         grad = _mean_gradient(space, *_base_points(pad, footprint_radius_mm, skin_thickness_mm))
     else:  # at the point under the root, in the middle of the skin
         centre = pins.roots - 0.5 * skin_thickness_mm * pins.directions
