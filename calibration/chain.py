@@ -289,6 +289,26 @@ class Chain:
             self._press_cache[key] = out
         return out
 
+    def press_path(self, pose: Sequence[float], start: Sequence[float], *, friction: float,
+                   step_deg: float, tap_steps: int) -> tuple[Any, float]:
+        """FEM contact at ``pose`` (roll°, pitch°, depth mm) reached the rig's way with
+        Coulomb friction ``friction``: a vertical tap to ``start`` in ``tap_steps`` steps, then
+        re-oriented in contact to ``pose`` in steps of at most ``step_deg`` of roll or pitch
+        (:meth:`tactip_sim.Simulator.press_path`). The last step's state and the seconds the
+        path took (not cached: the state depends on ``start``). ``start == pose``: the tap
+        alone."""
+        end, first = (ts.Pose(*(float(v) for v in p)) for p in (pose, start))
+        turn = max(abs(end.roll_deg - first.roll_deg), abs(end.pitch_deg - first.pitch_deg))
+        steps = max(1, int(np.ceil(turn / step_deg - 1e-9)))
+        sim = self.sim
+        t0 = time.perf_counter()
+        if first == end:  # no turn: a tap (a step that moves nothing would be a null step)
+            states = sim.press_path(end, steps=tap_steps, friction=friction)
+        else:
+            states = sim.press_path(end, start=first, steps=steps, tap_steps=tap_steps,
+                                    friction=friction)
+        return states[-1], time.perf_counter() - t0
+
     def radiance(self, state: Any, rng: np.random.Generator, *, renderer: Any = None
                  ) -> np.ndarray:
         """The noise-free radiance of ``state`` (None: the rest pose); the sampler's seed is

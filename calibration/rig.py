@@ -34,10 +34,21 @@ Modelled:
 * **motion blur** (``motion_blur_px``): a linear blur of that length, in a random direction
   per sample, on the radiance before the sensor noise (the arm still moving while exposed);
 * **manufacturing variation** (``manufacturing_scale``): the scene's ``[tolerances]`` scaled
-  (1: as the scene says, the default; 0: every tip the nominal design).
+  (1: as the scene says, the default; 0: every tip the nominal design);
+* **the load path** (``load_path``, ``friction_coefficient``, ``path_step_deg``): the paper's
+  rig kept the pad on the plate and re-oriented it in contact, so each pose is reached from the
+  previous one with Coulomb friction between plate and skin: a tap to the previous pose
+  (:data:`TAP_STEPS` steps), then roll, pitch and depth turned to this pose in steps of at most
+  ``path_step_deg`` (:meth:`calibration.chain.Chain.press_path`). Only the last move is
+  solved: the friction state left by earlier moves is wiped out by the slip of the last one
+  (measured: a chain of three moves and the last move alone end 0.0002 mm apart; tested).
+  The pins are not stopped at the window along a path (the friction solve has no window
+  contact; :attr:`~tactip_sim.fem.state.ContactState.tips_below_window` tells).
 
-Not modelled (stated in the docs): the load path (re-orienting while in contact needs
-friction).
+The visiting order (``random_order``): the paper sampled its grid "randomly", so with
+``random_order`` each sweep visits its poses in a seeded random order (:meth:`RigModel.order`),
+which decides the previous pose that hysteresis and the load path start from; otherwise the
+poses are visited as listed.
 """
 
 from __future__ import annotations
@@ -69,8 +80,13 @@ _MORE = {
     "capture_s": ((0.0, 60.0), 3.0),
     "prony_reference_s": ((0.0, 60.0), 1.0),
     "move_s": ((0.0, 600.0), 2.0),
+    "friction_coefficient": ((0.0, 10.0), 0.0),
+    "path_step_deg": ((1e-3, 10.0), 1.0),
 }
-_SWITCHES = ("relaxation", "hysteresis")
+_SWITCHES = ("relaxation", "hysteresis", "load_path", "random_order")
+TAP_STEPS = 4
+"""Steps of the tap to the previous pose that a load path starts with (its friction state is
+wiped out by the re-orientation's slip; the tap only seeds it)."""
 _PRONY = ("skin_prony_g", "skin_prony_tau_s", "gel_prony_g", "gel_prony_tau_s")
 
 SOURCES: dict[str, tuple[str, ...]] = {
@@ -82,9 +98,11 @@ SOURCES: dict[str, tuple[str, ...]] = {
     "compression": ("jpeg_quality",),
     "motion_blur": ("motion_blur_px",),
     "manufacturing": ("manufacturing_scale",),
+    "load_path": ("load_path", "friction_coefficient"),
 }
 """The rig's sources by name (``tactip study rig --sources``) and the keys each one sets."""
-NOT_MODELLED = {"load_path": "re-orienting while in contact needs the friction model"}
+NOT_MODELLED: dict[str, str] = {}
+"""Sources named in the docs but not modelled (none left; ``--sources`` refuses these)."""
 _OFF: dict[str, Any] = {k: 0.0 for k in (*_RANGES, *_MORE)} | {k: False for k in _SWITCHES}
 PRESETS_DIR = Path(__file__).resolve().parents[1] / "rigs"
 
@@ -119,6 +137,10 @@ class RigModel:
     capture_s: float = 3.0
     prony_reference_s: float = 1.0
     move_s: float = 2.0
+    load_path: bool = False
+    friction_coefficient: float = 0.0
+    path_step_deg: float = 1.0
+    random_order: bool = False
 
     def __post_init__(self) -> None:
         ranges = {**_RANGES, **{k: r for k, (r, _) in _MORE.items()}}
@@ -158,7 +180,28 @@ class RigModel:
         scene instead: :meth:`apply_to_scene`)."""
         return (all(getattr(self, k) == 0.0 for k in _RANGES) and not self.hysteresis
                 and self.exposure_trend == 0 and self.jpeg_quality == 0
-                and self.motion_blur_px == 0)
+                and self.motion_blur_px == 0 and not self.friction_path)
+
+    @property
+    def friction_path(self) -> bool:
+        """Whether samples are reached along the load path with friction (at ``mu = 0`` the
+        path ends where a press does, so the rig presses instead)."""
+        return self.load_path and self.friction_coefficient > 0
+
+    def order(self, seed: int, tip: str, set_name: str, n: int) -> np.ndarray:
+        """The order a sweep of ``n`` poses visits them: seeded random with ``random_order``
+        (the paper sampled its grid randomly), else as listed."""
+        if not self.random_order:
+            return np.arange(n)
+        rng = np.random.default_rng([seed, 0x0DE7, zlib.crc32(tip.encode()),
+                                     zlib.crc32(set_name.encode())])
+        return rng.permutation(n)
+
+    def previous(self, seed: int, tip: str, set_name: str, n: int, index: int) -> int | None:
+        """The pose visited before pose ``index`` of the sweep (None for the first)."""
+        order = self.order(seed, tip, set_name, n)
+        at = int(np.flatnonzero(order == index)[0])
+        return None if at == 0 else int(order[at - 1])
 
     @property
     def camera_effects(self) -> bool:

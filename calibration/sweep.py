@@ -27,7 +27,7 @@ from .dataset import Dataset, SampleRecord, poses_digest
 from .executor import execute
 from .executor import progress as progress_bar
 from .protocol import PoseSet, make_tip
-from .rig import RigModel, find_zero, jpeg_roundtrip, motion_blur
+from .rig import TAP_STEPS, RigModel, find_zero, jpeg_roundtrip, motion_blur
 from .versions import package_versions, perception_results_version, physics_results_version
 
 
@@ -203,7 +203,8 @@ def run_chunk(spec: SweepSpec, indices: Sequence[int]
 def _more_sources(rig: RigModel) -> bool:
     """Whether a sample needs :func:`rig_sample` (the rig's per-sample sources beyond pose
     error, the zero and exposure noise, which :meth:`Chain.sample` handles itself)."""
-    return rig.hysteresis or rig.exposure_trend > 0 or rig.camera_effects
+    return (rig.hysteresis or rig.exposure_trend > 0 or rig.camera_effects
+            or rig.friction_path)
 
 
 _PIPELINES: dict[tuple[str, int], Any] = {}
@@ -246,21 +247,33 @@ def _press(spec: SweepSpec, chain: Chain, pose: Sequence[float]) -> tuple[Any, f
 def rig_sample(spec: SweepSpec, chain: Chain, index: int, reached: Sequence[float],
                gain: float, rng: np.random.Generator) -> Any:
     """One sample through the chain with the rig's further sources (:mod:`calibration.rig`):
-    the exposure trend over the sweep, hysteresis (markers lag towards the previous pose's by
-    the skin's residual fraction), motion blur on the radiance, JPEG-compressed frames. The
-    stages and seeds are :meth:`Chain.sample`'s, so a source at zero changes nothing."""
+    the exposure trend over the sweep, the load path (reached from the previous pose in
+    contact, with friction), hysteresis (markers lag towards the previous pose's by the
+    skin's residual fraction), motion blur on the radiance, JPEG-compressed frames. The
+    previous pose is the one visited before (:meth:`RigModel.previous`). The stages and seeds
+    are :meth:`Chain.sample`'s, so a source at zero changes nothing."""
     from .chain import Rendered, Sample, perceive
 
     rig = spec.rig
     gain *= 1.0 - rig.exposure_trend * index / max(len(spec.poses) - 1, 1)
     angle = float(rng.uniform(0.0, np.pi))  # drawn after perturb's, so those stay the same
-    previous = None
+    previous = prev_pose = None
     h = rig.hysteresis_fraction()
-    if h > 0 and index > 0:
-        zero = rig_zero(spec, chain)
-        p = spec.poses.poses[index - 1]
-        previous, _ = _press(spec, chain, (float(p[0]), float(p[1]), float(p[2]) + zero))
-    state, physics_s = _press(spec, chain, reached)
+    if h > 0 or rig.friction_path:
+        before = rig.previous(spec.scene.protocol.seed, spec.tip, spec.poses.name,
+                              len(spec.poses), index)
+        if before is not None:
+            p = spec.poses.poses[before]
+            prev_pose = (float(p[0]), float(p[1]), float(p[2]) + rig_zero(spec, chain))
+    if h > 0 and prev_pose is not None:
+        previous, _ = _press(spec, chain, prev_pose)
+    if rig.friction_path:  # the first pose of a sweep: a tap straight to it
+        state, physics_s = chain.press_path(
+            reached, reached if prev_pose is None else prev_pose,
+            friction=rig.friction_coefficient, step_deg=rig.path_step_deg,
+            tap_steps=TAP_STEPS)
+    else:
+        state, physics_s = _press(spec, chain, reached)
     if previous is not None:
         markers = (1 - h) * state.markers_mm + h * previous.markers_mm
         dirs = (1 - h) * state.marker_directions + h * previous.marker_directions

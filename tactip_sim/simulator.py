@@ -251,7 +251,8 @@ class Simulator:
 
     def press_path(self, pose: Pose, indenter: Indenter | None = None, *,
                    start: Pose | None = None, steps: int = 10, friction: float | None = None,
-                   solver: str | None = None, progress=None) -> list[ContactState]:
+                   solver: str | None = None, progress=None, tap_steps: int | None = None
+                   ) -> list[ContactState]:
         """Press along a load path with Coulomb friction; one state per step, the last at
         ``pose`` (:mod:`~tactip_sim.fem.loadpath`, :mod:`~tactip_sim.fem.friction`).
 
@@ -266,6 +267,7 @@ class Simulator:
             ``indenter.friction_coefficient``); 0 gives :meth:`press`'s answer at every step
         solver : "reduced" or "full" (default: the simulator's; not "neo_hookean")
         progress : called with the number of steps done after each
+        tap_steps : steps of the tap alone, in [1, 10000] (default ``steps``)
 
         Each state's ``seconds`` is the time of its own step. The pins are not stopped at the
         window on this path (``window_forces_N`` is NaN).
@@ -286,7 +288,7 @@ class Simulator:
         mu = check_friction(self.scene.indenter.friction_coefficient if friction is None
                             else friction, "friction" if friction is not None
                             else "indenter.friction_coefficient")
-        poses = path_poses(pose, start=start, steps=steps)
+        poses = path_poses(pose, start=start, steps=steps, tap_steps=tap_steps)
         op = self.reduced if solver == "reduced" else FullOperator(self.body)
         sk = self.body.skin_thickness_mm
 

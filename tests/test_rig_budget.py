@@ -14,7 +14,7 @@ def test_configurations_switch_one_source_on_at_a_time():
     cfgs = configs(rig, list(SOURCES))
     # motion blur is 0 in the realistic rig: alone it would be the ideal rig, so left out
     assert list(cfgs) == ["ideal", "robot", "zero", "exposure", "relaxation", "hysteresis",
-                          "compression", "manufacturing", "all"]
+                          "compression", "manufacturing", "load_path", "all"]
     ideal = cfgs["ideal"]
     assert ideal.ideal and ideal.modulus_ratios() == (1.0, 1.0)
     assert ideal.manufacturing_scale == 0.0  # nominal tips
@@ -26,8 +26,9 @@ def test_configurations_switch_one_source_on_at_a_time():
     assert cfgs["robot"].pose_depth_sd_mm == 0.033 and cfgs["robot"].exposure_drift_sd == 0
     with pytest.raises(ValueError, match="unknown rig source 'wind'"):
         configs(rig, ["wind"])
-    with pytest.raises(ValueError, match="'load_path' is not modelled yet"):
-        configs(rig, ["load_path"])
+    path = cfgs["load_path"]
+    assert path.friction_path and path.friction_coefficient == 0.5 and path.zero_step_mm == 0
+    assert not cfgs["zero"].load_path and cfgs["zero"].random_order
 
 
 def _table(values):
@@ -62,7 +63,7 @@ def test_report_and_chart(tmp_path):
     assert "| 1 | large | +0.143 |" in text
     # all vs the paper, tip A order 2 at +0.5 mm: 0.60 against 0.92
     assert "| A | 2 | +0.5 | 0.600 | 0.92 | -0.320 |" in text
-    assert "load_path" in text and "UR5" in text  # not-modelled sources and the citations
+    assert "| load_path | True | Pestell" in text and "UR5" in text  # the rig's citations
     chart(r2, tmp_path / "b.png", "growth")
     assert (tmp_path / "b.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

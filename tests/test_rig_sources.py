@@ -112,8 +112,6 @@ def test_bad_magnitudes_name_the_key(kwargs, pattern):
 def test_unknown_sources_and_presets_are_refused():
     with pytest.raises(ValueError, match=r"unknown rig source 'lens'.*robot"):
         check_sources(["robot", "lens"])
-    with pytest.raises(ValueError, match=r"'load_path' is not modelled yet.*friction"):
-        RigModel().only(["load_path"])
     with pytest.raises(ValueError, match=r"--rig 'perfect' is neither a rig file nor a preset.*"
                                          r"realistic"):
         load_rig("perfect")

@@ -86,8 +86,9 @@ def report(r2: dict[str, dict[str, dict]], rig: RigModel, tips: list[str]) -> st
     lines = ["# The rig's error budget", "",
              f"Tips {', '.join(tips)}; R² is the mean of roll and pitch R² on each test set; "
              "depths relative to the training depth. `ideal`: every source off and nominal tips; "
-             "each source alone at the rig file's magnitude; `all`: the rig file as it is. "
-             "Not modelled: " + "; ".join(f"{k} ({v})" for k, v in NOT_MODELLED.items()) + ".",
+             "each source alone at the rig file's magnitude; `all`: the rig file as it is."
+             + ("" if not NOT_MODELLED else " Not modelled: " + "; ".join(
+                 f"{k} ({v})" for k, v in NOT_MODELLED.items()) + "."),
              ""]
     for feature in FEATURES:
         by_cfg = {c: r2[c][feature] for c in r2}

@@ -64,7 +64,8 @@ def _lerp(a: Pose, b: Pose, t: float) -> Pose:
                 yaw_deg=a.yaw_deg + t * (b.yaw_deg - a.yaw_deg))
 
 
-def path_poses(pose: Pose, *, start: Pose | None = None, steps: int = 10) -> list[Pose]:
+def path_poses(pose: Pose, *, start: Pose | None = None, steps: int = 10,
+               tap_steps: int | None = None) -> list[Pose]:
     """The poses of a load path after each step (the last is ``pose``; the first element of
     the list is the first step's end, first contact itself is not included).
 
@@ -74,13 +75,16 @@ def path_poses(pose: Pose, *, start: Pose | None = None, steps: int = 10) -> lis
     start : ``None`` for a vertical tap to ``pose``; else the pose tapped to first (depth > 0)
         and re-oriented from, in contact, to ``pose``
     steps : steps of the tap and of the re-orientation, each, in [1, 10000]
+    tap_steps : steps of the tap alone, in [1, 10000] (default ``steps``)
 
     Raises
     ------
     LoadPathError
-        ``steps`` out of range, or a depth <= 0 (a path that is not in contact).
+        ``steps`` or ``tap_steps`` out of range, or a depth <= 0 (a path that is not in
+        contact).
     """
     steps = check_steps(steps)
+    taps = steps if tap_steps is None else check_steps(tap_steps, "tap_steps")
     if pose.depth_mm <= 0:
         raise LoadPathError(f"pose depth_mm={pose.depth_mm:g} leaves contact: a load path ends "
                             "in contact, allowed depth_mm > 0")
@@ -89,7 +93,7 @@ def path_poses(pose: Pose, *, start: Pose | None = None, steps: int = 10) -> lis
         raise LoadPathError(f"start depth_mm={first.depth_mm:g} leaves contact: the path "
                             "re-orients in contact, allowed depth_mm > 0")
     touch = Pose(first.roll_deg, first.pitch_deg, 0.0, first.offset_mm, first.yaw_deg)
-    out = [_lerp(touch, first, k / steps) for k in range(1, steps + 1)]
+    out = [_lerp(touch, first, k / taps) for k in range(1, taps + 1)]
     if start is not None:
         out += [_lerp(start, pose, k / steps) for k in range(1, steps + 1)]
     return out
