@@ -16,16 +16,19 @@ from .executor import close_client, open_client
 from .fit import (
     DEFAULT_FEATURE,
     FEATURES,
+    INVARIANT,
     ScoreRow,
     check_feature,
     features,
+    fit_invariant,
     fit_model,
+    invariant_features,
     r2_table_csv,
     r2_table_markdown,
     save_model,
     score,
 )
-from .protocol import evaluation_sets, make_tip, training_set
+from .protocol import evaluation_sets, make_tip, span_training_set, training_set
 from .rig import RigModel
 from .runlog import RunLog
 from .sweep import SweepSpec, run_sweep
@@ -69,6 +72,7 @@ def calibrate(
     feature: str = DEFAULT_FEATURE,
     fidelity: dict | None = None,
     rig: RigModel | None = None,
+    depth_invariant: bool = False,
 ) -> CalibrationResult:
     """Run the reference paper's calibration protocol in simulation (resumable).
 
@@ -80,7 +84,10 @@ def calibrate(
     ``models/<other>/*.json``, charts and ``manifest.json``.
     ``fidelity`` records how the scene's fidelity was chosen (``--fidelity``, or the
     ``--fidelity auto`` choice) in the manifest. ``rig`` adds the data collection's
-    imperfections (:mod:`calibration.rig`; default: an ideal rig).
+    imperfections (:mod:`calibration.rig`; default: an ideal rig). ``depth_invariant`` adds
+    the training grid spread over the test depths (``train_span``) and the depth-invariant
+    model fitted on it (:func:`calibration.fit.fit_invariant`), scored on the same test sets:
+    ``r2_table_invariant.*`` and ``models/invariant/``.
     """
     rig = RigModel() if rig is None else rig
     scene = rig.apply_to_scene(scene)  # relaxed moduli, scaled tolerances (else the same scene)
@@ -98,6 +105,8 @@ def calibrate(
     frames = scene.protocol.frames_per_sample if frames is None else frames
     t_start = time.perf_counter()
     rows: dict[str, list[ScoreRow]] = {f: [] for f in (feature, *others)}
+    if depth_invariant:
+        rows[INVARIANT] = []
     timings: dict[str, float] = {}
     samples = 0
     sample_seconds = 0.0
@@ -105,6 +114,9 @@ def calibrate(
     models_dir.mkdir(exist_ok=True)
     tip_info = {}
     sets = [training_set(scene), *evaluation_sets(scene)]
+    tests = sets[1:]
+    if depth_invariant:
+        sets.append(span_training_set(scene))
     log = RunLog(out / "runs.json", frames, workers=workers, scheduler=scheduler,
                  tips=tips, scene_hash=scene_hash(scene))
     client = open_client(workers, scheduler)  # one cluster for every sweep of the run
@@ -128,10 +140,23 @@ def calibrate(
                     save_model(model, folder / f"tip_{tip}_order{order}.json", feature=feat,
                                fitted_on={"scene_hash": scene_hash(scene), "tip": tip,
                                           "data": f"tip_{tip}/train", "frames": frames})
-                    for pose_set in sets[1:]:
+                    for pose_set in tests:
                         test = features(results[pose_set.name].dataset, feature=feat)
                         rows[feat].append(score(model, test, tip=tip,
                                                 depth_offset_mm=pose_set.depth_offset_mm))
+            if depth_invariant:
+                span = invariant_features(results["train_span"].dataset)
+                folder = models_dir / INVARIANT
+                folder.mkdir(exist_ok=True)
+                for order in ORDERS:
+                    model = fit_invariant(span, order)
+                    save_model(model, folder / f"tip_{tip}_order{order}.json", feature=INVARIANT,
+                               fitted_on={"scene_hash": scene_hash(scene), "tip": tip,
+                                          "data": f"tip_{tip}/train_span", "frames": frames})
+                    for pose_set in tests:
+                        test = invariant_features(results[pose_set.name].dataset)
+                        rows[INVARIANT].append(score(model, test, tip=tip,
+                                                     depth_offset_mm=pose_set.depth_offset_mm))
             timings[f"tip_{tip}_s"] = time.perf_counter() - t_tip
             tip_info[tip] = make_tip(scene, tip).draws
             if charts:
@@ -144,7 +169,7 @@ def calibrate(
         close_client(client)
     atomic_write_text(out / "r2_table.csv", r2_table_csv(rows[feature]))
     atomic_write_text(out / "r2_table.md", r2_table_markdown(rows[feature], feature=feature))
-    for other in others:
+    for other in [*others, *([INVARIANT] if depth_invariant else [])]:
         atomic_write_text(out / f"r2_table_{other}.csv", r2_table_csv(rows[other]))
         atomic_write_text(out / f"r2_table_{other}.md",
                           r2_table_markdown(rows[other], feature=other))
@@ -165,6 +190,7 @@ def calibrate(
         "fidelity": {"preset": preset_of(scene), **(fidelity or {})},
         "feature": feature,
         "rig": rig.record(),
+        "depth_invariant": depth_invariant,
         "seed": scene.protocol.seed,
         "pose_sets": {s.name: len(s) for s in sets},
         "workers": workers,
@@ -180,7 +206,7 @@ def calibrate(
 
         summary_charts(out, rows[feature])
     return CalibrationResult(out, rows[feature], seconds, samples, timings,
-                             {f: rows[f] for f in others})
+                             {f: rows[f] for f in rows if f != feature})
 
 
 def _check_previous(out: Path, feature: str) -> None:

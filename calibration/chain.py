@@ -119,6 +119,9 @@ class Perceived:
     cop_hull : (2,) px, the lab's centre of pressure (cells bounded by the frame's own marker
         hull scaled 1.1, of the frame's detected markers: ``FrameFeatures.cop_hull``), likewise
     spread : RMS spread of the per-frame ``cop_area`` about its mean (px)
+    deformation : mean displacement of the tracked markers against the rest frame (px,
+        ``FrameFeatures.deformation_px``), mean over the frames (how hard the pad is pressed,
+        as the camera sees it)
     n_markers : mean detections per frame
     reliable : frames the pipeline called fully reliable
     points : (m, 2) mean tracked position of each rest-frame marker (NaN if lost in every frame)
@@ -133,6 +136,7 @@ class Perceived:
     reliable: int
     points: np.ndarray
     frame_points: np.ndarray
+    deformation: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -167,8 +171,11 @@ def perceive(pipeline: Any, images: Sequence[np.ndarray]) -> Perceived:
     """
     pipeline.reset()
     cops, cops_growth, cops_hull, counts, pts, reliable = [], [], [], [], [], 0
+    per_frame = []
     for image in images:
         f = pipeline.process(image)
+        if np.isfinite(f.deformation_px):
+            per_frame.append(f.deformation_px)
         counts.append(f.n_detected)
         reliable += int(f.reliable)
         pts.append(f.points)
@@ -190,7 +197,8 @@ def perceive(pipeline: Any, images: Sequence[np.ndarray]) -> Perceived:
         cop_growth=np.mean(cops_growth, axis=0) if cops_growth else nan2,
         cop_hull=np.mean(cops_hull, axis=0) if cops_hull else nan2,
         spread=float(np.sqrt(np.var(cops, axis=0).sum())) if len(cops) > 1 else 0.0,
-        n_markers=float(np.mean(counts)), reliable=reliable, points=points, frame_points=stack)
+        n_markers=float(np.mean(counts)), reliable=reliable, points=points, frame_points=stack,
+        deformation=float(np.mean(per_frame)) if per_frame else float("nan"))
 
 
 class Chain:

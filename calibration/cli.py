@@ -72,8 +72,11 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     rig = load_rig(args.rig) if args.rig else None
     res = calibrate(scene, args.out, tips=tips, frames=args.frames, workers=args.workers, rig=rig,
                     scheduler=args.scheduler, progress=not args.no_progress,
-                    charts=not args.no_charts, feature=args.feature, fidelity=fidelity)
+                    charts=not args.no_charts, feature=args.feature, fidelity=fidelity,
+                    depth_invariant=args.depth_invariant)
     print((Path(args.out) / "r2_table.md").read_text())
+    if args.depth_invariant:
+        print((Path(args.out) / "r2_table_invariant.md").read_text())
     t = res.timings
     print(f"{res.samples} samples computed in {res.seconds:.1f} s"
           + (f" ({t['frames_per_s']:.1f} perceived frames/s end to end)"
@@ -136,6 +139,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a rig file (rigs/*.toml) or preset name ('realistic': every modelled "
                    "source at its cited size; 'pestell_ur5'): the data collection's "
                    "imperfections (docs/rig.md); default: an ideal rig")
+    p.add_argument("--depth-invariant", action="store_true",
+                   help="also sweep the training grid spread over the test depths and fit the "
+                   "depth-invariant model on it (growth CoP + perceived deformation): "
+                   "r2_table_invariant.* (docs/rig.md)")
     _feature_argument(p, "headline CoP feature (all are fitted and reported)")
     _scale_args(p)
     add_tolerance_arguments(p)

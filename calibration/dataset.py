@@ -43,7 +43,7 @@ TARGET_COLUMNS = [
     "roll_deg", "pitch_deg", "depth_mm", "tip", "force_N", "contact_area_mm2",
     "true_cop_x_mm", "true_cop_y_mm", "cop_area_x_px", "cop_area_y_px", "cop_growth_x_px",
     "cop_growth_y_px", "cop_hull_x_px", "cop_hull_y_px", "cop_area_std_px", "n_markers",
-    "reliable_frames", "frames", "contact", "pins_on_window",
+    "reliable_frames", "frames", "contact", "pins_on_window", "deformation_px",
 ]
 
 # Format 1 named the two centres of pressure otherwise; its finished datasets still read.
@@ -53,14 +53,16 @@ FORMAT_1_NAMES = {
     "cop_px": "cop_area_px", "cop_ac_px": "cop_growth_px",
 }
 """Format 1 name -> format 2 name, for columns of ``targets.csv`` and keys of records."""
-FORMAT_2_NEW = {"cop_hull_x_px": "nan", "cop_hull_y_px": "nan", "pins_on_window": "0"}
-"""Columns added in format 2 (the lab's CoP; pins held by the window) and their value when a
-format-1 dataset is read (its FEM let pins pass the window: none was held)."""
+FORMAT_2_NEW = {"cop_hull_x_px": "nan", "cop_hull_y_px": "nan", "pins_on_window": "0",
+                "deformation_px": "nan"}
+"""Columns added in format 2 (the lab's CoP; pins held by the window; the perceived
+deformation) and their value when an older dataset is read (its FEM let pins pass the window:
+none was held; no deformation was recorded)."""
 
 # record fields: scalars and arrays saved per sample
 SCALARS = ("index", "roll_deg", "pitch_deg", "depth_mm", "force_N", "contact_area_mm2",
            "n_markers", "reliable_frames", "frames", "contact", "cop_area_std_px",
-           "pins_on_window")
+           "pins_on_window", "deformation_px")
 VECTORS = ("true_cop_mm", "cop_area_px", "cop_growth_px", "cop_hull_px", "reached_pose")
 ARRAYS = ("markers_mm", "markers_px", "visible")
 
@@ -130,6 +132,7 @@ class SampleRecord:
     frames: int
     contact: int
     pins_on_window: int  # pin tips held by the window (a press deep enough to reach it)
+    deformation_px: float  # mean tracked marker displacement against the rest frame, over frames
     markers_mm: np.ndarray  # (97, 3) ground truth
     markers_px: np.ndarray  # (97, 2) ground truth (analytic projection)
     visible: np.ndarray  # (97,) bool
@@ -146,6 +149,7 @@ class SampleRecord:
             d = {FORMAT_1_NAMES.get(k, k): data[k] for k in data.files}
             d.setdefault("cop_hull_px", np.full(2, np.nan))
             d.setdefault("pins_on_window", np.array(0))
+            d.setdefault("deformation_px", np.array(np.nan))
             d.setdefault("reached_pose", np.array([d["roll_deg"], d["pitch_deg"],
                                                    d["depth_mm"]], dtype=float).ravel())
             kw: dict[str, Any] = {k: d[k].item() for k in SCALARS}
@@ -292,6 +296,7 @@ class Dataset:
                 _f(r.cop_growth_px[0]), _f(r.cop_growth_px[1]), _f(r.cop_hull_px[0]),
                 _f(r.cop_hull_px[1]), _f(r.cop_area_std_px),
                 _f(r.n_markers), r.reliable_frames, r.frames, r.contact, r.pins_on_window,
+                _f(r.deformation_px),
             ])
         atomic_write_text(self.root / "targets.csv", buf.getvalue())
         arrays = {k: np.stack([getattr(r, k) for r in recs]) if recs else np.zeros(0)

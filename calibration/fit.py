@@ -60,6 +60,16 @@ FOLDER_FEATURES = {**FEATURES, **VECTOR_FEATURES}
 """Every feature ``tactip fit`` can fit on a labelled folder."""
 
 
+INVARIANT = "invariant"
+INVARIANT_INPUTS = ("cop_growth_x_px", "cop_growth_y_px", "deformation_px")
+SWEEP_FEATURES = {**FOLDER_FEATURES, INVARIANT:
+                  "the depth-invariant estimate: growth CoP and the perceived deformation (mean "
+                  "marker displacement), fitted on a training grid spread over the test depths "
+                  "(tactip calibrate --depth-invariant; docs/rig.md)"}
+"""Every feature a saved model may name (the invariant one is made and scored by
+``tactip calibrate`` on its sweeps)."""
+
+
 def check_feature(feature: str, *, allowed: dict[str, str] = FEATURES) -> str:
     if feature not in allowed:
         raise ValueError(f"feature={feature!r} is not allowed: one of {', '.join(allowed)}")
@@ -93,6 +103,41 @@ def features(dataset: Dataset | str | Path, *, feature: str = DEFAULT_FEATURE) -
                         (int(res[0]), int(res[1])))
 
 
+def invariant_features(dataset: Dataset | str | Path) -> FeatureTable:
+    """A finished dataset's inputs of the depth-invariant model (:data:`INVARIANT_INPUTS`:
+    the growth CoP and the perceived deformation, ``cop_px`` (n, 3)) with the poses.
+
+    Raises
+    ------
+    DatasetError
+        The dataset records no deformation (made before it was recorded: rerun the sweep).
+    """
+    ds = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
+    t = ds.table()
+    x = np.stack([t[c] for c in INVARIANT_INPUTS], axis=1)
+    if len(x) and not np.isfinite(t["deformation_px"]).any():
+        raise DatasetError(f"{ds.root} records no deformation_px (a dataset made before it was "
+                           "recorded): rerun the sweep into a new folder")
+    angles = np.stack([t["roll_deg"], t["pitch_deg"]], axis=1)
+    ok = np.all(np.isfinite(x), axis=1)
+    res = ds.manifest().get("scene", {}).get("camera", {}).get("resolution", [0, 0])
+    return FeatureTable(x[ok], angles[ok], t["depth_mm"][ok], t["index"][~ok].astype(int),
+                        (int(res[0]), int(res[1])))
+
+
+def fit_invariant(train: FeatureTable, order: int):
+    """The depth-invariant model of ``order``: a :class:`VectorRegressor` on
+    :data:`INVARIANT_INPUTS`, fitted on ``train`` (:func:`invariant_features`)."""
+    from perception.vector_regression import VectorRegressor
+
+    model = VectorRegressor(order, input_names=INVARIANT_INPUTS, image_size=train.image_size)
+    n_coef = len(model.powers_) + 1
+    if len(train.cop_px) < max(3 * (order + 1), n_coef):
+        raise DatasetError(f"only {len(train.cop_px)} usable training samples for an order-"
+                           f"{order} depth-invariant model ({n_coef} coefficients)")
+    return model.fit(train.cop_px, train.angles_deg)
+
+
 def fit_model(train: FeatureTable, order: int, feature: str = DEFAULT_FEATURE):
     """A regressor of ``order`` for ``feature`` (:func:`make_model`) fitted on ``train``."""
     model = make_model(order, feature, train.image_size)
@@ -111,7 +156,7 @@ def save_model(model: Any, path: str | Path, *, feature: str, fitted_on: dict[st
     from .dataset import atomic_write_text
 
     data = model.to_dict()
-    data["fitted_on"] = {"feature": check_feature(feature, allowed=FOLDER_FEATURES),
+    data["fitted_on"] = {"feature": check_feature(feature, allowed=SWEEP_FEATURES),
                          "image_size": list(model.image_size or []), **fitted_on}
     atomic_write_text(Path(path), json.dumps(data, indent=2, default=json_default) + "\n")
 
@@ -200,5 +245,5 @@ def r2_table_markdown(rows: list[ScoreRow], *, feature: str = DEFAULT_FEATURE) -
     n = max((r.n for r in rows), default=0)
     lines.append(f"R² is the mean of the roll and pitch R² on each test set ({n} poses); depths "
                  "are relative to the training depth. Paper: Pestell et al., Table I. "
-                 f"Feature: {FEATURES[check_feature(feature)]}.")
+                 f"Feature: {SWEEP_FEATURES[check_feature(feature, allowed=SWEEP_FEATURES)]}.")
     return "\n".join(lines) + "\n"

@@ -178,7 +178,7 @@ def _check_overwrite(out: Path) -> None:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from .fit import VECTOR_FEATURES, load_any_model
+    from .fit import FOLDER_FEATURES, VECTOR_FEATURES, load_any_model
 
     model, fitted_on = load_any_model(args.model)
     feature = fitted_on.get("feature")
@@ -188,6 +188,10 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.feature == "auto":
         raise ValueError("--feature auto is for tactip fit; evaluate scores the model's feature")
     feature = args.feature or feature
+    if feature is not None and feature not in FOLDER_FEATURES:
+        raise ValueError(f"{args.model} is a {feature!r} model: it is made and scored by "
+                         "tactip calibrate --depth-invariant on its own sweeps (r2_table_"
+                         f"{feature}.csv), not on a folder's frames")
     if feature is None:
         raise ValueError(f"{args.model} does not record its CoP feature (saved by an older "
                          "version): give --feature")

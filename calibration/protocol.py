@@ -49,6 +49,18 @@ def training_set(scene: Scene) -> PoseSet:
     return PoseSet("train", np.stack([rr.ravel(), pp.ravel(), depth], axis=1))
 
 
+def span_training_set(scene: Scene) -> PoseSet:
+    """The training grid with each pose at its own depth, uniform over the test depths'
+    range (``protocol.test_depth_offsets_mm``, seeded): the depth-invariant model's training
+    set (``tactip calibrate --depth-invariant``)."""
+    p = scene.protocol
+    poses = training_set(scene).poses.copy()
+    rng = np.random.default_rng([p.seed, 2000])
+    lo, hi = min(p.test_depth_offsets_mm), max(p.test_depth_offsets_mm)
+    poses[:, 2] = p.training_depth_mm + rng.uniform(lo, hi, len(poses))
+    return PoseSet("train_span", poses)
+
+
 def evaluation_sets(scene: Scene) -> list[PoseSet]:
     """The random test sets, one per ``protocol.test_depth_offsets_mm`` (seeded)."""
     p = scene.protocol

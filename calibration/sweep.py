@@ -121,6 +121,7 @@ def record(index: int, pose: Sequence[float], s: Any, reached: Sequence[float] |
         cop_area_px=p.cop_area, cop_growth_px=p.cop_growth, cop_hull_px=p.cop_hull,
         cop_area_std_px=p.spread,
         n_markers=p.n_markers, reliable_frames=p.reliable, frames=len(r.images),
+        deformation_px=float(p.deformation),
         contact=int(bool(state.in_contact)), pins_on_window=int(state.pins_on_window),
         reached_pose=np.asarray(pose if reached is None else reached, dtype=float),
         markers_mm=np.asarray(state.markers_mm),

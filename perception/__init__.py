@@ -70,7 +70,9 @@ from .voronoi import ClippedVoronoi, cell_growth, voronoi_areas, voronoi_cells
 #: datasets record it, and a sweep refuses to resume on features of another version.
 #: 2 (2026-11-22): the Voronoi circumcentres and clipping compiled (cell areas change at the
 #: 1e-15 relative level; marker positions are unchanged).
-RESULTS_VERSION = 2
+#: 3 (2026-11-25): each sample also records its deformation (mean tracked marker displacement
+#: against the rest frame, px), the depth-invariant model's third input.
+RESULTS_VERSION = 3
 
 __all__ = [
     "COP_WEIGHTINGS",
