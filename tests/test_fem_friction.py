@@ -156,6 +156,27 @@ def test_path_dependence(fingertip):
     assert diffs[0.5] > 1e-3
 
 
+def test_a_step_that_does_not_move_keeps_the_state(fingertip):
+    """Known answer: a re-orientation step of zero motion ends where the tap ended. Before the
+    fix, nodes on the friction cone with no slip flipped between stick and slip on round-off
+    and the iteration never converged."""
+    pose = ts.Pose(6, -2, 1.0)
+    tap = fingertip.press_path(pose, steps=4, friction=0.5)[-1]
+    still = fingertip.press_path(pose, start=pose, steps=1, tap_steps=4, friction=0.5)[-1]
+    assert np.abs(still.markers_mm - tap.markers_mm).max() < 1e-6
+    assert still.force_N == pytest.approx(tap.force_N, rel=1e-5)
+
+
+def test_a_small_lift_stays_in_contact(fingertip):
+    """Lifting the plate by 0.1 um, far less than the pad's 1 mm indentation, keeps the contact
+    (before the fix the step's first working set came from penetrations alone, found none,
+    and the path was said to leave contact) and unloads it a little."""
+    start, end = ts.Pose(6, -2, 1.0), ts.Pose(6, -2, 0.9999)
+    tap = fingertip.press_path(start, steps=4, friction=0.5)[-1]
+    lifted = fingertip.press_path(end, start=start, steps=1, tap_steps=4, friction=0.5)[-1]
+    assert lifted.in_contact and 0.99 * tap.force_N < lifted.force_N < tap.force_N
+
+
 def test_bad_input(fingertip):
     pose = ts.Pose(0, 0, 1.0)
     with pytest.raises(ValueError, match=r"friction=-0\.1 is out of range: allowed \[0, 10\]"):

@@ -189,6 +189,11 @@ def coulomb_active_set(w_loc: np.ndarray, g0: np.ndarray, target: np.ndarray, mu
         z_norm = np.linalg.norm(z, axis=1)
         new = np.where(p_t > 0, np.where((mu > 0) & (z_norm <= mu * p_t), STICK, SLIP), OPEN)
         pmax = max(float(np.max(lam[:, 0], initial=0.0)), 1e-300)
+        if it > 1 and _natural_residual(lam, p_t, z, z_norm, mu) <= DIRECTION_RTOL * pmax:
+            # the iterate solves the law, whatever the labels say: nodes exactly on the
+            # friction cone with no slip (a step that barely moves) flip between stick and
+            # slip on round-off and the sets would never repeat
+            return lam, disp, new, it - 1
         if it > 1 and np.array_equal(new, st):
             sl = st == SLIP
             resid = np.linalg.norm(lam[sl, 1:] - mu * lam[sl, :1] * z[sl]
@@ -251,6 +256,18 @@ def coulomb_active_set(w_loc: np.ndarray, g0: np.ndarray, target: np.ndarray, mu
                        f"{MAX_ITER} iterations")
 
 
+def _natural_residual(lam: np.ndarray, p_t: np.ndarray, z: np.ndarray, z_norm: np.ndarray,
+                      mu: float) -> float:
+    """The largest violation of the contact and Coulomb laws by forces ``lam``: normal
+    ``p - max(0, p - c_n g)`` and tangential ``q - proj(q - c_t s)`` onto the disc of radius
+    ``mu max(0, p - c_n g)`` (zero exactly at a solution; Alart-Curnier's functions)."""
+    p_plus = np.maximum(p_t, 0.0)
+    scale = np.minimum(1.0, mu * p_plus / np.maximum(z_norm, 1e-300))
+    r_q = np.linalg.norm(lam[:, 1:] - z * scale[:, None], axis=1)
+    return float(max(np.max(np.abs(lam[:, 0] - p_plus), initial=0.0),
+                     np.max(r_q, initial=0.0)))
+
+
 def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: ComplianceOperator, *,
                    mu: float, history: FrictionHistory, label: str = "",
                    tol: Tolerances = TOL) -> FrictionSolution:
@@ -304,7 +321,10 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
         geo += 1
         g, nu = placement.gap(rest_mm + u)
         g0 = g - np.einsum("ij,ij->i", nu, u)
-        keep = work[status != OPEN] if work.size else work
+        # the last step's contact nodes seed the first working set: a step that barely moves
+        # (or lifts the indenter by less than the pad's deformation) leaves gaps of round-off
+        # size there, which the penetration test alone would miss
+        keep = work[status != OPEN] if work.size else history.nodes
         seed = np.union1d(np.flatnonzero(g < 0.0), keep)
         old = dict(zip(work.tolist(), lam, strict=True))
         work = seed
@@ -323,6 +343,11 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
             w_loc = np.einsum("iap,iajb,jbq->ipjq", frames, c4, frames,
                               optimize=True).reshape(3 * w, 3 * w)
             lam0 = np.array([old.get(i, (0.0, 0.0, 0.0)) for i in work.tolist()])
+            if not old and history.nodes.size:  # the first solve starts from the last step's
+                # forces (the answer of a step that does not move), in the nodes' frames
+                prev = dict(zip(history.nodes.tolist(), history.forces, strict=True))
+                f0 = np.array([prev.get(i, (0.0, 0.0, 0.0)) for i in work.tolist()])
+                lam0 = np.einsum("iab,ia->ib", frames, f0)
             lam, disp, status, it = coulomb_active_set(
                 w_loc, g0[work], target, mu, forces=lam0.reshape(-1, 3), tol=tol, label=label)
             iterations += it
