@@ -211,7 +211,7 @@ def fuzz_scenes(res: Result, rng: np.random.Generator, n: int, tmp: Path) -> Non
     import dataclasses
 
     import tactip_sim as ts
-    from tactip_sim.scene import SceneError, scene_hash, scene_to_dict
+    from tactip_sim.scene import SceneError, defaults_notice, scene_hash, scene_to_dict
     from tactip_sim.scene.names import SAFE_NAME
 
     base = scene_to_dict(ts.load_scene(SCENE))
@@ -220,6 +220,10 @@ def fuzz_scenes(res: Result, rng: np.random.Generator, n: int, tmp: Path) -> Non
     def check(kind: str) -> Callable[[], str]:
         def run() -> str:
             scene = ts.load_scene(path)
+            # silent if a file cut short loads as another scene and nothing says so
+            if (kind == "truncate" and scene_to_dict(scene) != base
+                    and not defaults_notice(path)):
+                return "SILENT a file cut short loaded with defaults and no notice"
             # silent if any value is outside its key's declared range
             for section in dataclasses.fields(scene):
                 if section.name == "source":

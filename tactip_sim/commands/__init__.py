@@ -4,6 +4,9 @@ The top layer of ``tactip_sim`` (scene -> geometry -> mesh -> fem -> optics -> r
 simulator -> commands): it may import every layer below it and the package facade, and nothing
 below imports it. It is the only place of ``tactip_sim`` that prints.
 
+* :mod:`.launch`: the program's entry point (the console script, ``python -m``): Ctrl-C at
+  any moment of a run ends it with one line; so this package imports nothing at its top
+  (the names below load on first use);
 * :mod:`.cli`: ``tactip`` itself (:func:`main`, :func:`build_parser`) and the ``scene``,
   ``mesh`` and ``cache`` commands;
 * :mod:`.args`: the scene arguments shared by every scene-reading command (also used by the
@@ -12,21 +15,29 @@ below imports it. It is the only place of ``tactip_sim`` that prints.
 * :mod:`.validate_lens`: ``tactip validate-lens`` with its charts and Markdown report.
 """
 
-from .args import (
-    DEFAULT_SCENE,
-    add_scene_argument,
-    load_scene_args,
-    parse_overrides,
-    with_overrides,
-)
-from .cli import build_parser, main
+from importlib import import_module
 
-__all__ = [
-    "DEFAULT_SCENE",
-    "add_scene_argument",
-    "build_parser",
-    "load_scene_args",
-    "main",
-    "parse_overrides",
-    "with_overrides",
-]
+_LAZY = {
+    "DEFAULT_SCENE": ".args",
+    "add_scene_argument": ".args",
+    "load_scene_args": ".args",
+    "parse_overrides": ".args",
+    "with_overrides": ".args",
+    "build_parser": ".cli",
+    "main": ".cli",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
+
+__all__ = sorted(_LAZY)

@@ -1,7 +1,8 @@
-"""``python -m tactip_sim.commands ...`` runs ``tactip ...``."""
+"""``python -m tactip_sim.commands ...`` runs ``tactip ...`` (through the same entry point as
+the console script, :func:`.launch.main`)."""
 
 import sys
 
-from .cli import main
+from .launch import main
 
 sys.exit(main())

@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from ..scene import Scene, SceneError, apply_preset, load_scene, replace_in
+from ..scene import Scene, SceneError, apply_preset, defaults_notice, load_scene, replace_in
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "shadow_fingertip.toml"
 
@@ -51,10 +52,15 @@ def add_scene_argument(p: argparse.ArgumentParser, *, optional: bool = False,
 
 def load_scene_args(args: argparse.Namespace) -> Scene:
     """The scene of a command's arguments: the file, then ``--fidelity``, then ``--set``
-    overrides on top."""
+    overrides on top. A file that leaves keys at their defaults without ending in ``[end]``
+    (as a file cut short does) gets a one-line notice on stderr naming it and the keys."""
     overrides = parse_overrides(args.overrides)
     scene = load_scene(args.scene, overrides)
     name = getattr(args, "fidelity", None)
+    notice = defaults_notice(args.scene, overrides,
+                             name if name is not None and name in scene.presets else None)
+    if notice:
+        print(f"tactip: note: {notice}", file=sys.stderr)
     if name is None:
         return scene
     if name == "auto":

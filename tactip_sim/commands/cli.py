@@ -19,6 +19,7 @@ from importlib.metadata import entry_points
 
 from ..scene import SceneError
 from .args import add_scene_argument, load_scene_args
+from .launch import caused_by_interrupt
 
 _OWN_COMMANDS = ("press", "render", "validate_lens")
 """Modules of this floor with ``register(subparsers)``, in the order of ``tactip --help``;
@@ -120,7 +121,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``tactip`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code: 0, 1
     (an error, printed), 2 (a scene error, printed), 130 (interrupted: Ctrl-C) or 143
-    (terminated: SIGTERM, handled as an interrupt so temporary files are removed)."""
+    (terminated: SIGTERM, handled as an interrupt so temporary files are removed).
+
+    For in-process callers; the program itself starts in :func:`.launch.main`, which also
+    covers a Ctrl-C while this module loads and while Python exits."""
     # loading the subcommands imports their packages; some libraries import their optional
     # parts under `except BaseException` (trimesh), which swallowed a Ctrl-C: the command then
     # ran to the end. So a Ctrl-C here is held until the imports are done.
@@ -129,6 +133,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if held:
         print("\ntactip: interrupted before the command started", file=sys.stderr)
         return 130
+    return run(parser, argv)
+
+
+def run(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv`` with ``parser`` (from :func:`build_parser`) and run the command; returns
+    its exit code as :func:`main` does."""
     args = parser.parse_args(argv)
     with _sigterm_interrupts() as terminated:
         return _run(args, terminated)
@@ -145,22 +155,12 @@ def _run(args: argparse.Namespace, terminated: list[int]) -> int:
         return 1
     except (KeyboardInterrupt, SystemError) as exc:
         # a Ctrl-C inside a compiled kernel (numba) surfaces as a SystemError caused by it
-        if isinstance(exc, SystemError) and not _caused_by_interrupt(exc):
+        if isinstance(exc, SystemError) and not caused_by_interrupt(exc):
             raise
         # every finished sample and file is already on disk (written atomically)
         print(f"\ntactip {args.command}: interrupted; what was finished is kept, and running "
               "the same command again continues from there", file=sys.stderr)
         return 143 if terminated else 130  # 128 + SIGTERM / SIGINT, as a shell reports it
-
-
-def _caused_by_interrupt(exc: BaseException) -> bool:
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return False
 
 
 @contextlib.contextmanager

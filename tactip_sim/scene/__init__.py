@@ -4,6 +4,7 @@ from ._spec import SceneError, Spec
 from .load import (
     apply_overrides,
     apply_preset,
+    defaults_notice,
     load_scene,
     preset_of,
     replace_in,
@@ -25,6 +26,7 @@ __all__ = [
     "SceneError",
     "Spec",
     "apply_overrides",
+    "defaults_notice",
     "load_scene",
     "replace_in",
     "scene_from_dict",

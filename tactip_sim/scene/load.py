@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import re
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
@@ -39,12 +40,15 @@ def scene_from_dict(data: Mapping[str, Any], *, source: str = "") -> Scene:
     """
     if not isinstance(data, Mapping):
         raise SceneError(f"a scene must be a table, got {type(data).__name__}")
-    unknown = sorted(set(data) - set(SECTIONS) - {"name", "presets"})
+    unknown = sorted(set(data) - set(SECTIONS) - {"name", "presets", END})
     if unknown:
         raise SceneError(
             f"unknown section or key {unknown[0]!r}; allowed sections: {', '.join(SECTIONS)}, "
-            "presets"
+            f"presets (and an empty [{END}] as the last line)"
         )
+    if END in data and data[END] != {}:
+        raise SceneError(f"[{END}] marks the end of a scene file and holds no keys; got "
+                         f"{data[END]!r}")
     name = data.get("name", Path(source).stem if source else "scene")
     if not isinstance(name, str) or not name:
         raise SceneError(f"name={name!r} must be a non-empty string")
@@ -66,17 +70,38 @@ def load_scene(path: str | Path, overrides: Mapping[str, Any] | None = None) -> 
     Raises
     ------
     SceneError
-        The file is missing, is not valid TOML, or a value is out of its allowed range.
+        The file is missing, is not valid TOML, has an ``[end]`` line that is not its last, or
+        a value is out of its allowed range.
+
+    Keys the file does not set take their defaults, silently here: :func:`defaults_notice`
+    says which (``tactip`` prints it), since a file cut at a line boundary is still valid TOML.
     """
     path = Path(path)
+    data, _, _ = _read_scene_file(path)
+    if overrides:
+        data = apply_overrides(data, overrides)
+    return scene_from_dict(data, source=str(path.resolve()))
+
+
+END = "end"
+"""The end marker: an empty ``[end]`` table as a scene file's last line (comments and blank
+lines aside). A file that ends so is whole: the keys it leaves out are meant to default."""
+
+_END_LINE = re.compile(r"\[\s*end\s*\]\s*(#.*)?")
+_HEADER = re.compile(r"\[\[?\s*([\w.\-\"' ]+?)\s*\]\]?\s*(#.*)?")
+
+
+def _read_scene_file(path: Path) -> tuple[dict[str, Any], bool, bool]:
+    """The parsed table of a scene file, whether it ends with the ``[end]`` line and whether
+    its last table is a preset's (``[presets.NAME...]``)."""
     if path.is_dir():
         raise SceneError(f"scene file {str(path)!r} is a folder: give a .toml scene file, "
                          "e.g. scenes/shadow_fingertip.toml")
     if not path.is_file():
         raise SceneError(f"scene file {str(path)!r} does not exist")
     try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
+        text = path.read_bytes().decode("utf-8")
+        data = tomllib.loads(text)
     except UnicodeDecodeError as exc:
         raise SceneError(f"scene file {str(path)!r} is not a text (TOML) file: byte "
                          f"{exc.start} is not UTF-8 (an image or a binary file?)") from None
@@ -87,9 +112,76 @@ def load_scene(path: str | Path, overrides: Mapping[str, Any] | None = None) -> 
     if not data:
         raise SceneError(f"scene file {str(path)!r} holds no settings (an empty file?): give a "
                          "scene, e.g. scenes/shadow_fingertip.toml")
+    significant = [s for s in (line.strip() for line in text.splitlines())
+                   if s and not s.startswith("#")]
+    ends = bool(significant) and _END_LINE.fullmatch(significant[-1]) is not None
+    if END in data and not ends:
+        raise SceneError(f"scene file {str(path)!r}: [{END}] must be its last line (comments "
+                         "and blank lines aside): it marks where the file ends, so that a file "
+                         "cut short is told apart from one that leaves keys at their defaults")
+    headers = [m.group(1) for m in map(_HEADER.fullmatch, significant) if m]
+    in_presets = bool(headers) and headers[-1].split(".")[0].strip("\"' ") == "presets"
+    return data, ends, in_presets
+
+
+def unset_keys(data: Mapping[str, Any]) -> dict[str, tuple[str, ...]]:
+    """The schema keys a scene table does not set, by section (only sections with any): the
+    keys that take their defaults. The keys of :data:`_OMIT_AT_DEFAULT` (added after scene
+    files were written, and absent from :func:`scene_to_toml` at their defaults) are optional
+    and not listed."""
+    out = {}
+    for section, cls in SECTIONS.items():
+        table = data.get(section)
+        table = table if isinstance(table, Mapping) else {}
+        missing = tuple(f.name for f in dataclasses.fields(cls)
+                        if f.name not in table and (section, f.name) not in _OMIT_AT_DEFAULT)
+        if missing:
+            out[section] = missing
+    return out
+
+
+def defaults_notice(path: str | Path, overrides: Mapping[str, Any] | None = None,
+                    preset: str | None = None) -> str:
+    """A one-line notice naming the file and the keys it leaves at their defaults, or ``""``
+    when it sets them all or ends with the ``[end]`` line.
+
+    A scene file cut at a line boundary is valid TOML and loads; the keys it lost take their
+    defaults. A deliberately short file looks the same to a parser, so a file without ``[end]``
+    that leaves keys out is reported (not refused). ``overrides`` (``--set``) and the keys of
+    the fidelity ``preset`` applied to it count as set. A file that sets every key but ends in
+    preset tables is reported too: a cut there loses preset settings, which have no defaults
+    to compare with.
+    """
+    path = Path(path)
+    data, ends, in_presets = _read_scene_file(path)
+    if ends:
+        return ""
     if overrides:
         data = apply_overrides(data, overrides)
-    return scene_from_dict(data, source=str(path.resolve()))
+    gaps = unset_keys(data)
+    if preset is not None:
+        scene = scene_from_dict(data, source=str(path.resolve()))
+        for section, kv in scene.presets.get(preset, {}).items():
+            left = tuple(k for k in gaps.get(section, ()) if k not in kv)
+            gaps.pop(section, None)
+            if left:
+                gaps[section] = left
+    if not gaps:
+        if in_presets:
+            return (f"scene file {str(path)!r} ends in a preset table and has no [{END}] line: "
+                    "a file cut short there would lose preset settings unseen; end the file "
+                    f"with the line [{END}]")
+        return ""
+    whole = [s for s, keys in gaps.items() if not isinstance(data.get(s), Mapping)]
+    keys = [f"{s}.{k}" for s, ks in gaps.items() if s not in whole for k in ks]
+    n = sum(len(ks) for ks in gaps.values())
+    parts = ", ".join(keys)
+    if whole:
+        parts += (" and " if keys else "") + ("the sections " if len(whole) > 1 else
+                                              "the section ") + ", ".join(f"[{s}]" for s in whole)
+    return (f"scene file {str(path)!r} leaves {n} key{'s' if n > 1 else ''} at their defaults: "
+            f"{parts} (a file cut short reads the same; if the defaults are meant, end the file "
+            f"with the line [{END}])")
 
 
 def apply_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
@@ -186,9 +278,11 @@ def _default_of(section: str, key: str) -> Any:
 
 
 def scene_to_toml(scene: Scene) -> str:
+    """The scene as a TOML scene file, ending with the ``[end]`` line: it is whole, and a copy
+    cut short is reported (:func:`defaults_notice`)."""
     import tomli_w
 
-    return tomli_w.dumps(scene_to_dict(scene))
+    return tomli_w.dumps(scene_to_dict(scene)) + f"\n[{END}]\n"
 
 
 def scene_hash(scene: Scene, sections: tuple[str, ...] | None = None) -> str:

@@ -1,0 +1,125 @@
+"""``tactip``'s entry point: the console script and ``python -m tactip_sim.commands`` call
+:func:`main`, the first code of a ``tactip`` run.
+
+A Ctrl-C may come at any moment of a run and must end it with one line and exit status 130,
+never a traceback: while the modules load (0.5-3 s: numpy, scipy, trimesh, the subcommands),
+while the command runs (:func:`tactip_sim.commands.cli.run` handles it there) and while Python
+shuts down after the command. So this module imports only ``signal``, ``os``, ``sys`` and
+``atexit``, and the packages above it (``tactip_sim``, ``tactip_sim.commands``) import nothing
+at their top: :func:`main` takes over SIGINT ~2 ms after Python's own start-up ends. What comes
+before (the interpreter's start-up and ``site``) runs no code of the tool; docs/robustness.md
+("Ctrl-C at any moment of a run") gives the measured widths.
+
+:func:`main` changes the process's SIGINT handling for good (it owns the process): in-process
+callers (tests, scripts) use :func:`tactip_sim.commands.main` instead.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import signal
+import sys
+
+INTERRUPTED = 130
+"""The exit status of an interrupted run: 128 + SIGINT, as a shell reports it."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``tactip`` with ``argv`` (default: ``sys.argv[1:]``) as the program; returns its exit
+    status (see :func:`tactip_sim.commands.cli.main`; 130 if interrupted at any point)."""
+    held: list[int] = []
+    owned = False
+    try:
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            atexit.register(_quiet_end)  # registered first, so it runs after every other one
+            # from here until the command starts, a Ctrl-C is recorded, not raised: some
+            # libraries import their optional parts under `except BaseException` (trimesh),
+            # which swallowed it, and an import cut short leaves half-loaded modules
+            try:
+                signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+                owned = True
+            except ValueError:  # not the main thread: leave SIGINT alone
+                pass
+        if not owned:  # SIGINT ignored by whoever started us (nohup, `cmd &`), or a thread
+            from .cli import main as run
+
+            return run(argv)
+        try:
+            from . import cli
+
+            parser = cli.build_parser()
+        finally:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+        if held:
+            return _interrupted("before the command started")
+        return cli.run(parser, argv)
+    except KeyboardInterrupt:  # between the steps above, or a command without its own handling
+        if not owned and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            owned = True  # the Ctrl-C came before the handler above was in place
+        return _interrupted("", owned)
+    except SystemError as exc:
+        # a Ctrl-C inside a compiled kernel (numba) surfaces as a SystemError caused by it
+        if not caused_by_interrupt(exc):
+            raise
+        return _interrupted("", owned)
+    finally:
+        if owned:
+            _guard_exit()
+
+
+def caused_by_interrupt(exc: BaseException | None) -> bool:
+    """Whether ``exc`` is a KeyboardInterrupt or was raised while handling one (its chain)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def _interrupted(when: str, owned: bool = True) -> int:
+    if owned:
+        _guard_exit()  # a second Ctrl-C while this prints ends the process at once, quietly
+    print(f"\ntactip: interrupted{' ' + when if when else ''}", file=sys.stderr)
+    return INTERRUPTED
+
+
+def _guard_exit() -> None:
+    """From here to the process's end (Python joins threads and runs its exit handlers, which
+    a library's may make slow), a Ctrl-C ends the process at once with one line and status 130:
+    the command has returned, so every file it wrote is complete. Python's default handler
+    would raise KeyboardInterrupt inside those exit handlers: a traceback."""
+    if signal.getsignal(signal.SIGINT) is _stop_now:
+        return
+    try:
+        signal.signal(signal.SIGINT, _stop_now)
+    except ValueError:  # not the main thread
+        pass
+    except KeyboardInterrupt:
+        # Python runs a pending Ctrl-C's handler before it changes the handler: that one
+        _stop_now(signal.SIGINT, None)
+
+
+def _stop_now(signum: int, frame: object) -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # noqa: BLE001 - interrupted mid-write: keep what was written
+            pass
+    try:
+        os.write(2, b"\ntactip: interrupted while exiting (the command had ended)\n")
+    finally:
+        os._exit(INTERRUPTED)
+
+
+def _quiet_end() -> None:
+    """The last exit handler: Python is done with the tool's code and only flushes and frees
+    from here, which a Ctrl-C would cut short (Python's handler is gone by then: the process
+    would be killed by the signal). So it is ignored for those last milliseconds and the run
+    keeps its exit status."""
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except KeyboardInterrupt:  # pending, run by the handler in place first
+        _stop_now(signal.SIGINT, None)
