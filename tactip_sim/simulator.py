@@ -269,8 +269,10 @@ class Simulator:
         progress : called with the number of steps done after each
         tap_steps : steps of the tap alone, in [1, 10000] (default ``steps``)
 
-        Each state's ``seconds`` is the time of its own step. The pins are not stopped at the
-        window on this path (``window_forces_N`` is NaN).
+        Each state's ``seconds`` is the time of its own step. The pins stop at the window as
+        in :meth:`press` for a flat indenter on the reduced model
+        (:func:`~tactip_sim.fem.window.friction_with_window`); otherwise they are not stopped
+        (``window_forces_N`` is NaN).
 
         Raises
         ------
@@ -302,24 +304,28 @@ class Simulator:
             if progress is not None:
                 progress(k)
 
+        # pins stop at the window as in press (a flat indenter on the reduced model)
+        window = solver == "reduced" and bool(getattr(indenter, "flat", False))
         with single_threaded_blas():
             sols = run_path(poses, placer, self._cand_rest, op, mu=mu, tol=self.tol,
-                            progress=step_done)
+                            progress=step_done,
+                            markers=self.body.markers if window else None)
             out = []
             for k, (p, fs) in enumerate(zip(poses, sols, strict=True)):
                 # each state's ``seconds``: its own step's solve plus its markers
                 t0 = time.perf_counter() - (stamps[k + 1] - stamps[k])
                 sol = fs.contact
                 if solver == "reduced":
-                    markers, dirs = self.body.markers.from_values(
-                        op.marker_values(sol.active, sol.forces))
+                    values = fs.values if fs.values is not None else \
+                        op.marker_values(sol.active, sol.forces)
+                    markers, dirs = self.body.markers.from_values(values)
                     u = None
                 else:
                     u = op.field(sol.active, sol.forces)
                     markers, dirs = self.body.markers.from_field(u)
+                held = fs.window if fs.window is not None else np.full(len(markers), np.nan)
                 out.append(self._state(p, indenter, solver, sol, markers, dirs, u,
-                                       sol.iterations, t0,
-                                       np.full(len(markers), np.nan) * 1000.0))
+                                       sol.iterations, t0, held))
         return out
 
     def rest_state(self) -> ContactState:

@@ -177,6 +177,22 @@ def test_a_small_lift_stays_in_contact(fingertip):
     assert lifted.in_contact and 0.99 * tap.force_N < lifted.force_N < tap.force_N
 
 
+def test_pins_stop_at_the_window_along_a_path(fingertip):
+    """A deep re-orientation whose pins reach the window: without friction it ends where the
+    press (which stops them, fem/window.py) does, whatever the path; with friction no tip
+    ends below the window's inner face (z = 0) and the window holds some of them."""
+    pose, start = ts.Pose(16, -11, 2.1), ts.Pose(0, -4, 2.1)
+    pressed = fingertip.press(pose)
+    assert pressed.pins_on_window > 0  # the pose is deep enough to test the window
+    free = fingertip.press_path(pose, start=start, steps=2, tap_steps=2, friction=0.0)[-1]
+    assert np.abs(free.markers_mm - pressed.markers_mm).max() < 1e-3
+    assert free.pins_on_window == pressed.pins_on_window
+    assert free.force_N == pytest.approx(pressed.force_N, rel=1e-4)
+    rough = fingertip.press_path(pose, start=start, steps=2, tap_steps=2, friction=0.5)[-1]
+    assert rough.markers_mm[:, 2].min() > -1e-6 and rough.tips_below_window == 0
+    assert rough.pins_on_window > 0 and np.isfinite(rough.window_forces_N).all()
+
+
 def test_bad_input(fingertip):
     pose = ts.Pose(0, 0, 1.0)
     with pytest.raises(ValueError, match=r"friction=-0\.1 is out of range: allowed \[0, 10\]"):

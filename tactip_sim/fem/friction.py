@@ -69,11 +69,17 @@ class FrictionHistory:
     placement : the indenter at the end of the step (the next step starts from it)
     nodes : (k,) int, candidates carrying force
     forces : (k, 3) mN, force of the indenter on the pad at each, sensor frame
+    extra_mm : (s, 3) mm or None, the candidates' displacement from other forces at the end
+        of the step (the window's push on the pins, :func:`~.window.friction_with_window`)
+    window_generalised : (6 p,) or None, those other forces as generalised forces on the
+        marker values (the next step starts its pin-window iteration from them)
     """
 
     placement: Placement
     nodes: np.ndarray
     forces: np.ndarray
+    extra_mm: np.ndarray | None = None
+    window_generalised: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         nodes = np.ascontiguousarray(self.nodes, dtype=np.int64)
@@ -91,9 +97,12 @@ class FrictionHistory:
     def displacements(self, operator: ComplianceOperator, nodes: np.ndarray) -> np.ndarray:
         """(r, 3) mm: displacements of candidates ``nodes`` under these forces."""
         nodes = np.asarray(nodes, dtype=np.int64)
-        if self.nodes.size == 0 or nodes.size == 0:
-            return np.zeros((len(nodes), 3))
-        return (operator.block(nodes, self.nodes) @ self.forces.ravel()).reshape(-1, 3)
+        out = np.zeros((len(nodes), 3))
+        if self.nodes.size and nodes.size:
+            out = (operator.block(nodes, self.nodes) @ self.forces.ravel()).reshape(-1, 3)
+        if self.extra_mm is not None and nodes.size:
+            out = out + self.extra_mm[nodes]
+        return out
 
     def anchors_mm(self, operator: ComplianceOperator, rest_mm: np.ndarray) -> np.ndarray:
         """(k, 3) mm: the contact nodes' positions in the indenter's local frame (where each
@@ -112,6 +121,9 @@ class FrictionSolution:
     slip_mm : (k,) mm, magnitude of each active candidate's slip over the step
     tangential : (k, 3) mN, tangential parts of the forces
     history : the state for the next step
+    window : (p,) mN, the window's force on each pin tip, or None (the window not modelled:
+        :func:`~.window.friction_with_window` sets it)
+    values : (6 p,) the marker values with the window's forces, or None
     """
 
     contact: ContactSolution
@@ -119,6 +131,8 @@ class FrictionSolution:
     slip_mm: np.ndarray
     tangential: np.ndarray
     history: FrictionHistory
+    window: np.ndarray | None = None
+    values: np.ndarray | None = None
 
 
 def tangent_frames(normals: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -270,7 +284,8 @@ def _natural_residual(lam: np.ndarray, p_t: np.ndarray, z: np.ndarray, z_norm: n
 
 def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: ComplianceOperator, *,
                    mu: float, history: FrictionHistory, label: str = "",
-                   tol: Tolerances = TOL) -> FrictionSolution:
+                   tol: Tolerances = TOL, extra: np.ndarray | None = None,
+                   guess: tuple[np.ndarray, np.ndarray] | None = None) -> FrictionSolution:
     """One load step with Coulomb friction, from ``history`` to ``placement``.
 
     Parameters
@@ -282,6 +297,10 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     history : the state at the start of the step (:meth:`FrictionHistory.at_rest` to start)
     label : named in error messages (the pose)
     tol : tolerances
+    extra : (s, 3) mm, optional: the candidates' displacement from other, given forces (the
+        window's on the pins), added to ``C f`` in every gap and slip
+    guess : optional (nodes, forces (k, 3) mN): where the iteration starts (default: the last
+        step's contact nodes and forces); the answer does not depend on it
 
     Raises
     ------
@@ -295,6 +314,9 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     s = len(rest_mm)
     everyone = np.arange(s)
     g_rest, _ = placement.gap(rest_mm)
+    ext = np.zeros((s, 3)) if extra is None else np.asarray(extra, dtype=np.float64)
+    # the far-field test of spread_forces, made safe for the extra displacement
+    g_reach = g_rest - np.linalg.norm(ext, axis=1)
     flat = bool(getattr(placement.indenter, "flat", False))
     reference = placement.rotation[:, 0]
     # the linearisation point: the last step's displacements near the contact
@@ -302,6 +324,7 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     u = np.zeros((s, 3))
     u[near0] = history.displacements(operator, near0)
     u0_cache: dict[int, np.ndarray] = {}
+    start_nodes, start_forces = (history.nodes, history.forces) if guess is None else guess
 
     def start_of_step(nodes: np.ndarray) -> np.ndarray:
         missing = np.array([i for i in nodes if int(i) not in u0_cache], dtype=np.int64)
@@ -320,11 +343,11 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     for _ in range(tol.geometry_max_iter):
         geo += 1
         g, nu = placement.gap(rest_mm + u)
-        g0 = g - np.einsum("ij,ij->i", nu, u)
+        g0 = g - np.einsum("ij,ij->i", nu, u - ext)  # the gap under the extra part alone
         # the last step's contact nodes seed the first working set: a step that barely moves
         # (or lifts the indenter by less than the pad's deformation) leaves gaps of round-off
         # size there, which the penetration test alone would miss
-        keep = work[status != OPEN] if work.size else history.nodes
+        keep = work[status != OPEN] if work.size else start_nodes
         seed = np.union1d(np.flatnonzero(g < 0.0), keep)
         old = dict(zip(work.tolist(), lam, strict=True))
         work = seed
@@ -338,14 +361,15 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
             frames = tangent_frames(nu[work], reference)
             x0 = rest_mm[work] + start_of_step(work)
             y_move = indenter_motion(history.placement, placement, x0)
-            target = np.einsum("iab,ia->ib", frames[:, :, 1:], start_of_step(work) + y_move)
+            target = np.einsum("iab,ia->ib", frames[:, :, 1:],
+                               start_of_step(work) + y_move - ext[work])
             c4 = cw.reshape(w, 3, w, 3)
             w_loc = np.einsum("iap,iajb,jbq->ipjq", frames, c4, frames,
                               optimize=True).reshape(3 * w, 3 * w)
             lam0 = np.array([old.get(i, (0.0, 0.0, 0.0)) for i in work.tolist()])
-            if not old and history.nodes.size:  # the first solve starts from the last step's
-                # forces (the answer of a step that does not move), in the nodes' frames
-                prev = dict(zip(history.nodes.tolist(), history.forces, strict=True))
+            if not old and len(start_nodes):  # the first solve starts from the guess (by
+                # default the last step's forces: the answer of a step that does not move)
+                prev = dict(zip(np.asarray(start_nodes).tolist(), start_forces, strict=True))
                 f0 = np.array([prev.get(i, (0.0, 0.0, 0.0)) for i in work.tolist()])
                 lam0 = np.einsum("iab,ia->ib", frames, f0)
             lam, disp, status, it = coulomb_active_set(
@@ -355,15 +379,16 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
             f_glob = np.einsum("iab,ib->ia", frames, lam)
             on = status != OPEN
             f_act = f_glob[on].ravel()
-            near, extra = spread_forces(operator, cw, work, on, f_act,
-                                        np.linalg.norm(f_glob[on], axis=1), everyone, g_rest,
-                                        g0, nu, u_new, tol)
-            if extra.size == 0:
+            near, more = spread_forces(operator, cw, work, on, f_act,
+                                       np.linalg.norm(f_glob[on], axis=1), everyone, g_reach,
+                                       g0, nu, u_new, tol)
+            if more.size == 0:
                 break
             old = dict(zip(work.tolist(), lam, strict=True))
-            cross = operator.block(work, extra)
-            cw = np.block([[cw, cross], [cross.T, operator.block(extra, extra)]])
-            work = np.concatenate([work, extra])
+            cross = operator.block(work, more)
+            cw = np.block([[cw, cross], [cross.T, operator.block(more, more)]])
+            work = np.concatenate([work, more])
+        u_new[near] += ext[near]
         change = float(np.abs(u_new[near] - u[near]).max(initial=0.0))
         u[:] = 0.0
         u[near] = u_new[near]
@@ -375,7 +400,7 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     active = work[on]
     forces = np.einsum("iab,ib->ia", frames[on], lam[on]) if work.size else np.zeros((0, 3))
     pressures = lam[on, 0] if work.size else np.zeros(0)
-    surface = operator.surface(active, forces)
+    surface = operator.surface(active, forces) + ext
     surface[near] = u[near]
     known = ~np.isnan(surface[:, 0])
     gap = np.empty(s)
@@ -389,7 +414,8 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     return FrictionSolution(
         contact=contact, stick=(status[on] == STICK) if work.size else np.zeros(0, bool),
         slip_mm=np.linalg.norm(slip[on], axis=1) if work.size else np.zeros(0),
-        tangential=tang, history=FrictionHistory(placement, active, forces))
+        tangential=tang, history=FrictionHistory(placement, active, forces,
+                                                  None if extra is None else ext))
 
 
 def _dofs(nodes: np.ndarray) -> np.ndarray:

@@ -24,8 +24,10 @@ import numpy as np
 from .contact import ComplianceOperator
 from .friction import FrictionHistory, FrictionSolution, solve_friction
 from .indenters import Placement
+from .markers import Markers
 from .pose import Pose
 from .tolerances import TOL, Tolerances
+from .window import friction_with_window
 
 MAX_STEPS = 10_000
 MAX_FRICTION = 10.0  # the scene key's range ([indenter] friction_coefficient)
@@ -101,7 +103,8 @@ def path_poses(pose: Pose, *, start: Pose | None = None, steps: int = 10,
 
 def run_path(poses: list[Pose], placer: Callable[[Pose], Placement], rest_mm: np.ndarray,
              operator: ComplianceOperator, *, mu: float, tol: Tolerances = TOL,
-             progress: Callable[[int], None] | None = None) -> list[FrictionSolution]:
+             progress: Callable[[int], None] | None = None,
+             markers: Markers | None = None) -> list[FrictionSolution]:
     """Solve the steps of a load path (from :func:`path_poses`) in order.
 
     The first step starts from the pad at rest with the indenter just touching at the first
@@ -115,6 +118,8 @@ def run_path(poses: list[Pose], placer: Callable[[Pose], Placement], rest_mm: np
     operator : their compliance
     mu : friction coefficient in [0, 10]
     progress : called with the number of steps done after each
+    markers : the pins, to stop them at the window (:func:`~.window.friction_with_window`;
+        needs the reduced model's marker compliance); None: the window is not modelled
 
     Raises
     ------
@@ -131,8 +136,13 @@ def run_path(poses: list[Pose], placer: Callable[[Pose], Placement], rest_mm: np
         placer(Pose(p0.roll_deg, p0.pitch_deg, 0.0, p0.offset_mm, p0.yaw_deg)))
     out: list[FrictionSolution] = []
     for k, pose in enumerate(poses):
-        sol = solve_friction(placer(pose), rest_mm, operator, mu=mu, history=history,
-                             label=f"{pose} (step {k + 1} of {len(poses)})", tol=tol)
+        label = f"{pose} (step {k + 1} of {len(poses)})"
+        if markers is None:
+            sol = solve_friction(placer(pose), rest_mm, operator, mu=mu, history=history,
+                                 label=label, tol=tol)
+        else:
+            sol = friction_with_window(operator, markers, placer(pose), rest_mm, mu=mu,
+                                       history=history, label=label, tol=tol)
         if k > 0 and sol.contact.active.size == 0:
             raise LoadPathError(f"the load path leaves contact at step {k + 1} ({pose}): "
                                 "every step after the first must keep depth_mm > 0 in contact")

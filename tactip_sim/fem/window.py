@@ -25,6 +25,8 @@ until every tip's exact height is at or above the window (to :data:`WINDOW_TOL_M
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from .contact import ContactError, ContactSolution, solve_lcp
@@ -75,7 +77,8 @@ def window_generalised_forces(markers: Markers, values: np.ndarray, window: np.n
 
 
 def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
-                   sol: ContactSolution, *, label: str = "", tol: Tolerances = TOL
+                   sol: ContactSolution, *, label: str = "", tol: Tolerances = TOL,
+                   load: tuple[np.ndarray, np.ndarray] | None = None
                    ) -> tuple[ContactSolution, np.ndarray, np.ndarray]:
     """Correct a flat indenter's contact solution for tips that reach the window.
 
@@ -86,6 +89,9 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
     placement : the placed flat indenter (:class:`~.indenters.Placement`)
     rest_mm : (s, 3) candidate rest positions
     sol : the indenter-only solution
+    load : optional (nodes (k,), forces (k, 3) mN) held on candidates besides the plate's
+        pressures and the window's forces (friction's tangential forces,
+        :func:`friction_with_window`)
 
     Returns
     -------
@@ -99,6 +105,12 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
         The model has no marker compliance, or the sets did not settle.
     """
     values = model.marker_values(sol.active, sol.forces)
+    s = len(rest_mm)
+    v_load, u_load = np.zeros_like(values), np.zeros((s, 3))
+    if load is not None and len(load[0]):
+        v_load = model.marker_values(load[0], load[1])
+        values = values + v_load
+        u_load = (model.block(np.arange(s), load[0]) @ np.ravel(load[1])).reshape(s, 3)
     p = markers.count
     jac = tip_jacobian(markers, np.zeros(6 * p))  # the rods' linearised kinematics
     z_rest = markers.rest_mm[:, 2] - WINDOW_Z_MM
@@ -113,7 +125,7 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
                            "marker compliance to stop them")
     g_rest, nu = placement.gap(rest_mm)
     n = np.asarray(nu[0], dtype=np.float64)  # a flat indenter: one normal
-    s = len(rest_mm)
+    g_rest = g_rest + u_load @ n  # the held load's part of the gaps
     resp_t = model.marker_response_t  # (3 s, 6 p)
     mq = model.marker_compliance  # (6 p, 6 p)
     all_nodes = np.arange(s)
@@ -133,13 +145,14 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
         big = np.block([[model.normal_block(work, work, n), h_all[work]],
                         [h_all[work].T, gen.T @ mq @ gen]])
         z_k = markers.from_values(v_k)[0][pins, 2] - WINDOW_Z_MM
-        z0 = z_k - np.einsum("kj,kj->k", jac_k[pins], v_k.reshape(p, 6)[pins])
+        # (the held load's part of the values is a constant, not a column of the LCP)
+        z0 = z_k - np.einsum("kj,kj->k", jac_k[pins], (v_k - v_load).reshape(p, 6)[pins])
         start = np.concatenate([np.isin(work, start_work), np.isin(pins, start_pins)])
         x, _, it = solve_lcp(big, np.concatenate([g_rest[work], z0]), active=start, tol=tol)
         iterations += it
         pw, q = x[: len(work)], x[len(work):]
         start_work, start_pins = work[pw > 0], pins[q > 0]
-        v = model.marker_values(work, pw[:, None] * n) + mq @ (gen @ q)
+        v = model.marker_values(work, pw[:, None] * n) + mq @ (gen @ q) + v_load
         act = work[pw > 0]
         gap = g_rest + model.normal_block(all_nodes, act, n) @ pw[pw > 0] + h_all @ q
         return v, pw, q, gap, gen
@@ -188,7 +201,7 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
     on = pw > 0
     active, pressures = work[on], pw[on]
     forces = pressures[:, None] * n
-    u = model.surface(active, forces, at=active) + (resp_t @ (gen @ q)).reshape(s, 3)
+    u = model.surface(active, forces, at=active) + (resp_t @ (gen @ q)).reshape(s, 3) + u_load
     window = np.zeros(p)
     window[pins] = q
     comp = float(max(np.max(np.abs(pressures * gap[active]), initial=0.0),
@@ -210,3 +223,71 @@ def _anderson(values: list[np.ndarray], residuals: list[np.ndarray]) -> np.ndarr
     dv = np.stack([values[k + 1] - values[k] for k in range(len(values) - 1)], axis=1)
     gamma = np.linalg.lstsq(dr, residuals[-1], rcond=None)[0]
     return values[-1] + residuals[-1] - (dv + dr) @ gamma
+
+
+WINDOW_RTOL = 1e-6
+"""The alternation stops when the window's forces repeat to this fraction of the largest (the
+tips themselves are exact to 1e-6 mm in every round: :func:`stop_at_window`)."""
+_STAGGER_ROUNDS = 60
+"""Rounds of the plate-with-friction / pins-on-the-window alternation (block Gauss-Seidel on
+the pad's symmetric compliance; a few rounds when a few pins touch)."""
+
+
+def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray, *,
+                         mu: float, history, label: str = "", tol: Tolerances = TOL):
+    """One load step with Coulomb friction (:func:`~.friction.solve_friction`) whose pins
+    stop at the window. Two solves alternate: (a) the plate's contact with friction under the
+    window's push on the pins (an extra displacement of the candidates, ``R' J' q``); (b) the
+    pins against the window together with the plate's pressures (:func:`stop_at_window`:
+    the strong coupling, through the skin, is solved at once), friction's tangential forces
+    from (a) held. They stop when the window's forces repeat to :data:`WINDOW_RTOL` of the
+    largest (Anderson-mixed); (b) leaves no tip below the window by more than 1e-6 mm.
+
+    Returns
+    -------
+    solution : the :class:`~.friction.FrictionSolution` with ``window`` (p,) mN, the window's
+        force on each tip, and ``values`` (6 p,), the marker values; its history carries the
+        window's displacement of the candidates and its generalised forces to the next step
+    """
+    from .friction import FrictionHistory, solve_friction
+
+    resp_t = model.marker_response_t
+    s = len(rest_mm)
+    guess = None
+    gen = history.window_generalised
+    plate_normal = np.asarray(placement.gap(rest_mm[:1])[1][0], dtype=np.float64)
+    q = None
+    hist_q: list[np.ndarray] = []
+    hist_r: list[np.ndarray] = []
+    for _ in range(_STAGGER_ROUNDS):
+        extra = None if gen is None or not gen.any() else (resp_t @ gen).reshape(s, 3)
+        fs = solve_friction(placement, rest_mm, model, mu=mu, history=history, label=label,
+                            tol=tol, extra=extra, guess=guess)
+        guess = (fs.contact.active, fs.contact.forces)  # the next round starts from here
+        sol = fs.contact
+        # the pins against the window and the plate's pressures together (the strong,
+        # normal coupling through the skin), friction's tangential forces held
+        normal = dataclasses.replace(sol, forces=sol.pressures[:, None] * plate_normal)
+        _, q_new, values = stop_at_window(model, markers, placement, rest_mm, normal,
+                                          label=label, tol=tol,
+                                          load=(sol.active, fs.tangential))
+        scale = max(float(np.abs(q_new).max(initial=0.0)), 1e-300)
+        same = q is not None and np.abs(q_new - q).max(initial=0.0) <= WINDOW_RTOL * scale
+        if (not q_new.any() and (gen is None or not gen.any())) or same:
+            h = fs.history
+            held = FrictionHistory(h.placement, h.nodes, h.forces, extra,
+                                   window_generalised_forces(markers, values, q_new)
+                                   if q_new.any() else None)
+            return dataclasses.replace(fs, history=held, window=q_new, values=values)
+        # the alternation contracts linearly (by ~0.8 per round when a pin is held firmly):
+        # Anderson mixing of the window forces, restarted when the held pins change
+        q_old = np.zeros_like(q_new) if q is None else q
+        if hist_q and not np.array_equal(q_new > 0, hist_q[-1] + hist_r[-1] > 0):
+            hist_q, hist_r = [], []
+        hist_q.append(q_old)
+        hist_r.append(q_new - q_old)
+        q = np.maximum(_anderson(hist_q, hist_r), 0.0)
+        del hist_q[:-_ANDERSON_DEPTH], hist_r[:-_ANDERSON_DEPTH]
+        gen = window_generalised_forces(markers, values, q)
+    raise ContactError(f"{label or 'contact'}: friction and the pins' window contact did not "
+                       f"settle in {_STAGGER_ROUNDS} rounds")
