@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import tactip_sim as ts
@@ -17,6 +18,7 @@ from .fit import (
     DEFAULT_FEATURE,
     FEATURES,
     INVARIANT,
+    FeatureTable,
     ScoreRow,
     check_feature,
     features,
@@ -131,32 +133,20 @@ def calibrate(
                 results[pose_set.name] = res
                 samples += res.computed
                 sample_seconds += res.sample_seconds
+            stamp = {"scene_hash": scene_hash(scene), "tip": tip, "frames": frames}
             for feat in (feature, *others):
-                train = features(results["train"].dataset, feature=feat)
-                folder = models_dir if feat == feature else models_dir / feat
-                folder.mkdir(exist_ok=True)
-                for order in ORDERS:
-                    model = fit_model(train, order)
-                    save_model(model, folder / f"tip_{tip}_order{order}.json", feature=feat,
-                               fitted_on={"scene_hash": scene_hash(scene), "tip": tip,
-                                          "data": f"tip_{tip}/train", "frames": frames})
-                    for pose_set in tests:
-                        test = features(results[pose_set.name].dataset, feature=feat)
-                        rows[feat].append(score(model, test, tip=tip,
-                                                depth_offset_mm=pose_set.depth_offset_mm))
+                table = partial(features, feature=feat)
+                _fit_and_score(rows[feat], models_dir if feat == feature else models_dir / feat,
+                               tip, table(results["train"].dataset),
+                               _test_tables(results, tests, table),
+                               partial(fit_model, feature=feat), feat,
+                               {**stamp, "data": f"tip_{tip}/train"})
             if depth_invariant:
-                span = invariant_features(results["train_span"].dataset)
-                folder = models_dir / INVARIANT
-                folder.mkdir(exist_ok=True)
-                for order in ORDERS:
-                    model = fit_invariant(span, order)
-                    save_model(model, folder / f"tip_{tip}_order{order}.json", feature=INVARIANT,
-                               fitted_on={"scene_hash": scene_hash(scene), "tip": tip,
-                                          "data": f"tip_{tip}/train_span", "frames": frames})
-                    for pose_set in tests:
-                        test = invariant_features(results[pose_set.name].dataset)
-                        rows[INVARIANT].append(score(model, test, tip=tip,
-                                                     depth_offset_mm=pose_set.depth_offset_mm))
+                _fit_and_score(rows[INVARIANT], models_dir / INVARIANT, tip,
+                               invariant_features(results["train_span"].dataset),
+                               _test_tables(results, tests, invariant_features),
+                               fit_invariant, INVARIANT,
+                               {**stamp, "data": f"tip_{tip}/train_span"})
             timings[f"tip_{tip}_s"] = time.perf_counter() - t_tip
             tip_info[tip] = make_tip(scene, tip).draws
             if charts:
@@ -207,6 +197,26 @@ def calibrate(
         summary_charts(out, rows[feature])
     return CalibrationResult(out, rows[feature], seconds, samples, timings,
                              {f: rows[f] for f in rows if f != feature})
+
+
+def _test_tables(results: dict, tests: list, table: Callable
+                 ) -> list[tuple[float, FeatureTable]]:
+    """Each test set's feature table (``table(dataset)``) with its depth offset."""
+    return [(ps.depth_offset_mm, table(results[ps.name].dataset)) for ps in tests]
+
+
+def _fit_and_score(rows: list[ScoreRow], folder: Path, tip: str, train: FeatureTable,
+                   tests: list[tuple[float, FeatureTable]], fit: Callable, feature: str,
+                   fitted_on: dict) -> None:
+    """Fit every order of ``ORDERS`` on ``train`` with ``fit(train, order)``, save each model
+    in ``folder`` and append its score on each (depth offset, test table) to ``rows``."""
+    folder.mkdir(exist_ok=True)
+    for order in ORDERS:
+        model = fit(train, order)
+        save_model(model, folder / f"tip_{tip}_order{order}.json", feature=feature,
+                   fitted_on=fitted_on)
+        for offset, test in tests:
+            rows.append(score(model, test, tip=tip, depth_offset_mm=offset))
 
 
 def _check_previous(out: Path, feature: str) -> None:

@@ -15,7 +15,7 @@ below imports it. It is the only place of ``tactip_sim`` that prints.
 * :mod:`.validate_lens`: ``tactip validate-lens`` with its charts and Markdown report.
 """
 
-from importlib import import_module
+from tactip_sim._lazy import lazy_attributes
 
 _LAZY = {
     "DEFAULT_SCENE": ".args",
@@ -28,16 +28,6 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
-
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY, globals())
 
 __all__ = sorted(_LAZY)
