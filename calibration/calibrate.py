@@ -195,6 +195,10 @@ def calibrate(
         from .report import summary_charts
 
         summary_charts(out, rows[feature])
+        if depth_invariant:
+            from .report import invariant_chart
+
+            invariant_chart(out, rows[feature], rows[INVARIANT])
     return CalibrationResult(out, rows[feature], seconds, samples, timings,
                              {f: rows[f] for f in rows if f != feature})
 

@@ -115,3 +115,38 @@ def summary_charts(out: Path, rows: list[ScoreRow]) -> None:
     (out / "charts").mkdir(exist_ok=True)
     fig.savefig(out / "charts" / "r2_vs_paper.png", dpi=110)
     plt.close(fig)
+
+
+def invariant_chart(out: Path, paper_style: list[ScoreRow], invariant: list[ScoreRow], *,
+                    order: int = 2) -> None:
+    """Order-``order`` R² per tip and test depth: the paper's model (trained at one depth on
+    the headline CoP) beside the depth-invariant one, and the paper's Table I."""
+    plt = _plt()
+    tips = sorted({r.tip for r in invariant})
+    depths = sorted({r.depth_mm for r in invariant})
+    fig, axes = plt.subplots(1, len(tips), figsize=(4.2 * len(tips), 3.8), squeeze=False,
+                             sharey=True)
+    x = np.arange(len(depths))
+    for a, tip in enumerate(tips):
+        ax = axes[0, a]
+        for k, (rows, name) in enumerate(((paper_style, "one-depth CoP model"),
+                                          (invariant, "depth-invariant"))):
+            by = {(r.tip, r.order, r.depth_mm): r.r2 for r in rows}
+            vals = [by.get((tip, order, d), np.nan) for d in depths]
+            ax.bar(x + 0.4 * k, np.clip(vals, 0, 1), 0.4, label=name)
+        paper = PAPER_R2.get((tip, order))
+        if paper is not None:
+            ax.scatter(x + 0.2, [paper[PAPER_DEPTHS.index(d)] if d in PAPER_DEPTHS else np.nan
+                                 for d in depths], marker="_", s=500, color="k",
+                       label="paper (Table I)", zorder=3)
+        ax.set_xticks(x + 0.2, [f"{d:+.1f} mm" for d in depths])
+        ax.set_title(f"tip {tip}, order {order}")
+        ax.set_ylim(0.5, 1.0)
+        ax.set_xlabel("test depth offset")
+        if a == 0:
+            ax.set_ylabel("R² (mean of roll, pitch)")
+            ax.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    (out / "charts").mkdir(exist_ok=True)
+    fig.savefig(out / "charts" / "invariant_vs_paper.png", dpi=110)
+    plt.close(fig)
