@@ -297,25 +297,41 @@ class Chain:
             self._press_cache[key] = out
         return out
 
-    def press_path(self, pose: Sequence[float], start: Sequence[float], *, friction: float,
-                   step_deg: float, tap_steps: int) -> tuple[Any, float]:
-        """FEM contact at ``pose`` (roll°, pitch°, depth mm) reached the rig's way with
-        Coulomb friction ``friction``: a vertical tap to ``start`` in ``tap_steps`` steps, then
-        re-oriented in contact to ``pose`` in steps of at most ``step_deg`` of roll or pitch
-        (:meth:`tactip_sim.Simulator.press_path`). The last step's state and the seconds the
-        path took (not cached: the state depends on ``start``). ``start == pose``: the tap
-        alone."""
-        end, first = (ts.Pose(*(float(v) for v in p)) for p in (pose, start))
-        turn = max(abs(end.roll_deg - first.roll_deg), abs(end.pitch_deg - first.pitch_deg))
-        steps = max(1, int(np.ceil(turn / step_deg - 1e-9)))
+    def path_sweep(self, visits: Sequence[tuple[int, Sequence[float]]], *, friction: float,
+                   step_deg: float, tap_steps: int, pivot: str = "tip",
+                   progress: Any = None) -> dict[int, tuple[Any, float]]:
+        """FEM contact along the rig's load path: the plate tapped to the first visited pose
+        (``tap_steps`` steps), then kept in contact and turned from each pose to the next in
+        steps of at most ``step_deg`` of roll or pitch, roll, pitch and depth interpolated,
+        with Coulomb friction ``friction``. ``visits``: (index, (roll°, pitch°, depth mm)) in
+        the order the rig visits them. ``pivot``: ``"tip"``, the robot turns the sensor about
+        the pad's tip (its tool centre point); ``"contact"``, the plate's point at the first
+        contact follows the contact (a turn about the centre of curvature). Returns each
+        index's state and the seconds its move took. Sequential: each pose's state depends on
+        every move before it (with the tip as pivot the skin near it never slips, so the
+        friction state is not forgotten)."""
+        from tactip_sim.fem.loadpath import interpolate, path_poses
+
         sim = self.sim
-        t0 = time.perf_counter()
-        if first == end:  # no turn: a tap (a step that moves nothing would be a null step)
-            states = sim.press_path(end, steps=tap_steps, friction=friction)
-        else:
-            states = sim.press_path(end, start=first, steps=steps, tap_steps=tap_steps,
-                                    friction=friction)
-        return states[-1], time.perf_counter() - t0
+        kw = {"pivot_mm": sim.tip_mm} if pivot == "tip" else {}
+        out: dict[int, tuple[Any, float]] = {}
+        history, before = None, None
+        for k, (index, pose) in enumerate(visits):
+            end = ts.Pose(*(float(v) for v in pose))
+            if before is None:
+                poses = path_poses(end, steps=tap_steps)
+            else:
+                turn = max(abs(end.roll_deg - before.roll_deg),
+                           abs(end.pitch_deg - before.pitch_deg))
+                n = max(1, int(np.ceil(turn / step_deg - 1e-9)))
+                poses = [interpolate(before, end, j / n) for j in range(1, n + 1)]
+            t0 = time.perf_counter()
+            states, history = sim.continue_path(poses, history, friction=friction, **kw)
+            out[int(index)] = (states[-1], time.perf_counter() - t0)
+            before = end
+            if progress is not None:
+                progress(k + 1)
+        return out
 
     def radiance(self, state: Any, rng: np.random.Generator, *, renderer: Any = None
                  ) -> np.ndarray:

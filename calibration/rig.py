@@ -35,20 +35,20 @@ Modelled:
   per sample, on the radiance before the sensor noise (the arm still moving while exposed);
 * **manufacturing variation** (``manufacturing_scale``): the scene's ``[tolerances]`` scaled
   (1: as the scene says, the default; 0: every tip the nominal design);
-* **the load path** (``load_path``, ``friction_coefficient``, ``path_step_deg``): the paper's
-  rig kept the pad on the plate and re-oriented it in contact, so each pose is reached from the
-  previous one with Coulomb friction between plate and skin: a tap to the previous pose
-  (:data:`TAP_STEPS` steps), then roll, pitch and depth turned to this pose in steps of at most
-  ``path_step_deg`` (:meth:`calibration.chain.Chain.press_path`). Only the last move is
-  solved: the friction state left by earlier moves is wiped out by the slip of the last one
-  (measured: a chain of three moves and the last move alone end 0.0002 mm apart; tested).
-  The pins are not stopped at the window along a path (the friction solve has no window
-  contact; :attr:`~tactip_sim.fem.state.ContactState.tips_below_window` tells).
+* **the load path** (``load_path``, ``friction_coefficient``, ``path_step_deg``,
+  ``path_pivot``): the paper's rig kept the pad on the plate and re-oriented it in contact,
+  so each pose is reached from the previous one with Coulomb friction between plate and skin:
+  a tap to the first pose of a set (:data:`TAP_STEPS` steps), then roll, pitch and depth
+  turned from each pose to the next in steps of at most ``path_step_deg``, about
+  ``path_pivot`` (:data:`PIVOTS`), the whole set walked in its visiting order
+  (:meth:`calibration.chain.Chain.path_sweep`): turned about the pad's tip, the skin near it
+  never slips and the friction state of earlier moves persists (measured; tested), so no
+  move can be solved alone. The pins stop at the window along the path.
 
 The visiting order (``random_order``): the paper sampled its grid "randomly", so with
 ``random_order`` each sweep visits its poses in a seeded random order (:meth:`RigModel.order`),
-which decides the previous pose that hysteresis and the load path start from; otherwise the
-poses are visited as listed.
+which decides the order of the load path's walk and the previous pose hysteresis lags
+towards; otherwise the poses are visited as listed.
 """
 
 from __future__ import annotations
@@ -84,6 +84,11 @@ _MORE = {
     "path_step_deg": ((1e-3, 10.0), 1.0),
 }
 _SWITCHES = ("relaxation", "hysteresis", "load_path", "random_order")
+PIVOTS = ("tip", "contact")
+"""Where the robot turns the sensor along a load path (``path_pivot``): about the pad's tip
+(the tool centre point of the lab's robot code), or with the plate's point at the first
+contact following the contact (a turn about the pad's centre of curvature; drags the skin
+the most)."""
 TAP_STEPS = 4
 """Steps of the tap to the previous pose that a load path starts with (its friction state is
 wiped out by the re-orientation's slip; the tap only seeds it)."""
@@ -141,6 +146,7 @@ class RigModel:
     friction_coefficient: float = 0.0
     path_step_deg: float = 1.0
     random_order: bool = False
+    path_pivot: str = "tip"
 
     def __post_init__(self) -> None:
         ranges = {**_RANGES, **{k: r for k, (r, _) in _MORE.items()}}
@@ -150,6 +156,9 @@ class RigModel:
                     or not lo <= v <= hi:
                 raise ValueError(f"rig.{key}={v!r} is out of range: allowed [{lo:g}, {hi:g}]")
             object.__setattr__(self, key, float(v))
+        if self.path_pivot not in PIVOTS:
+            raise ValueError(f"rig.path_pivot={self.path_pivot!r} is not allowed: one of "
+                             f"{', '.join(repr(p) for p in PIVOTS)}")
         if self.jpeg_quality != int(self.jpeg_quality):
             raise ValueError(f"rig.jpeg_quality={self.jpeg_quality!r} must be a whole number "
                              "in [0, 100] (0: no compression)")
@@ -277,7 +286,7 @@ class RigModel:
         rig = cls(**table, sources=tuple(sorted((str(k), str(v)) for k, v in sources.items())))
         cited = dict(rig.sources)
         defaults = cls()
-        missing = [k for k in (*_RANGES, *_MORE, *_SWITCHES, *_PRONY)
+        missing = [k for k in (*_RANGES, *_MORE, *_SWITCHES, *_PRONY, "path_pivot")
                    if getattr(rig, k) != getattr(defaults, k) and getattr(rig, k)
                    and not cited.get(k)]
         if missing:
@@ -291,7 +300,7 @@ class RigModel:
         d = asdict(self)
         d["sources"] = dict(self.sources)
         defaults = asdict(RigModel())
-        for key in (*_MORE, *_SWITCHES, *_PRONY):
+        for key in (*_MORE, *_SWITCHES, *_PRONY, "path_pivot"):
             if d[key] == defaults[key]:
                 del d[key]
             elif isinstance(d[key], tuple):
@@ -407,5 +416,6 @@ def find_zero(chain: Any, step_mm: float, *, max_depth_mm: float = 2.0) -> float
                      f"(threshold {on:.2f} px)")
 
 
-__all__ = ["NOT_MODELLED", "SOURCES", "RigModel", "blur_kernel", "check_sources", "find_zero",
+__all__ = ["NOT_MODELLED", "PIVOTS", "SOURCES", "RigModel", "blur_kernel", "check_sources",
+           "find_zero",
            "jpeg_roundtrip", "load_rig", "motion_blur"]

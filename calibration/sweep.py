@@ -245,6 +245,30 @@ def _press(spec: SweepSpec, chain: Chain, pose: Sequence[float]) -> tuple[Any, f
     return out
 
 
+_PATHS: dict[str, dict[int, tuple[Any, float]]] = {}
+
+
+def _path_states(spec: SweepSpec, chain: Chain) -> dict[int, tuple[Any, float]]:
+    """Every sample's state along the rig's load path (:meth:`Chain.path_sweep`), the whole
+    pose set in its visiting order, once per process and pose set: each state depends on
+    every move before it, so a worker (or a resumed run) walks the set from its start. The
+    poses reached are :meth:`RigModel.perturb`'s, drawn as :func:`run_chunk` draws them."""
+    key = spec.chain_key() + spec.poses.name + poses_digest(spec.poses.poses)
+    if key not in _PATHS:
+        _PATHS.clear()
+        rig, seed = spec.rig, spec.scene.protocol.seed
+        zero = rig_zero(spec, chain)
+        visits = []
+        for i in rig.order(seed, spec.tip, spec.poses.name, len(spec.poses)):
+            rng = rig.rng(seed, spec.tip, spec.poses.name, int(i))
+            reached, _ = rig.perturb(spec.poses.poses[int(i)], rng, zero_offset_mm=zero)
+            visits.append((int(i), reached))
+        _PATHS[key] = chain.path_sweep(visits, friction=rig.friction_coefficient,
+                                       step_deg=rig.path_step_deg, tap_steps=TAP_STEPS,
+                                       pivot=rig.path_pivot)
+    return _PATHS[key]
+
+
 def rig_sample(spec: SweepSpec, chain: Chain, index: int, reached: Sequence[float],
                gain: float, rng: np.random.Generator) -> Any:
     """One sample through the chain with the rig's further sources (:mod:`calibration.rig`):
@@ -260,7 +284,7 @@ def rig_sample(spec: SweepSpec, chain: Chain, index: int, reached: Sequence[floa
     angle = float(rng.uniform(0.0, np.pi))  # drawn after perturb's, so those stay the same
     previous = prev_pose = None
     h = rig.hysteresis_fraction()
-    if h > 0 or rig.friction_path:
+    if h > 0:
         before = rig.previous(spec.scene.protocol.seed, spec.tip, spec.poses.name,
                               len(spec.poses), index)
         if before is not None:
@@ -268,11 +292,8 @@ def rig_sample(spec: SweepSpec, chain: Chain, index: int, reached: Sequence[floa
             prev_pose = (float(p[0]), float(p[1]), float(p[2]) + rig_zero(spec, chain))
     if h > 0 and prev_pose is not None:
         previous, _ = _press(spec, chain, prev_pose)
-    if rig.friction_path:  # the first pose of a sweep: a tap straight to it
-        state, physics_s = chain.press_path(
-            reached, reached if prev_pose is None else prev_pose,
-            friction=rig.friction_coefficient, step_deg=rig.path_step_deg,
-            tap_steps=TAP_STEPS)
+    if rig.friction_path:
+        state, physics_s = _path_states(spec, chain)[index]
     else:
         state, physics_s = _press(spec, chain, reached)
     if previous is not None:

@@ -24,8 +24,9 @@ import numpy as np
 import trimesh
 
 from .fem.contact import ContactSolution, solve_contact
+from .fem.friction import FrictionHistory
 from .fem.full import FullOperator
-from .fem.indenters import Indenter, indenter_from_scene, place
+from .fem.indenters import Indenter, Plate, indenter_from_scene, place
 from .fem.model import ElasticBody
 from .fem.pose import Pose
 from .fem.reduced import ReducedModel
@@ -251,8 +252,8 @@ class Simulator:
 
     def press_path(self, pose: Pose, indenter: Indenter | None = None, *,
                    start: Pose | None = None, steps: int = 10, friction: float | None = None,
-                   solver: str | None = None, progress=None, tap_steps: int | None = None
-                   ) -> list[ContactState]:
+                   solver: str | None = None, progress=None, tap_steps: int | None = None,
+                   pivot_mm=None) -> list[ContactState]:
         """Press along a load path with Coulomb friction; one state per step, the last at
         ``pose`` (:mod:`~tactip_sim.fem.loadpath`, :mod:`~tactip_sim.fem.friction`).
 
@@ -268,6 +269,10 @@ class Simulator:
         solver : "reduced" or "full" (default: the simulator's; not "neo_hookean")
         progress : called with the number of steps done after each
         tap_steps : steps of the tap alone, in [1, 10000] (default ``steps``)
+        pivot_mm : (3,) the robot's tool centre point in the sensor frame (a flat plate
+            only): the plate's point under it stays under it along the path
+            (:func:`~tactip_sim.fem.loadpath.about_pivot`); default: the plate's point at
+            the first contact follows the contact
 
         Each state's ``seconds`` is the time of its own step. The pins stop at the window as
         in :meth:`press` for a flat indenter on the reduced model
@@ -280,7 +285,21 @@ class Simulator:
             ``friction`` or ``steps`` out of range, a depth <= 0, the path leaves contact, or
             the neo-Hookean solver.
         """
-        from .fem.loadpath import check_friction, path_poses, run_path
+        from .fem.loadpath import path_poses
+
+        poses = path_poses(pose, start=start, steps=steps, tap_steps=tap_steps)
+        return self.continue_path(poses, friction=friction, indenter=indenter, solver=solver,
+                                  progress=progress, pivot_mm=pivot_mm)[0]
+
+    def continue_path(self, poses: list[Pose], history=None, *, friction: float | None = None,
+                      indenter: Indenter | None = None, solver: str | None = None,
+                      progress=None, pivot_mm=None
+                      ) -> tuple[list[ContactState], FrictionHistory]:
+        """The steps ``poses`` of a load path with Coulomb friction, from ``history`` (the
+        ``FrictionHistory`` an earlier call returned: the path goes on in contact) or from the
+        pad at rest (a first contact at ``poses[0]``'s orientation). One state per step and the
+        history at the end. The other parameters are :meth:`press_path`'s."""
+        from .fem.loadpath import about_pivot, check_friction, run_path
 
         indenter = self.indenter if indenter is None else indenter
         solver = self.solver if solver is None else _check_solver(solver)
@@ -290,12 +309,12 @@ class Simulator:
         mu = check_friction(self.scene.indenter.friction_coefficient if friction is None
                             else friction, "friction" if friction is not None
                             else "indenter.friction_coefficient")
-        poses = path_poses(pose, start=start, steps=steps, tap_steps=tap_steps)
         op = self.reduced if solver == "reduced" else FullOperator(self.body)
         sk = self.body.skin_thickness_mm
 
         def placer(p: Pose):
-            return place(indenter, p, self._cand_rest, skin_thickness_mm=sk)
+            placement = place(indenter, p, self._cand_rest, skin_thickness_mm=sk)
+            return placement if pivot_mm is None else about_pivot(placement, pivot_mm)
 
         stamps = [time.perf_counter()]
 
@@ -309,7 +328,7 @@ class Simulator:
         with single_threaded_blas():
             sols = run_path(poses, placer, self._cand_rest, op, mu=mu, tol=self.tol,
                             progress=step_done,
-                            markers=self.body.markers if window else None)
+                            markers=self.body.markers if window else None, history=history)
             out = []
             for k, (p, fs) in enumerate(zip(poses, sols, strict=True)):
                 # each state's ``seconds``: its own step's solve plus its markers
@@ -326,7 +345,14 @@ class Simulator:
                 held = fs.window if fs.window is not None else np.full(len(markers), np.nan)
                 out.append(self._state(p, indenter, solver, sol, markers, dirs, u,
                                        sol.iterations, t0, held))
-        return out
+        return out, sols[-1].history
+
+    @property
+    def tip_mm(self) -> np.ndarray:
+        """(3,) mm: the pad's tip, the first point an untilted plate touches (where a robot's
+        tool centre point is usually set)."""
+        return place(Plate(), Pose(0.0, 0.0, 0.0), self._cand_rest,
+                     skin_thickness_mm=self.body.skin_thickness_mm).contact_point_mm
 
     def rest_state(self) -> ContactState:
         """The undeformed pad (no contact)."""

@@ -26,47 +26,66 @@ def _gap(a, b):
 
 def test_without_friction_the_path_ends_where_the_press_does(chain):
     pose, start = (7.0, -9.0, 1.2), (-5.0, 2.0, 1.0)
-    reached, _ = chain.press_path(pose, start, friction=0.0, step_deg=2.0, tap_steps=2)
+    states = chain.path_sweep([(0, start), (1, pose)], friction=0.0, step_deg=2.0,
+                              tap_steps=2)
     pressed, _ = chain.press(pose)
-    assert _gap(reached, pressed) < 1e-8
-    assert reached.force_N == pytest.approx(pressed.force_N, rel=1e-9)
+    assert _gap(states[1][0], pressed) < 1e-8
+    assert states[1][0].force_N == pytest.approx(pressed.force_N, rel=1e-9)
 
 
-def test_the_last_slipping_move_sets_the_state_and_friction_matters(chain):
-    """The one-move model of the rig: a chain of two moves and the last move alone end in the
-    same state (to a small fraction of what friction changes), at poses not used elsewhere."""
+def _moves(chain, poses, pivot):
+    """The end state after tapping to poses[0] and turning through the rest (2° steps)."""
+    visits = list(enumerate(poses))
+    return chain.path_sweep(visits, friction=0.5, step_deg=2.0, tap_steps=TAP_STEPS,
+                            pivot=pivot)[len(poses) - 1][0]
+
+
+def test_the_friction_state_persists_about_the_tip_and_fades_about_the_centre(chain):
+    """Why the rig walks each pose set in order: turned about the pad's tip, the skin near it
+    never slips, so where the sensor was two moves ago still shows (a sizeable fraction of
+    what friction does at all); turned so that the plate's contact point follows the contact,
+    every move slips through and the last move alone sets the state. Poses not used
+    elsewhere."""
+    a, b, c = (-12.0, 1.0, 1.0), (10.0, -8.0, 1.0), (-3.0, -5.0, 1.1)
+    frictionless, _ = chain.press(c)
+    for pivot, persists in (("tip", True), ("contact", False)):
+        long, short = _moves(chain, [a, b, c], pivot), _moves(chain, [b, c], pivot)
+        memory, friction = _gap(long, short), _gap(long, frictionless)
+        assert friction > 0.05
+        if persists:
+            assert memory > 0.2 * friction
+        else:
+            assert memory < 0.02 * friction
+
+
+def test_a_pivot_keeps_the_plates_point_under_it_and_the_contact(chain):
+    """Known answer (rigid kinematics): the plate's material point under the pivot at one
+    pose is under it at the next; the plate's contact (its gaps) does not change."""
     import tactip_sim as ts
+    from tactip_sim.fem.friction import indenter_motion
     from tactip_sim.fem.indenters import place
-    from tactip_sim.fem.loadpath import path_poses, run_path
+    from tactip_sim.fem.loadpath import about_pivot
 
     sim = chain.sim
-    a, b, c = ts.Pose(-12.0, 1.0, 1.0), ts.Pose(10.0, -8.0, 1.0), ts.Pose(-3.0, -5.0, 1.1)
-    step = 2.0
-    # two moves a -> b -> c, each in steps of at most 2 degrees, after a tap to a
-    seq = path_poses(b, start=a, steps=11, tap_steps=TAP_STEPS)
-    tail = path_poses(c, start=b, steps=7, tap_steps=1)[1:]  # b -> c, the tap dropped
-    sk = sim.body.skin_thickness_mm
-
-    def placer(p):
-        return place(sim.indenter, p, sim._cand_rest, skin_thickness_mm=sk)
-
-    sols = run_path(seq + tail, placer, sim._cand_rest, sim.reduced, mu=0.5)
-    sol = sols[-1].contact
-    chained, _ = sim.body.markers.from_values(sim.reduced.marker_values(sol.active,
-                                                                         sol.forces))
-    last, _ = chain.press_path((c.roll_deg, c.pitch_deg, c.depth_mm),
-                               (b.roll_deg, b.pitch_deg, b.depth_mm), friction=0.5,
-                               step_deg=step, tap_steps=TAP_STEPS)
-    frictionless, _ = chain.press((c.roll_deg, c.pitch_deg, c.depth_mm))
-    memory = float(np.linalg.norm(chained - last.markers_mm, axis=1).max())
-    friction = _gap(last, frictionless)
-    assert friction > 0.1  # friction along the path moves markers by a tenth of a mm or more
-    assert memory < 0.02 * friction
+    rest, pivot = sim._cand_rest, np.array([0.4, -0.3, 7.0])
+    a, b = (place(sim.indenter, ts.Pose(r, p, 1.0), rest) for r, p in ((-9.0, 2.0), (7.0, -6.0)))
+    pa, pb = about_pivot(a, pivot), about_pivot(b, pivot)
+    for plain, moved in ((a, pa), (b, pb)):
+        np.testing.assert_allclose(moved.gap(rest)[0], plain.gap(rest)[0], atol=1e-12)
+        normal = moved.rotation[:, 2]  # the pivot's foot lies on the line through it
+        foot = pivot - ((pivot - moved.origin_mm) @ normal) * normal
+        np.testing.assert_allclose(moved.origin_mm, foot, atol=1e-12)
+    np.testing.assert_allclose(pa.origin_mm + indenter_motion(pa, pb, pa.origin_mm[None])[0],
+                               pb.origin_mm, atol=1e-12)
+    # without the pivot the plate's point at the first contact travels with the contact,
+    # several mm over this 16 degree turn; about the tip it moves far less
+    slide = np.linalg.norm(indenter_motion(a, b, a.origin_mm[None])[0])
+    assert slide > 3.0
 
 
 def test_the_path_end_converges_as_its_steps_shrink(chain):
-    pose, start = (4.0, -7.0, 1.0), (-2.0, -3.0, 1.0)
-    ends = {s: chain.press_path(pose, start, friction=0.5, step_deg=s, tap_steps=TAP_STEPS)[0]
+    visits = [(0, (-2.0, -3.0, 1.0)), (1, (4.0, -7.0, 1.0))]
+    ends = {s: chain.path_sweep(visits, friction=0.5, step_deg=s, tap_steps=TAP_STEPS)[1][0]
             for s in (3.0, 1.5, 0.75)}
     coarse, fine = _gap(ends[3.0], ends[1.5]), _gap(ends[1.5], ends[0.75])
     assert fine < coarse
@@ -93,7 +112,9 @@ def test_the_load_path_source_and_its_bad_input():
     assert "load_path" in SOURCES and rig.only(["load_path"]).friction_path
     assert not rig.only(["zero"]).friction_path and rig.only([]).ideal
     assert RigModel(load_path=True).ideal  # no friction: the path ends where a press does
-    for kwargs, pattern in (({"friction_coefficient": -0.1},
+    for kwargs, pattern in (({"path_pivot": "wrist"},
+                             r"rig\.path_pivot='wrist' is not allowed: one of 'tip', 'contact'"),
+                            ({"friction_coefficient": -0.1},
                              r"rig\.friction_coefficient=-0\.1 is out of range: allowed \[0, 10\]"),
                             ({"path_step_deg": 0.0},
                              r"rig\.path_step_deg=0\.0 is out of range: allowed \[0\.001, 10\]"),
@@ -116,11 +137,14 @@ def test_a_load_path_sweep_is_seeded_and_differs_from_taps(scene, tmp_path):
         np.testing.assert_array_equal(x.cop_growth_px, y.cop_growth_px)
     gaps = [float(np.linalg.norm(x.markers_mm - y.markers_mm, axis=1).max())
             for x, y in zip(runs["path"], runs["taps"], strict=True)]
-    first = int(rig.order(small.protocol.seed, "A", "p", 3)[0])
-    # the first pose is tapped to (with friction: not quite the frictionless press); the
-    # others are turned to from the previous pose, in contact
-    assert all(g > 0.05 for i, g in enumerate(gaps) if i != first)
-    assert gaps[first] < min(g for i, g in enumerate(gaps) if i != first)
+    # friction changes every state: the first pose's tap, the others' turns in contact
+    assert min(gaps) > 0.01
+    # the states are the walk through the set in the visiting order
+    walk = Chain.for_tip(small, "A", nominal=True, frames=1).path_sweep(
+        [(int(i), poses[int(i)]) for i in rig.order(small.protocol.seed, "A", "p", 3)],
+        friction=0.5, step_deg=2.0, tap_steps=TAP_STEPS)
+    for rec in runs["path"]:
+        np.testing.assert_allclose(rec.markers_mm, walk[rec.index][0].markers_mm, atol=1e-12)
 
 
 def ts_small(scene):

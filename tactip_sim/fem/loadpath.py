@@ -17,6 +17,7 @@ anchors would be lost and the "in contact" path would be a different one.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import numpy as np
@@ -57,7 +58,8 @@ def check_steps(steps: int, name: str = "steps") -> int:
     return int(steps)
 
 
-def _lerp(a: Pose, b: Pose, t: float) -> Pose:
+def interpolate(a: Pose, b: Pose, t: float) -> Pose:
+    """The pose a fraction ``t`` of the way from ``a`` to ``b`` (every component linear)."""
     oa, ob = np.asarray(a.offset_mm), np.asarray(b.offset_mm)
     return Pose(roll_deg=a.roll_deg + t * (b.roll_deg - a.roll_deg),
                 pitch_deg=a.pitch_deg + t * (b.pitch_deg - a.pitch_deg),
@@ -95,20 +97,44 @@ def path_poses(pose: Pose, *, start: Pose | None = None, steps: int = 10,
         raise LoadPathError(f"start depth_mm={first.depth_mm:g} leaves contact: the path "
                             "re-orients in contact, allowed depth_mm > 0")
     touch = Pose(first.roll_deg, first.pitch_deg, 0.0, first.offset_mm, first.yaw_deg)
-    out = [_lerp(touch, first, k / taps) for k in range(1, taps + 1)]
+    out = [interpolate(touch, first, k / taps) for k in range(1, taps + 1)]
     if start is not None:
-        out += [_lerp(start, pose, k / steps) for k in range(1, steps + 1)]
+        out += [interpolate(start, pose, k / steps) for k in range(1, steps + 1)]
     return out
+
+
+def about_pivot(placement: Placement, pivot_mm: np.ndarray) -> Placement:
+    """A flat plate's ``placement`` with its local origin moved, within the plate, to the foot
+    of the perpendicular from ``pivot_mm`` (sensor frame). The plate is uniform, so its contact
+    is unchanged; along a path the plate's material point under the pivot stays under it: the
+    robot turns the sensor about its tool centre point ``pivot_mm`` and moves it only along the
+    plate's normal. (Without a pivot the plate's point at the first-contact point follows that
+    point over the pad: the turn of a sensor about its centre of curvature.)
+
+    Raises
+    ------
+    LoadPathError
+        The indenter is not flat (a curved one has no such freedom).
+    """
+    if not getattr(placement.indenter, "flat", False):
+        raise LoadPathError("a pivot applies to a flat plate only: the indenter is "
+                            f"{type(placement.indenter).__name__}")
+    m = placement.rotation[:, 2]
+    p = np.asarray(pivot_mm, dtype=np.float64)
+    return dataclasses.replace(placement,
+                               origin_mm=p - float((p - placement.origin_mm) @ m) * m)
 
 
 def run_path(poses: list[Pose], placer: Callable[[Pose], Placement], rest_mm: np.ndarray,
              operator: ComplianceOperator, *, mu: float, tol: Tolerances = TOL,
              progress: Callable[[int], None] | None = None,
-             markers: Markers | None = None) -> list[FrictionSolution]:
+             markers: Markers | None = None,
+             history: FrictionHistory | None = None) -> list[FrictionSolution]:
     """Solve the steps of a load path (from :func:`path_poses`) in order.
 
-    The first step starts from the pad at rest with the indenter just touching at the first
-    pose's orientation and offset (depth 0).
+    The first step starts from ``history`` (the end of an earlier path, in contact) or, by
+    default, from the pad at rest with the indenter just touching at the first pose's
+    orientation and offset (depth 0).
 
     Parameters
     ----------
@@ -132,8 +158,10 @@ def run_path(poses: list[Pose], placer: Callable[[Pose], Placement], rest_mm: np
     if not poses:
         raise LoadPathError("a load path needs at least one step")
     p0 = poses[0]
-    history = FrictionHistory.at_rest(
-        placer(Pose(p0.roll_deg, p0.pitch_deg, 0.0, p0.offset_mm, p0.yaw_deg)))
+    fresh = history is None
+    if history is None:
+        history = FrictionHistory.at_rest(
+            placer(Pose(p0.roll_deg, p0.pitch_deg, 0.0, p0.offset_mm, p0.yaw_deg)))
     out: list[FrictionSolution] = []
     for k, pose in enumerate(poses):
         label = f"{pose} (step {k + 1} of {len(poses)})"
@@ -143,7 +171,7 @@ def run_path(poses: list[Pose], placer: Callable[[Pose], Placement], rest_mm: np
         else:
             sol = friction_with_window(operator, markers, placer(pose), rest_mm, mu=mu,
                                        history=history, label=label, tol=tol)
-        if k > 0 and sol.contact.active.size == 0:
+        if (k > 0 or not fresh) and sol.contact.active.size == 0:
             raise LoadPathError(f"the load path leaves contact at step {k + 1} ({pose}): "
                                 "every step after the first must keep depth_mm > 0 in contact")
         out.append(sol)
