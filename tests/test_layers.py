@@ -19,7 +19,7 @@ from .conftest import ROOT
 PACKAGES = ("tactip_sim", "perception", "calibration")
 
 LAYERS = {
-    "scene": 0, "cache": 0, "llvm": 0, "progress": 0,
+    "scene": 0, "cache": 0, "llvm": 0, "progress": 0, "_lazy": 0,
     "geometry": 1,
     "mesh": 2,
     "fem": 3,

@@ -144,7 +144,7 @@ def test_the_entry_point_loads_nothing_before_it_takes_over_ctrl_c():
                          env={**os.environ, "PYTHONPATH": str(ROOT)}, check=True)
     first = res.stdout.splitlines()[0]
     assert first == ("['tactip_sim', 'tactip_sim._lazy', 'tactip_sim.commands', "
-                     "'tactip_sim.commands.launch']")
+                     "'tactip_sim.commands.interrupts', 'tactip_sim.commands.launch']")
     assert "function load_scene" in res.stdout and "function main" in res.stdout
 
 

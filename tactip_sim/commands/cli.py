@@ -19,7 +19,7 @@ from importlib.metadata import entry_points
 
 from ..scene import SceneError
 from .args import add_scene_argument, load_scene_args
-from .launch import caused_by_interrupt
+from .interrupts import caused_by_interrupt
 
 _OWN_COMMANDS = ("press", "render", "validate_lens")
 """Modules of this floor with ``register(subparsers)``, in the order of ``tactip --help``;

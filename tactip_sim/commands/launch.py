@@ -21,6 +21,8 @@ import os
 import signal
 import sys
 
+from .interrupts import caused_by_interrupt
+
 INTERRUPTED = 130
 """The exit status of an interrupted run: 128 + SIGINT, as a shell reports it."""
 
@@ -68,15 +70,6 @@ def main(argv: list[str] | None = None) -> int:
             _guard_exit()
 
 
-def caused_by_interrupt(exc: BaseException | None) -> bool:
-    """Whether ``exc`` is a KeyboardInterrupt or was raised while handling one (its chain)."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return False
 
 
 def _interrupted(when: str, owned: bool = True) -> int:
