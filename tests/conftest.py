@@ -36,3 +36,13 @@ def mesh(scene):
     import tactip_sim as ts
 
     return ts.tetrahedralise(scene)
+
+
+def sigint_as_at_a_terminal() -> None:
+    """``preexec_fn`` for a child a test interrupts with SIGINT: a test run started in the
+    background (``cmd &``, nohup) ignores SIGINT and its children inherit that, but a user's
+    Ctrl-C reaches a ``tactip`` started at a terminal, where SIGINT is not ignored (and the
+    tool rightly leaves an ignored SIGINT alone)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

@@ -24,7 +24,7 @@ import pytest
 from tactip_sim.commands import main
 from tactip_sim.scene import SceneError, load_scene
 
-from .conftest import ROOT, SCENES
+from .conftest import ROOT, SCENES, sigint_as_at_a_terminal
 
 SCENE = SCENES / "shadow_fingertip.toml"
 
@@ -57,7 +57,8 @@ def _interrupted_run(cmd: list[str], tmp_path: Path, delay: float) -> tuple[int 
     the run had already ended, stderr without the import-time lines)."""
     with subprocess.Popen([sys.executable, "-X", "importtime", *cmd], cwd=tmp_path,
                           env=_env(tmp_path), stdout=subprocess.DEVNULL,
-                          stderr=subprocess.PIPE, text=True) as proc:
+                          stderr=subprocess.PIPE, text=True,
+                          preexec_fn=sigint_as_at_a_terminal) as proc:
         lines: list[str] = []
         started = threading.Event()
 
@@ -112,6 +113,7 @@ def test_ctrl_c_while_python_exits_ends_with_one_line_and_130(tmp_path):
             "print('returned', code, file=sys.stderr, flush=True)\n"
             "sys.exit(code)\n")
     proc = subprocess.Popen([sys.executable, "-c", code], cwd=tmp_path, env=_env(tmp_path),
+                            preexec_fn=sigint_as_at_a_terminal,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         first = proc.stderr.readline()

@@ -17,6 +17,8 @@ from tactip_sim.commands.args import float_in, int_in, png_path, scene_key_type
 from tactip_sim.scene import SceneError
 from tactip_sim.scene.names import check_name
 
+from .conftest import sigint_as_at_a_terminal
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
 
@@ -269,7 +271,8 @@ def test_interrupted_mesher_removes_its_folder_and_child(tmp_path, sig, rc):
     # an edge the cache and the bundle do not hold, so pytetwild runs (for tens of seconds)
     proc = subprocess.Popen([sys.executable, "-m", "tactip_sim.commands", "mesh", str(SCENE),
                              "--set", "fidelity.mesh_edge_mm=15.5"], env=env, cwd=tmp_path,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=sigint_as_at_a_terminal)
     try:
         deadline = time.monotonic() + 120
         while not list(tmp.glob("tactip-tetwild-*/input.npz")):
