@@ -280,7 +280,10 @@ def rig_sample(spec: SweepSpec, chain: Chain, index: int, reached: Sequence[floa
     from .chain import Rendered, Sample, perceive
 
     rig = spec.rig
-    gain *= 1.0 - rig.exposure_trend * index / max(len(spec.poses) - 1, 1)
+    if rig.exposure_trend > 0:  # the trend runs with time: the sample's place in the visits
+        seed, n = spec.scene.protocol.seed, len(spec.poses)
+        when = int(np.flatnonzero(rig.order(seed, spec.tip, spec.poses.name, n) == index)[0])
+        gain *= 1.0 - rig.exposure_trend * when / max(n - 1, 1)
     angle = float(rng.uniform(0.0, np.pi))  # drawn after perturb's, so those stay the same
     previous = prev_pose = None
     h = rig.hysteresis_fraction()

@@ -152,3 +152,21 @@ def ts_small(scene):
 
     return ts.replace_in(scene, camera={"resolution": [320, 240], "pixel_pitch_um": 16.8},
                          imaging={"spp": 2})
+
+
+def test_the_exposure_trend_runs_in_the_visiting_order(scene, tmp_path):
+    """The trend is a drift in time: the sample visited last is the darkest, whatever its
+    place in the list (a trend of 50 %, far above the realistic 2 %, to see it)."""
+    import cv2
+
+    small = ts_small(scene)
+    poses = np.array([[6.0, -2.0, 1.0], [-6.0, -7.0, 1.0], [2.0, 1.0, 1.0], [-1.0, -4.0, 1.0]])
+    rig = RigModel(exposure_trend=0.5, random_order=True)
+    order = rig.order(small.protocol.seed, "A", "p", len(poses))
+    assert order[-1] != len(poses) - 1  # the seed visits the listed last pose earlier
+    spec = SweepSpec(small, "A", PoseSet("p", poses), frames=1, nominal=True, rig=rig)
+    ds = run_sweep(spec, tmp_path / "trend", progress=False).dataset
+    mean = [float(cv2.imread(str(ds.image_path(i)), cv2.IMREAD_UNCHANGED).mean())
+            for i in range(len(poses))]
+    assert int(np.argmin(mean)) == int(order[-1])
+    assert int(np.argmax(mean)) == int(order[0])
