@@ -279,7 +279,7 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
                                    window_generalised_forces(markers, values, q_new)
                                    if q_new.any() else None)
             return dataclasses.replace(fs, history=held, window=q_new, values=values)
-        # the alternation contracts linearly (by ~0.8 per round when a pin is held firmly):
+        # the alternation converges linearly (through the tangential forces (b) holds):
         # Anderson mixing of the window forces, restarted when the held pins change
         q_old = np.zeros_like(q_new) if q is None else q
         if hist_q and not np.array_equal(q_new > 0, hist_q[-1] + hist_r[-1] > 0):
