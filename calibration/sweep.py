@@ -263,9 +263,13 @@ def _path_states(spec: SweepSpec, chain: Chain) -> dict[int, tuple[Any, float]]:
             rng = rig.rng(seed, spec.tip, spec.poses.name, int(i))
             reached, _ = rig.perturb(spec.poses.poses[int(i)], rng, zero_offset_mm=zero)
             visits.append((int(i), reached))
-        _PATHS[key] = chain.path_sweep(visits, friction=rig.friction_coefficient,
-                                       step_deg=rig.path_step_deg, tap_steps=TAP_STEPS,
-                                       pivot=rig.path_pivot)
+        from tactip_sim.progress import clock
+
+        with clock(f"{spec.tip}/{spec.poses.name}: walking the load path ({len(visits)} poses "
+                   "in contact, in order)"):
+            _PATHS[key] = chain.path_sweep(visits, friction=rig.friction_coefficient,
+                                           step_deg=rig.path_step_deg, tap_steps=TAP_STEPS,
+                                           pivot=rig.path_pivot)
     return _PATHS[key]
 
 
