@@ -5,10 +5,11 @@ A Ctrl-C may come at any moment of a run and must end it with one line and exit 
 never a traceback: while the modules load (0.5-3 s: numpy, scipy, trimesh, the subcommands),
 while the command runs (:func:`tactip_sim.commands.cli.run` handles it there) and while Python
 shuts down after the command. So this module imports only ``signal``, ``os``, ``sys``,
-``atexit`` and :mod:`.interrupts` (which imports nothing), and the packages above it (``tactip_sim``, ``tactip_sim.commands``) import nothing
-at their top: :func:`main` takes over SIGINT ~2 ms after Python's own start-up ends. What comes
-before (the interpreter's start-up and ``site``) runs no code of the tool; docs/robustness.md
-("Ctrl-C at any moment of a run") gives the measured widths.
+``atexit`` and :mod:`.interrupts` (which imports nothing), and the packages above it
+(``tactip_sim``, ``tactip_sim.commands``) import nothing at their top: :func:`main` takes
+over SIGINT ~2 ms after Python's own start-up ends. What comes before (the interpreter's
+start-up and ``site``) runs no code of the tool; docs/robustness.md ("Ctrl-C at any moment of
+a run") gives the measured widths.
 
 :func:`main` changes the process's SIGINT handling for good (it owns the process): in-process
 callers (tests, scripts) use :func:`tactip_sim.commands.main` instead.
