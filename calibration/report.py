@@ -106,14 +106,20 @@ def summary_charts(out: Path, rows: list[ScoreRow]) -> None:
                            label="paper" if k == 0 else None, zorder=3)
         ax.set_xticks(x + width * (len(orders) - 1) / 2, [f"{d:+.1f} mm" for d in depths])
         ax.set_title(f"tip {tip}")
-        ax.set_ylim(0, 1.02)
+    _save_depth_chart(plt, fig, axes[0], out / "charts" / "r2_vs_paper.png", (0, 1.02))
+
+
+def _save_depth_chart(plt, fig, axes, path: Path, ylim: tuple[float, float]) -> None:
+    """Label a row of per-tip R²-by-test-depth panels (the first one carries the y label and
+    the legend) and write it to ``path``."""
+    for ax in axes:
+        ax.set_ylim(*ylim)
         ax.set_xlabel("test depth offset")
-        if a == 0:
-            ax.set_ylabel("R² (mean of roll, pitch)")
-            ax.legend(fontsize=8, loc="lower left")
+    axes[0].set_ylabel("R² (mean of roll, pitch)")
+    axes[0].legend(fontsize=8, loc="lower left")
     fig.tight_layout()
-    (out / "charts").mkdir(exist_ok=True)
-    fig.savefig(out / "charts" / "r2_vs_paper.png", dpi=110)
+    path.parent.mkdir(exist_ok=True)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
@@ -141,12 +147,4 @@ def invariant_chart(out: Path, paper_style: list[ScoreRow], invariant: list[Scor
                        label="paper (Table I)", zorder=3)
         ax.set_xticks(x + 0.2, [f"{d:+.1f} mm" for d in depths])
         ax.set_title(f"tip {tip}, order {order}")
-        ax.set_ylim(0.5, 1.0)
-        ax.set_xlabel("test depth offset")
-        if a == 0:
-            ax.set_ylabel("R² (mean of roll, pitch)")
-            ax.legend(fontsize=8, loc="lower left")
-    fig.tight_layout()
-    (out / "charts").mkdir(exist_ok=True)
-    fig.savefig(out / "charts" / "invariant_vs_paper.png", dpi=110)
-    plt.close(fig)
+    _save_depth_chart(plt, fig, axes[0], out / "charts" / "invariant_vs_paper.png", (0.5, 1.0))

@@ -60,10 +60,12 @@ def test_calibrate_with_the_depth_invariant_model(cal):
     assert span.cop_px[deeper, 2].mean() > 1.3 * span.cop_px[~deeper, 2].mean()
     # every test set is scored on its usable samples, and the model is a usable one there
     assert all(r.n >= 14 and r.r2 > 0.8 for r in rows if r.order == 2)
-    from calibration.report import invariant_chart
+    from calibration.report import invariant_chart, summary_charts
 
     invariant_chart(out, res.rows, rows)
-    assert (out / "charts" / "invariant_vs_paper.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    summary_charts(out, res.rows)
+    for name in ("invariant_vs_paper.png", "r2_vs_paper.png"):
+        assert (out / "charts" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_a_dataset_without_the_deformation_is_refused(cal, tmp_path):
