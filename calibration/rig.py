@@ -90,8 +90,9 @@ PIVOTS = ("tip", "contact")
 contact following the contact (a turn about the pad's centre of curvature; drags the skin
 the most)."""
 TAP_STEPS = 4
-"""Steps of the tap to the previous pose that a load path starts with (its friction state is
-wiped out by the re-orientation's slip; the tap only seeds it)."""
+"""Steps of the tap to the first pose of a load-path walk. Numerical, and not studied: turned
+about the pad's tip the friction state the tap leaves persists, so its step count may matter
+(docs/rig.md)."""
 _PRONY = ("skin_prony_g", "skin_prony_tau_s", "gel_prony_g", "gel_prony_tau_s")
 
 SOURCES: dict[str, tuple[str, ...]] = {
