@@ -94,6 +94,8 @@ TAP_STEPS = 4
 about the pad's tip the friction state the tap leaves persists, so its step count may matter
 (docs/rig.md)."""
 _PRONY = ("skin_prony_g", "skin_prony_tau_s", "gel_prony_g", "gel_prony_tau_s")
+_LATER = (*_MORE, *_SWITCHES, *_PRONY, "path_pivot")
+"""Keys added after the first four sources: a record leaves them out at their defaults."""
 
 SOURCES: dict[str, tuple[str, ...]] = {
     "robot": ("pose_depth_sd_mm", "pose_angle_sd_deg"),
@@ -287,7 +289,7 @@ class RigModel:
         rig = cls(**table, sources=tuple(sorted((str(k), str(v)) for k, v in sources.items())))
         cited = dict(rig.sources)
         defaults = cls()
-        missing = [k for k in (*_RANGES, *_MORE, *_SWITCHES, *_PRONY, "path_pivot")
+        missing = [k for k in (*_RANGES, *_LATER)
                    if getattr(rig, k) != getattr(defaults, k) and getattr(rig, k)
                    and not cited.get(k)]
         if missing:
@@ -301,7 +303,7 @@ class RigModel:
         d = asdict(self)
         d["sources"] = dict(self.sources)
         defaults = asdict(RigModel())
-        for key in (*_MORE, *_SWITCHES, *_PRONY, "path_pivot"):
+        for key in _LATER:
             if d[key] == defaults[key]:
                 del d[key]
             elif isinstance(d[key], tuple):
