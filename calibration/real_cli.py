@@ -69,7 +69,7 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
         raise ValueError(f"--depth-range {args.depth_range!r} must be LOW,HIGH in mm") from None
     cfg = Sim2RealConfig(n=args.n, depth_range_mm=(lo, hi), seed=args.seed,
                          feature=args.feature, order=args.order, k=args.k, axes=args.axes,
-                         reference=args.reference)
+                         reference=args.reference, tap_depth=args.tap_depth)
     cfg.check()
     if args.fidelity is None:
         args.fidelity = "fast"
@@ -117,7 +117,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="OUT.json", help="write the identification report")
     p.set_defaults(func=_cmd_identify)
 
-    from .sim2real import AXIS_MAPS
+    from .sim2real import AXIS_MAPS, TAP_DEPTHS
 
     p = sub.add_parser(
         "sim2real", help="fit roll/pitch regressors on simulated taps only and score them on "
@@ -153,6 +153,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="reference frame of the simulated 128x128 taps: the simulated rest "
                    "frame (default) or a square-on tap at the shallowest depth, as the real "
                    "data sets use their shallowest tap (docs/sim2real.md compares both)")
+    p.add_argument("--tap-depth", default="contact", choices=TAP_DEPTHS,
+                   help="what the data set's depth measures: 'contact', the indentation "
+                   "beyond first contact (default), or 'tip', the depth of the pad's tip with "
+                   "the sensor turned about it, so a tilted tap indents deeper "
+                   "(docs/sim2real.md)")
     p.add_argument("--seed", type=int, default=0, help="seed of the poses and the k draw")
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")

@@ -148,6 +148,37 @@ def blob_level(small: np.ndarray, area_px: float = BLOB_AREA_128) -> int:
         raise ValueError("no grey level shows markers in the resampled rest frame")
     return best[1]
 
+TAP_DEPTHS = ("contact", "tip")
+"""What a data set's depth (``pose_3``) measures. ``contact``: the indentation beyond first
+contact at the tap's orientation (the simulator's own :class:`~tactip_sim.fem.pose.Pose`
+depth). ``tip``: how far the pad's tip (its apex, where a robot's tool centre point is
+usually set) is pushed past the surface, the sensor turned about its tip; a tilted tap then
+indents deeper by :func:`tip_depth_offset` (``R (1 - cos θ)`` on a hemisphere of radius R)."""
+
+
+def tip_depth_offset(pad: Any, roll_deg: np.ndarray, pitch_deg: np.ndarray) -> np.ndarray:
+    """(n,) mm: indentation beyond first contact minus the depth of the tip, for a flat
+    surface at each orientation when the sensor is turned about its tip (``TAP_DEPTHS``).
+
+    With the surface's normal ``m`` (pointing at the pad) the first contact is the pad's
+    outermost point along ``m``, ``h(m) = max_x x·m``, and the tip ``a`` reaches the surface
+    first only when ``m`` is the pad's axis: the offset is ``h(m) - a·m >= 0``. An analytic
+    dome uses its half-ellipsoid's support function, any other pad its surface vertices.
+    """
+    from tactip_sim.fem.pose import rotation
+
+    m = np.array([rotation(r, p)[:, 2] for r, p in zip(np.atleast_1d(roll_deg),
+                                                       np.atleast_1d(pitch_deg), strict=True)])
+    outer = getattr(pad, "outer", None)
+    if outer is not None:  # wall + half-ellipsoid (a, b, dome): support of the dome part
+        h = outer.wall * m[:, 2] + np.sqrt((outer.a * m[:, 0]) ** 2 + (outer.b * m[:, 1]) ** 2
+                                           + (outer.dome * m[:, 2]) ** 2)
+        return h - outer.height * m[:, 2]
+    v = np.asarray(pad.surface.vertices, dtype=np.float64)
+    top = v[v[:, 2] >= v[:, 2].max() - 1e-9]
+    tip = 0.5 * (top.min(axis=0) + top.max(axis=0))  # the top face's centre
+    return (v @ m.T).max(axis=0) - m @ tip
+
 
 @dataclass(frozen=True)
 class Sim2RealConfig:
@@ -159,6 +190,7 @@ class Sim2RealConfig:
     k: int = 20
     axes: str = "-x-y"
     reference: str = "rest"
+    tap_depth: str = "contact"
 
     def check(self) -> None:
         if not 10 <= self.n <= 100_000:
@@ -172,6 +204,9 @@ class Sim2RealConfig:
             raise ValueError(f"--k={self.k} is out of range: allowed [3, 1000]")
         if self.reference not in ("rest", "shallow"):
             raise ValueError(f"--reference={self.reference!r} is not allowed: rest or shallow")
+        if self.tap_depth not in TAP_DEPTHS:
+            raise ValueError(f"--tap-depth={self.tap_depth!r} is not allowed: "
+                             f"{' or '.join(TAP_DEPTHS)}")
         if self.axes not in AXIS_MAPS:
             raise ValueError(f"--axes={self.axes!r} is not one of {', '.join(AXIS_MAPS)}")
         from .fit import check_feature
@@ -192,18 +227,22 @@ def simulate(scene: ts.Scene, out: Path, cfg: Sim2RealConfig, *, workers: int = 
                       rng.uniform(*cfg.depth_range_mm, cfg.n)], axis=1)
     # the reference tap for reference="shallow" (last row): shallowest depth, square on
     poses = np.vstack([poses, [0.0, 0.0, cfg.depth_range_mm[0]]])
-    spec = SweepSpec(scene, p.tips[0], PoseSet(f"sim2real{cfg.n}", poses),
+    if cfg.tap_depth == "tip":  # the data set's depth is the tip's: press deeper when tilted
+        poses[:, 2] += tip_depth_offset(ts.build_pad(scene), poses[:, 0], poses[:, 1])
+    name = f"sim2real{cfg.n}" + ("" if cfg.tap_depth == "contact" else "tip")
+    spec = SweepSpec(scene, p.tips[0], PoseSet(name, poses),
                      frames=1, nominal=True)
     run_sweep(spec, out / "sim", workers=workers, progress=progress)
     return out / "sim"
 
 
 def write_128(sim: Path, dest: Path, field_128: dict[str, Any], expected_count: int, *,
-              reference: str = "rest") -> Path:
+              reference: str = "rest", pad: Any = None) -> Path:
     """The simulated data set converted to the 128x128 format, in the Bristol layout
     (``targets.csv`` with ``sensor_image``, ``pose_3``..``pose_5``; ``images/rest.png`` is
     the converted rest frame, or with ``reference="shallow"`` the converted reference tap).
-    The crop and the grey level come from the true rest frame."""
+    The crop and the grey level come from the true rest frame. With ``pad`` (taps simulated
+    with ``tap_depth="tip"``) ``pose_3`` is the tip's depth, as the real data set's."""
     import cv2
 
     from .dataset import Dataset
@@ -224,6 +263,10 @@ def write_128(sim: Path, dest: Path, field_128: dict[str, Any], expected_count: 
     ref_frame = (rest if reference == "rest" else
                  cv2.imread(str(sim / "images" / f"{ref:05d}.png"), cv2.IMREAD_GRAYSCALE))
     cv2.imwrite(str(dest / "images" / "rest.png"), to_128(ref_frame, box, level))
+    depth = np.asarray(t["depth_mm"], dtype=float)
+    if pad is not None:
+        depth = depth - tip_depth_offset(pad, np.asarray(t["roll_deg"], dtype=float),
+                                         np.asarray(t["pitch_deg"], dtype=float))
     rows = []
     for i, idx in enumerate(index):
         if idx == ref:
@@ -233,7 +276,7 @@ def write_128(sim: Path, dest: Path, field_128: dict[str, Any], expected_count: 
         if redo or not target.is_file():
             frame = cv2.imread(str(sim / "images" / f"{idx:05d}.png"), cv2.IMREAD_GRAYSCALE)
             cv2.imwrite(str(target), to_128(frame, box, level))
-        rows.append([name, 0.0, 0.0, float(t["depth_mm"][i]), float(t["roll_deg"][i]),
+        rows.append([name, 0.0, 0.0, float(depth[i]), float(t["roll_deg"][i]),
                      float(t["pitch_deg"][i]), 0.0])
     lines = [",".join(["sensor_image", "pose_1", "pose_2", "pose_3", "pose_4", "pose_5",
                        "pose_6"])] + [",".join(str(v) for v in r) for r in rows]
@@ -309,9 +352,9 @@ def read_pose_columns(folder: Path) -> dict[str, list[str]]:
     return {k: [r[k] for r in rows] for k in rows[0]} if rows else {}
 
 
-__all__ = ["AXIS_MAPS", "FIELD_128", "Sim2RealConfig", "affine_correction", "crop_box",
-           "field_of", "map_axes", "perceived", "simulate", "to_128", "transfer_scores",
-           "write_128"]
+__all__ = ["AXIS_MAPS", "FIELD_128", "TAP_DEPTHS", "Sim2RealConfig", "affine_correction",
+           "crop_box", "field_of", "map_axes", "perceived", "simulate", "tip_depth_offset",
+           "to_128", "transfer_scores", "write_128"]
 
 
 def _fit(table, angles: np.ndarray, order: int, image_size: tuple[int, int]):
@@ -350,7 +393,8 @@ def run(scene: ts.Scene, out: str | Path, cfg: Sim2RealConfig, *, real: str | Pa
                  "rms_radius_px": round(r, 3)}
         field_source = f"measured on {real_folder.rest}"
     sim = simulate(scene, out, cfg, workers=workers, progress=progress)
-    sim128 = write_128(sim, out / "sim128", field, count, reference=cfg.reference)
+    sim128 = write_128(sim, out / "sim128", field, count, reference=cfg.reference,
+                       pad=ts.build_pad(scene) if cfg.tap_depth == "tip" else None)
     t128 = perceived(sim128, out / "sim128_features.npz", expected_count=count,
                      progress=progress, key=(sim128 / "crop.json").read_text())
     traw = stored_features(BristolFolder.open(sim))
@@ -359,7 +403,7 @@ def run(scene: ts.Scene, out: str | Path, cfg: Sim2RealConfig, *, real: str | Pa
         "scene": scene_source, "scene_hash": scene_hash(scene), "config": {
             "n": cfg.n, "depth_range_mm": list(cfg.depth_range_mm), "seed": cfg.seed,
             "feature": cfg.feature, "order": cfg.order, "k": cfg.k, "axes": cfg.axes,
-            "reference": cfg.reference},
+            "reference": cfg.reference, "tap_depth": cfg.tap_depth},
         "field_128": field, "field_128_source": field_source, "formats": {}}
     tables = {"128x128": t128, "640x480": traw}
     sizes = {"128x128": FRAME_128, "640x480": tuple(scene.camera.resolution)}

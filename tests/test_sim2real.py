@@ -149,7 +149,8 @@ def test_sim2real_bad_input(tmp_path):
                     ({"depth_range_mm": (5.0, 2.0)}, "--depth-range=5.0,2.0 is out of range"),
                     ({"feature": "nope"}, "feature='nope' is not allowed"),
                     ({"order": 4}, "--order=4 is not allowed"),
-                    ({"reference": "x"}, "--reference='x' is not allowed")):
+                    ({"reference": "x"}, "--reference='x' is not allowed"),
+                    ({"tap_depth": "flange"}, "--tap-depth='flange' is not allowed")):
         with pytest.raises(ValueError, match=msg.replace("(", r"\(").replace(")", r"\)")):
             Sim2RealConfig(**kw).check()
     # through the command: the message reaches the user and nothing is written
@@ -187,3 +188,38 @@ def test_sim2real_full_run_meets_the_issue_targets_on_taps_of_3_mm_and_more(tmp_
                    cwd=ROOT, check=True, capture_output=True)
     assert json.loads(ev.read_text())["r2_roll"] == pytest.approx(
         s["growth/2"]["zero_shot"]["r2_roll"], abs=1e-9)
+
+
+def test_tip_depth_offset_against_closed_forms():
+    """A tap whose depth is the tip's (the sensor turned about its tip) indents a tilted pad
+    deeper: on a hemisphere of radius R by R (1 - cos θ), cos θ = cos(roll) cos(pitch); on a
+    block of width W tilted by θ about x by (W / 2) |sin θ| (the top face's edge meets the
+    surface first); on the half-ellipsoid dome, the largest of a dense sampling of its
+    surface. Zero when square on."""
+    import tactip_sim as ts
+    from calibration.sim2real import tip_depth_offset
+
+    roll = np.array([0.0, 7.0, -12.5, 4.0, -15.0])
+    pitch = np.array([0.0, 0.0, 3.0, -13.0, 15.0])
+    dome = ts.build_pad(ts.load_scene(SCENES / "tactip_331.toml"))
+    r = dome.scene.pad.height_mm
+    want = r * (1.0 - np.cos(np.deg2rad(roll)) * np.cos(np.deg2rad(pitch)))
+    assert np.allclose(tip_depth_offset(dome, roll, pitch), want, atol=1e-9)
+
+    block = ts.build_pad(ts.load_scene(SCENES / "hertz_block.toml"))
+    tilt = np.array([0.0, 2.0, -9.0, 20.0])
+    half_w = block.scene.pad.footprint_width_mm / 2.0
+    got = tip_depth_offset(block, tilt, np.zeros_like(tilt))
+    assert np.allclose(got, half_w * np.abs(np.sin(np.deg2rad(tilt))), atol=1e-6)
+
+    finger = ts.build_pad(ts.load_scene(SCENES / "shadow_fingertip.toml"))
+    o = finger.outer
+    u, w = np.meshgrid(np.linspace(0.0, 2.0 * np.pi, 721), np.linspace(0.0, np.pi / 2, 721))
+    pts = np.stack([o.a * np.sin(w) * np.cos(u), o.b * np.sin(w) * np.sin(u),
+                    o.wall + o.dome * np.cos(w)], axis=-1).reshape(-1, 3)
+    from tactip_sim.fem.pose import rotation
+
+    for rr, pp in zip(roll, pitch, strict=True):
+        m = rotation(rr, pp)[:, 2]
+        brute = (pts @ m).max() - o.height * m[2]
+        assert tip_depth_offset(finger, rr, pp)[0] == pytest.approx(brute, abs=2e-3)
