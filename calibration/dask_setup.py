@@ -77,6 +77,18 @@ def quiet_interrupt(logger_name: str) -> None:
         log.addFilter(QuietInterrupt(EXPECTED_ON_INTERRUPT[logger_name]))
 
 
+def one_thread_pools() -> None:
+    """One thread for the BLAS (OpenBLAS, the FEM's dense algebra) and Dr.Jit (Mitsuba's
+    LLVM back end) pools of this process: a worker's parallelism is its task slot, and each
+    pool otherwise starts a thread per core, so N workers on N cores run 2N busy threads."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1)
+    import drjit
+
+    drjit.set_thread_count(1)
+
+
 class SweepWorkerSetup(WorkerPlugin):
     """On each worker: heap reuse for the per-frame arrays
     (:func:`steady_allocator`), one OpenCV thread, and no warnings for tasks an interrupt
@@ -96,4 +108,5 @@ class SweepWorkerSetup(WorkerPlugin):
 
         steady_allocator()
         cv2.setNumThreads(1)
+        one_thread_pools()
         quiet_interrupt("distributed.worker.state_machine")

@@ -14,11 +14,12 @@ from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 
-def open_client(workers: int, scheduler: str | None):
+def open_client(workers: int, scheduler: str | None, *, cluster_of_one: bool = False):
     """A Dask client: on ``scheduler`` if given, else on a LocalCluster of ``workers``
-    single-threaded processes; None for in-process work (``workers <= 1``, no scheduler).
-    Close it with :func:`close_client`."""
-    if scheduler is None and workers <= 1:
+    single-threaded processes; None for in-process work (``workers <= 1``, no scheduler,
+    unless ``cluster_of_one``: a benchmark's one-process cluster). Close it with
+    :func:`close_client`."""
+    if scheduler is None and workers <= 1 and not cluster_of_one:
         return None
     from dask.distributed import Client, LocalCluster
 

@@ -301,6 +301,30 @@ def detect_markers_detailed(
     area_ref = np.pi * d_known**2 / 4.0 if d_known else float(median(mom.area[ok]))
     ratio = mom.area / area_ref
     code[ok & ((ratio < p.area_ratio_min) | (ratio > p.area_ratio_max))] = _SIZE
+    # two markers joined by a smear: one blob of about twice the area, rejected for its shape
+    # or size, split across its major axis when both halves are marker-shaped
+    pair = (np.isin(code, (_SHAPE, _SIZE)) & finite & (ratio > _BINARY_PAIR_RATIO[0])
+            & (ratio < _BINARY_PAIR_RATIO[1]))
+    if pair.any():
+        halves = _split_pairs(labels, order, np.flatnonzero(pair), th_box, th_level,
+                              area_ref, p)
+        if halves is not None:
+            rows, h_pts, h_area, h_elong, h_fill = halves
+            h_pts = h_pts + (x0, y0)
+            keep = np.ones(len(pts), dtype=bool)
+            keep[rows] = False
+            pts = np.concatenate([pts[keep], h_pts])
+            again = np.lexsort((pts[:, 0], pts[:, 1]))  # raster order again (NaN last)
+            pts = pts[again]
+            mom = BlobMoments(area=np.concatenate([mom.area[keep], h_area])[again],
+                              elongation=np.concatenate([mom.elongation[keep], h_elong])[again],
+                              fill=np.concatenate([mom.fill[keep], h_fill])[again])
+            code = np.concatenate([code[keep], np.zeros(len(h_pts), dtype=np.int8)])[again]
+            finite = np.isfinite(pts).all(axis=1)
+            pix = np.rint(np.where(finite[:, None], pts, 0.0)).astype(np.intp)
+            ix = np.minimum(np.maximum(pix[:, 0], x0), x1 - 1)
+            iy = np.minimum(np.maximum(pix[:, 1], y0), y1 - 1)
+            peaks = local_max[iy - y0, ix - x0].astype(np.float64) / scale
     ok = code == 0
     if not ok.any():
         return _reject_all(shape, pts, finite, code, "no blobs of marker size", sigma)
@@ -332,6 +356,55 @@ def detect_markers_detailed(
         rejected_points=pts[rej], rejected_reasons=tuple(_REASONS[c] for c in code[rej]),
         noise_sigma=sigma,
     )
+
+
+def _split_pairs(labels: np.ndarray, order: np.ndarray, rows: np.ndarray, th: np.ndarray,
+                 level: float, area_ref: float, p: DetectionParams):
+    """Halves of the blobs ``rows`` (indices after the raster ``order`` of the labels), each
+    cut across its major axis through its centroid: ``(split rows, (2k, 2) intensity-weighted
+    centroids in the window's pixels, areas, elongations, fills)`` for the k blobs with a
+    waist at the cut (:data:`_PAIR_WAIST`) whose two halves both pass the area and shape
+    filters; None if no blob does."""
+    done, pts, area, elong, fill = [], [], [], [], []
+    for row in rows:
+        ys, xs = np.nonzero(labels == order[row] + 1)
+        x, y = xs.astype(np.float64), ys.astype(np.float64)
+        dx, dy = x - x.mean(), y - y.mean()
+        theta = 0.5 * np.arctan2(2.0 * (dx * dy).mean(), (dx * dx).mean() - (dy * dy).mean())
+        along = dx * np.cos(theta) + dy * np.sin(theta)
+        waist = int(np.count_nonzero(np.abs(along) < 0.5))  # the blob's width at the cut, px
+        if waist >= _PAIR_WAIST * 2.0 * np.sqrt(area_ref / np.pi):
+            continue  # no waist: one oval, not two markers side by side
+        side = along >= 0.0
+        measures = []
+        for s_ in (side, ~side):
+            n = int(s_.sum())
+            if n < 2:
+                break
+            hx, hy = x[s_], y[s_]
+            cxx, cyy = hx.var() + 1.0 / 12.0, hy.var() + 1.0 / 12.0
+            cxy = ((hx - hx.mean()) * (hy - hy.mean())).mean()
+            half = np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
+            l1, l2 = 0.5 * (cxx + cyy) + half, max(0.5 * (cxx + cyy) - half, 1e-12)
+            w = np.maximum(th[ys[s_], xs[s_]].astype(np.float64) - level, 0.0)
+            if w.sum() <= 0:
+                break
+            measures.append(((float((w * hx).sum() / w.sum()), float((w * hy).sum() / w.sum())),
+                             float(n), float(np.sqrt(l1 / l2)),
+                             float(n / (4.0 * np.pi * np.sqrt(l1 * l2)))))
+        if len(measures) < 2 or not all(
+                p.area_ratio_min <= m[1] / area_ref <= p.area_ratio_max
+                and m[2] <= p.max_elongation and m[3] >= p.min_fill for m in measures):
+            continue
+        done.append(row)
+        for c, a, e, f in measures:
+            pts.append(c)
+            area.append(a)
+            elong.append(e)
+            fill.append(f)
+    if not done:
+        return None
+    return (np.array(done), np.array(pts), np.array(area), np.array(elong), np.array(fill))
 
 
 def _above_floor(th: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
@@ -406,6 +479,12 @@ _BINARY_STRUCTURE_RATIO = 10.0
 #: touching markers (two equal discs side by side: area ratio 2, axis ratio about 2).
 _BINARY_PAIR_RATIO = (1.6, 2.6)
 _BINARY_PAIR_ELONGATION = 1.4
+#: A grey-level blob of two markers is split only where it narrows, at its cut, to less than
+#: this fraction of a marker diameter: two markers side by side joined by a smear have a waist
+#: (0.45-0.55 of a diameter on the real raw TacTip frames); two caps overlapping by most of
+#: their width make one oval with none (0.9 on simulated caps pressed against the window), and
+#: cut in two it gives centroids 6-7 px from either cap.
+_PAIR_WAIST = 0.75
 #: Components smaller than this fraction of the reference area count as markers only inside
 #: the hull of the full-size ones.
 _BINARY_SPECK_RATIO = 0.5

@@ -197,6 +197,34 @@ def test_steady_allocator_stops_page_faults_under_dasks_trim_setting():
     assert counts["steady"] < counts["plain"] / 20
 
 
+_POOLS = """
+import drjit, threadpoolctl
+import scipy.linalg  # loads SciPy's own OpenBLAS beside NumPy's
+from calibration.dask_setup import one_thread_pools
+before = max(d["num_threads"] for d in threadpoolctl.threadpool_info())
+one_thread_pools()
+after = [d["num_threads"] for d in threadpoolctl.threadpool_info()]
+print(before, max(after), len(after), drjit.thread_count())
+"""
+
+
+def test_worker_thread_pools_are_one_thread_each():
+    """A sweep worker's parallelism is its task slot: its BLAS pools (NumPy's and SciPy's) and
+    Dr.Jit's are cut to one thread (on this 2-core machine they start with two each)."""
+    import os
+    import subprocess
+    import sys
+
+    from .conftest import ROOT
+
+    done = subprocess.run([sys.executable, "-c", _POOLS], capture_output=True, text=True,
+                          check=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    before, after, pools, drjit_threads = (int(v) for v in done.stdout.split())
+    assert pools >= 1 and after == 1 and drjit_threads == 1
+    if (os.cpu_count() or 1) > 1 and "OPENBLAS_NUM_THREADS" not in os.environ:
+        assert before > 1  # the default the workers had: a thread per core
+
+
 def test_interrupt_warnings_are_dropped_and_nothing_else():
     import logging
 

@@ -395,3 +395,70 @@ def test_foreground_window_gives_the_whole_frame_answer(monkeypatch, seed, inset
     assert np.array_equal(windowed.peaks, whole.peaks)
     assert windowed.rejected_reasons == whole.rejected_reasons
     assert np.allclose(windowed.rejected_points, whole.rejected_points, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("angle_deg, bridge", [(0.0, 0.5), (60.0, 0.55), (-37.0, 0.6)])
+def test_two_markers_joined_by_a_smear_are_both_found(angle_deg, bridge, monkeypatch):
+    # a real TacTip skin has pairs of markers joined by a grey smear (docs/real_data.md): one
+    # dumbbell blob, rejected for its shape. It is cut across its major axis and both
+    # markers come back, each near its true centre; with the split disabled they are lost.
+    # (The smear is above the markers' half maximum: a fainter one separates them anyway.)
+    import cv2
+
+    import perception.detect as detect_module
+
+    rng = np.random.default_rng(int(angle_deg) + 100)
+    centres = pc.hex_lattice(97, 30.0, CENTRE) + rng.uniform(-0.5, 0.5, (97, 2))
+    a = centres[int(np.argmin(np.linalg.norm(centres - (CENTRE[0] + 40, CENTRE[1] + 25),
+                                             axis=1)))]
+    t = np.deg2rad(angle_deg)
+    b = a + 16.0 * np.array([np.cos(t), np.sin(t)])  # 16 px apart: 5 px of skin between
+    keep = np.linalg.norm(centres - a, axis=1) > 25.0
+    keep &= np.linalg.norm(centres - b, axis=1) > 25.0
+    truth = np.vstack([centres[keep], a, b])
+    frame = render_markers(truth, diameter_px=11.0, noise_sigma=0.0, blur_sigma_px=0.8,
+                           rng=rng).image
+    smear = np.zeros_like(frame)
+    cv2.line(smear, tuple(int(round(v)) for v in a), tuple(int(round(v)) for v in b),
+             int(bridge * 255), thickness=4)
+    image = np.maximum(frame, cv2.GaussianBlur(smear, (5, 5), 1.0))
+    image = np.clip(image + rng.normal(0.0, 2.0, image.shape), 0, 255).astype(np.uint8)
+
+    det = pc.detect_markers_detailed(image, expected_count=len(truth))
+    dist, idx = _match(truth, det.points)
+    assert det.count == len(truth), det.count
+    for k in (len(truth) - 2, len(truth) - 1):  # the two joined markers
+        assert (idx == k).sum() == 1
+        assert dist[idx == k][0] < 1.0, dist[idx == k]
+    assert np.max(dist) < 1.0
+
+    monkeypatch.setattr(detect_module, "_split_pairs", lambda *args: None)
+    unsplit = pc.detect_markers_detailed(image, expected_count=len(truth))
+    assert unsplit.count == len(truth) - 2
+
+
+def test_an_oval_of_two_overlapping_caps_is_not_cut(monkeypatch):
+    # two caps pressed against the window image larger than the rest (1.22 diameters) and
+    # overlap (centres 0.6 of their diameter apart): one oval blob of 2.55 marker areas,
+    # rejected for its size, with no waist (0.8 of a cap's diameter where the two meet).
+    # Cutting it would put both centroids between the caps, so the detector leaves it as the
+    # filters found it: the same answer as with no split at all
+    import perception.detect as detect_module
+
+    rng = np.random.default_rng(7)
+    d = 12.0
+    centres = pc.hex_lattice(97, 30.0, CENTRE) + rng.uniform(-0.5, 0.5, (97, 2))
+    a = centres[int(np.argmin(np.linalg.norm(centres - (CENTRE[0] - 35, CENTRE[1] + 20),
+                                             axis=1)))]
+    big = 1.22 * d
+    b = a + (0.6 * big, 0.0)
+    keep = (np.linalg.norm(centres - a, axis=1) > 28.0) & (np.linalg.norm(centres - b, axis=1)
+                                                            > 28.0)
+    rest = render_markers(centres[keep], diameter_px=d, blur_sigma_px=0.8, rng=rng).image
+    pair = render_markers(np.vstack([a, b]), diameter_px=big, blur_sigma_px=0.8, rng=rng).image
+    image = np.maximum(rest, pair)
+    det = pc.detect_markers_detailed(image)
+    assert "size" in det.rejected_reasons  # the oval
+    monkeypatch.setattr(detect_module, "_split_pairs", lambda *args: None)
+    plain = pc.detect_markers_detailed(image)
+    assert det.count == plain.count and np.array_equal(det.points, plain.points)

@@ -76,9 +76,10 @@ def _tap_frames():
 @pytest.mark.parametrize("path", _tap_frames(), ids=lambda p: p.name)
 def test_331_tap_frames(path):
     det = pc.detect_markers_detailed(path, expected_count=331)
-    # two markers of this skin are joined by a smear (visible in every frame) and are
-    # rightly rejected as one non-marker blob; a few more can be lost under deep contact
-    assert 331 - 6 <= det.count <= 331 + 3
+    # two pairs of markers of this skin are joined by a smear (visible in every frame): each
+    # is one blob, rejected for its shape, then split in two; the target: >= 99 % of
+    # the pins found on every frame
+    assert 331 * 0.99 <= det.count <= 331 + 3
     assert det.reliable, det.reason
     disc = _dark_disc(pc.as_grey(path))
     assert _inside_with_margin(disc, det.points, det.marker_diameter_px).all()

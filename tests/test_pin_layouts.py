@@ -90,3 +90,30 @@ def test_ring_layout_needs_a_centred_hexagonal_count():
         ts.build_pad(replace_in(scene, pins={"count": 330}))
     with pytest.raises(SceneError, match="pins.layout"):
         replace_in(scene, pins={"layout": "spiral"})
+
+
+def test_vertical_mapping_projects_the_flat_layout_straight_up():
+    # pins.mapping = "vertical": each flat ring point (u, v) goes to the skin point above it,
+    # on the inner hemisphere x² + y² + z² = R², so its arc from the apex is R asin(ρ / R)
+    # (more than ρ: spacing along the skin grows towards the rim)
+    scene = replace_in(ts.load_scene(SCENES / "tactip_127.toml"),
+                       pins={"mapping": "vertical", "pitch_mm": 2.6})
+    pad = ts.build_pad(scene)
+    uv, roots = pad.pins.lattice_uv, pad.pins.roots
+    radius = scene.pad.footprint_length_mm / 2 - scene.skin.thickness_mm
+    assert np.allclose(roots[:, :2], uv, atol=1e-12)
+    assert np.allclose(np.linalg.norm(roots, axis=1), radius, atol=1e-9)
+    rho = np.hypot(uv[:, 0], uv[:, 1])
+    arc = radius * np.arccos(np.clip(roots[:, 2] / radius, -1, 1))
+    assert np.allclose(arc, radius * np.arcsin(rho / radius), atol=1e-9)
+    assert np.all(arc[rho > 0] > rho[rho > 0])
+    # the default ("arc") leaves the hash alone; the lattice layout cannot be projected
+    base = ts.load_scene(SCENES / "shadow_fingertip.toml")
+    assert scene_hash(replace_in(base, pins={"mapping": "arc"})) == scene_hash(base)
+    with pytest.raises(SceneError, match="pins.mapping='vertical' needs a ring layout"):
+        ts.build_pad(replace_in(base, pins={"mapping": "vertical"}))
+    with pytest.raises(SceneError, match="pins.mapping"):
+        replace_in(base, pins={"mapping": "radial"})
+    # a ring that does not fit inside the footprint names the key
+    with pytest.raises(SceneError, match="pins.pitch_mm=3.5"):
+        ts.build_pad(replace_in(scene, pins={"pitch_mm": 3.5}))

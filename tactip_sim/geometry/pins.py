@@ -15,7 +15,8 @@ The Bristol hemispherical TacTips lay their pins out in rings about the apex ins
 origin (the 127-pin tip: n = 6), ``circle_rings`` puts 6k pins equally spaced on the circle of
 arc radius k * pitch, k = 1..n (the 331-pin tip: n = 10; every ring has a pin at azimuth 0, so
 six spokes show). Both hold 1 + 3n(n + 1) pins. Either layout, in the same flat (u, v) plane,
-goes through the same map onto the dome.
+goes through the same map onto the dome, or (``pins.mapping = "vertical"``) is projected straight
+up onto it: a flat lattice whose spacing along the skin grows towards the rim.
 """
 
 from __future__ import annotations
@@ -121,6 +122,16 @@ def _ring_layout(inner: DomeShape, pins: Pins) -> np.ndarray:
     return _rotate(make(n, pins.pitch_mm), pins.rotation_deg)
 
 
+def project_to_dome(inner: DomeShape, uv: np.ndarray) -> np.ndarray:
+    """Vertical projection of flat points (n, 2) onto the dome: (u, v, top_z(u, v)), (n, 3).
+
+    Raises ValueError if a point lies outside the dome's footprint."""
+    z = inner.top_z(uv[:, 0], uv[:, 1])
+    if not np.all(np.isfinite(z)):
+        raise ValueError("lattice point outside the dome's footprint")
+    return np.column_stack([uv, z])
+
+
 def map_to_dome(inner: DomeShape, uv: np.ndarray) -> np.ndarray:
     """Azimuthal-equidistant map of lattice points (n, 2) onto the dome; returns (n, 3).
 
@@ -164,6 +175,10 @@ def place_pins(
     if pins.layout in RING_LAYOUTS:
         uv = _ring_layout(inner, pins)
         return _on_dome(inner, pins, uv, perturbation_mm, clip=1.0)
+    if pins.mapping != "arc":
+        raise SceneError(f"pins.mapping={pins.mapping!r} needs a ring layout (pins.layout = "
+                         f"{' or '.join(RING_LAYOUTS)}); the lattice layout is clipped along "
+                         "the skin: use pins.mapping = \"arc\"")
     _, arc = inner.meridian_arc(np.array([0.0, np.pi / 2]))
     extent = float(arc[:, -1].max()) + pins.pitch_mm
     uv = _rotate(triangular_lattice(pins.pitch_mm, extent), pins.rotation_deg)
@@ -199,10 +214,14 @@ def _on_dome(inner: DomeShape, pins: Pins, uv: np.ndarray, perturbation_mm: np.n
     n = len(uv)
     if perturbation_mm is not None:
         uv = uv + np.asarray(perturbation_mm, dtype=float).reshape(n, 2)
-    # the outermost pin must keep its radius from the wall
+    # the outermost pin must keep its radius from the wall (along the skin; for a vertical
+    # projection, across the footprint)
     phi = np.arctan2(uv[:, 1], uv[:, 0])
-    arc_max = inner.meridian_arc(phi, n_alpha=1024)[1][:, -1]
-    margin = arc_max - np.hypot(uv[:, 0], uv[:, 1])
+    if pins.mapping == "vertical":
+        margin = inner.radius_at(phi) - np.hypot(uv[:, 0], uv[:, 1])
+    else:
+        arc_max = inner.meridian_arc(phi, n_alpha=1024)[1][:, -1]
+        margin = arc_max - np.hypot(uv[:, 0], uv[:, 1])
     if margin.min() < pins.diameter_mm / 2:
         raise SceneError(
             f"pins.count={n} at pins.pitch_mm={pins.pitch_mm:g} puts a pin within "
@@ -210,7 +229,7 @@ def _on_dome(inner: DomeShape, pins: Pins, uv: np.ndarray, perturbation_mm: np.n
             f"pins.diameter_mm/2={pins.diameter_mm / 2:g}: reduce the count or pitch, or enlarge "
             "the pad"
         )
-    roots = map_to_dome(inner, uv)
+    roots = project_to_dome(inner, uv) if pins.mapping == "vertical" else map_to_dome(inner, uv)
     directions = -inner.outward_normal(roots)
     tips = roots + pins.length_mm * directions
     low = int(np.argmin(tips[:, 2]))

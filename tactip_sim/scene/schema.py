@@ -15,6 +15,7 @@ LENS_MODELS = ("equidistant", "equisolid", "stereographic", "kannala_brandt")
 INDENTERS = ("plate", "sphere", "cylinder", "edge", "mesh")
 PIN_MODELS = ("embedded", "rod")
 PIN_LAYOUTS = ("lattice", "hex_rings", "circle_rings")
+PIN_MAPPINGS = ("arc", "vertical")
 REFRACTION = ("none", "analytic", "path")
 MATERIAL_MODELS = ("linear", "neo_hookean")
 CONTACT_SOLVERS = ("reduced", "full")
@@ -67,8 +68,8 @@ class Pins:
 
     ``layout`` (default ``lattice``, the seed sensor's) picks the pattern; ``hex_rings`` and
     ``circle_rings`` are the Bristol hemispherical TacTips' (127 = 6 rings, 331 = 10 rings).
-    ``layout`` and ``rotation_deg`` are left out of the scene's dict and hash at their defaults,
-    so scenes written before they existed keep their hashes.
+    ``layout``, ``rotation_deg`` and ``mapping`` are left out of the scene's dict and hash at
+    their defaults, so scenes written before they existed keep their hashes.
 
     The lattice pitch is measured along the skin's inner surface (an azimuthal-equidistant map
     from the apex), so pins keep their spacing over the curved dome; the lattice is clipped to a
@@ -90,6 +91,10 @@ class Pins:
     )
     rotation_deg: float = spec(0.0, "float", "rotation of the layout about the apex (+z)",
                                lo=-180, hi=180)
+    mapping: str = spec(
+        "arc", "str", "how a ring layout's flat points reach the skin: arc, at their distance "
+        "from the apex along the skin (an azimuthal-equidistant map); vertical, straight up "
+        "onto the skin (a flat lattice projected along the tip's axis)", choices=PIN_MAPPINGS)
 
 
 @dataclass(frozen=True)
