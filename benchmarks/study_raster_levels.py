@@ -4,7 +4,8 @@ perception on linear physics (docs/speed.md, issue 21).
     python benchmarks/study_raster_levels.py [--out docs/speed/fidelity] [--scene SCENE]
 
 Runs ``calibration.studies.fidelity.run_fidelity_study`` on the levels ``balanced``,
-``1 frame``, ``raster caps`` and ``raster caps + 1 frame``. The reference level is the
+``1 frame``, ``raster caps``, ``raster caps + 1 frame``, ``image mean`` and ``raster caps +
+image mean``. The reference level is the
 ``reference`` preset (Lambert caps, 16 spp, 60 frames) with ``material_model = "linear"``: every
 level then shares one FEM result and the errors are those of the render and perception path
 alone. (The full study, ``tactip study fidelity``, uses the neo-Hookean reference press, ~10 min
@@ -21,7 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-LEVELS = ["balanced", "1 frame", "raster caps", "raster caps + 1 frame"]
+LEVELS = ["balanced", "1 frame", "raster caps", "raster caps + 1 frame", "image mean",
+          "raster caps + image mean"]
 
 
 def main() -> None:

@@ -15,7 +15,9 @@ the one rule that says which rest-frame marker is which pin (:func:`identify_mar
 Frames per sample: the rig averages ~60 frames over 3 s of a static contact; only sensor noise
 changes between them. So a sample is rendered once (the expensive part, noise-free) and its
 ``frames`` noisy frames are synthesised from that radiance with the scene's seeded camera noise
-model; perception runs on every noisy frame and the features are averaged, as in the paper.
+model; perception runs on every noisy frame and the features are averaged, as in the paper
+(``protocol.frame_average = "features"``). The fidelity level ``"image"`` averages the frames
+pixel by pixel instead and perceives the mean image once (docs/speed.md).
 
 Seeds: a chain's randomness comes from ``SeedSequence([protocol.seed, tip index, *key])``;
 the rest frame's key is ``(REST_KEY,)`` and a sample's key is given by the caller (a sweep
@@ -99,7 +101,8 @@ class Rendered:
     markers_px : (n, 2) analytic marker centres (OpenCV px; NaN beyond the lens)
     visible : (n,) bool, markers the camera can see
     blobs_px : (n, 2) analytic cap-image centroids (OpenCV px)
-    images : the ``frames`` noisy uint8 frames (one noise-free render, seeded noise)
+    images : the ``frames`` noisy uint8 frames (one noise-free render, seeded noise); with
+        ``protocol.frame_average = "image"`` their 16-bit pixel mean alone
     """
 
     markers_px: np.ndarray
@@ -361,8 +364,18 @@ class Chain:
         camera = self.renderer.camera
         if gain != 1.0:
             camera = dataclasses.replace(camera, exposure=camera.exposure * gain)
-        images = camera.frames(radiance, rng, self.frames if frames is None else frames)
+        images = self.averaged(camera.frames(radiance, rng,
+                                             self.frames if frames is None else frames))
         return Rendered(px, visible, blobs, images)
+
+    def averaged(self, images: list[np.ndarray]) -> list[np.ndarray]:
+        """The frames perception sees: ``images`` (``protocol.frame_average = "features"``,
+        each perceived) or their 16-bit pixel mean alone (``"image"``: one perception)."""
+        if len(images) > 1 and self.scene.protocol.frame_average == "image":
+            from tactip_sim.render.noise import average_frames
+
+            return [average_frames(images)]
+        return images
 
     def perceive(self, images: Sequence[np.ndarray]) -> Perceived:
         """:func:`perceive` with this chain's pipeline."""

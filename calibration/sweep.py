@@ -318,6 +318,7 @@ def rig_sample(spec: SweepSpec, chain: Chain, index: int, reached: Sequence[floa
     images = camera.frames(radiance, crng, chain.frames)
     if rig.jpeg_quality > 0:
         images = [jpeg_roundtrip(im, int(rig.jpeg_quality)) for im in images]
+    images = chain.averaged(images)
     t1 = time.perf_counter()
     pipe, pin_of = _pipeline(spec, chain)
     perceived = perceive(pipe, images)

@@ -101,6 +101,11 @@ def study_levels(scene: ts.Scene) -> list[Level]:
         ("raster caps + 1 frame", "render",
          {"imaging": {"cap_layer": "raster"}, "protocol": {"frames_per_sample": 1}},
          "raster caps and no averaging (two knobs: the fastest combination)"),
+        ("image mean", "perception", {"protocol": {"frame_average": "image"}},
+         "the frames averaged pixel by pixel, the mean perceived once"),
+        ("raster caps + image mean", "render",
+         {"imaging": {"cap_layer": "raster"}, "protocol": {"frame_average": "image"}},
+         "raster caps, the frames averaged pixel by pixel and perceived once"),
     ]
     return levels + [Level(n, st, s, base=BASE, note=note) for n, st, s, note in variants]
 

@@ -151,7 +151,7 @@ class CameraModel:
         return out.astype(np.uint8)
 
     def frames(self, radiance: np.ndarray, rng: np.random.Generator | None, count: int
-               ) -> list[np.ndarray]:
+               ) -> list[np.ndarray]:  # (see average_frames for the pixel mean of them)
         """``count`` frames of one static exposure, as a camera delivers them: blur, vignetting
         and exposure once (:meth:`expose`), then fresh sensor noise per frame (:meth:`digitise`).
         """
@@ -175,3 +175,21 @@ class CameraModel:
         (H, W) or (H, W, 3) uint8
         """
         return self.digitise(self.expose(radiance, vignette=vignette), rng)
+
+
+MEAN_SCALE = 257
+""":func:`average_frames` writes the mean of 8-bit frames in 16 bits, DN × 257 (255 -> 65535)."""
+
+
+def average_frames(frames: list[np.ndarray]) -> np.ndarray:
+    """The pixel mean of 8-bit frames as a 16-bit image (``round(mean DN × 257)``): the mean
+    of n frames takes n·255 + 1 values, which 8 bits would cut back to 256. Perception reads
+    a uint16 frame at its own full scale, so the mean is the same brightness."""
+    if not frames:
+        raise ValueError("average_frames needs at least one frame")
+    total = np.zeros(frames[0].shape, dtype=np.float32)
+    for f in frames:
+        total += f
+    total *= np.float32(MEAN_SCALE / len(frames))
+    np.rint(total, out=total)
+    return total.astype(np.uint16)

@@ -269,7 +269,8 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
 #: (section, key) pairs left out of :func:`scene_to_dict` (so of the hash) at their default.
 _OMIT_AT_DEFAULT = (("pins", "layout"), ("pins", "rotation_deg"), ("pins", "mapping"),
                     ("fidelity", "contact_tolerance"), ("fidelity", "contact_refinement"),
-                    ("indenter", "friction_coefficient"), ("imaging", "cap_layer"))
+                    ("indenter", "friction_coefficient"), ("imaging", "cap_layer"),
+                    ("protocol", "frame_average"))
 
 
 def _default_of(section: str, key: str) -> Any:

@@ -31,7 +31,7 @@ PRESET_KEYS: dict[str, tuple[str, ...]] = {
     "pins": ("model",),
     "imaging": ("spp", "refraction", "shading"),
     "camera": ("resolution", "pixel_pitch_um"),
-    "protocol": ("frames_per_sample",),
+    "protocol": ("frames_per_sample", "frame_average"),
 }
 """The keys a preset may set: the modelling choices of every stage (physics, pin model,
 rendering, render resolution, frames averaged). ``camera.resolution`` with

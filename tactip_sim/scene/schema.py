@@ -16,6 +16,7 @@ INDENTERS = ("plate", "sphere", "cylinder", "edge", "mesh")
 PIN_MODELS = ("embedded", "rod")
 PIN_LAYOUTS = ("lattice", "hex_rings", "circle_rings")
 PIN_MAPPINGS = ("arc", "vertical")
+FRAME_AVERAGES = ("features", "image")
 REFRACTION = ("none", "analytic", "path")
 MATERIAL_MODELS = ("linear", "neo_hookean")
 CONTACT_SOLVERS = ("reduced", "full")
@@ -250,6 +251,11 @@ class Protocol:
                                   hi=10_000)
     tips: tuple[str, ...] = spec(["A", "B", "C"], "str_list", "tip instances", min_length=1)
     seed: int = spec(0, "int", "seed of the test poses and the tip perturbations", lo=0)
+    frame_average: str = spec(
+        "features", "str", "how a sample's frames are averaged: features, each frame perceived "
+        "and the features averaged (the paper's); image, the frames averaged pixel by pixel "
+        "and the mean image perceived once (a faster fidelity level, docs/speed.md)",
+        choices=FRAME_AVERAGES)
 
 
 @dataclass(frozen=True)
