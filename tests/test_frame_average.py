@@ -63,3 +63,17 @@ def test_image_mean_perceives_the_markers_and_cop_of_the_frame_by_frame_average(
     for name in ("cop_area", "cop_growth", "cop_hull"):
         a, b = getattr(img.perceived, name), getattr(feat.perceived, name)
         assert np.linalg.norm(a - b) < 0.1, (name, a, b)
+
+
+def test_recognition_images_of_a_frame_mean_are_on_the_rest_frames_8_bit_scale():
+    # object recognition differences contact images against the (8-bit) rest frame: a 16-bit
+    # frame mean must come back on the same scale
+    from calibration.recognition.contacts import downsample
+
+    rng = np.random.default_rng(1)
+    frame = rng.integers(0, 256, (48, 64), dtype=np.uint8)
+    mean = average_frames([frame, frame])
+    assert mean.dtype == np.uint16
+    small = downsample(mean, (16, 12))
+    assert small.dtype == np.uint8
+    assert np.array_equal(small, downsample(frame, (16, 12)))

@@ -210,11 +210,17 @@ def pin_growth(chain: Chain, frame_points: np.ndarray) -> np.ndarray:
 
 
 def downsample(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """A grey uint8 frame area-averaged to ``size`` = (width, height)."""
+    """A grey uint8 frame area-averaged to ``size`` = (width, height). A 16-bit frame mean
+    (``protocol.frame_average = "image"``) comes back on the 8-bit scale of the rest frame."""
     import cv2
 
+    from tactip_sim.render.noise import MEAN_SCALE
+
     grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    return cv2.resize(grey, (int(size[0]), int(size[1])), interpolation=cv2.INTER_AREA)
+    small = cv2.resize(grey, (int(size[0]), int(size[1])), interpolation=cv2.INTER_AREA)
+    if small.dtype == np.uint16:
+        small = np.rint(small / MEAN_SCALE).astype(np.uint8)
+    return small
 
 
 def contact(chain: Chain, sim: ts.Simulator, spec: ContactSpec, index: int

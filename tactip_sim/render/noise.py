@@ -151,7 +151,7 @@ class CameraModel:
         return out.astype(np.uint8)
 
     def frames(self, radiance: np.ndarray, rng: np.random.Generator | None, count: int
-               ) -> list[np.ndarray]:  # (see average_frames for the pixel mean of them)
+               ) -> list[np.ndarray]:
         """``count`` frames of one static exposure, as a camera delivers them: blur, vignetting
         and exposure once (:meth:`expose`), then fresh sensor noise per frame (:meth:`digitise`).
         """
