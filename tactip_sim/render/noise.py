@@ -13,6 +13,7 @@ The quantised normal differs from a true one only in its far tails (see :func:`n
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +59,18 @@ def standard_normal_16bit(rng: np.random.Generator, shape: tuple[int, ...]) -> n
     return normal_table().take(bits)
 
 
+@functools.lru_cache(maxsize=8)
+def _vignette_map(cx: float, cy: float, vignetting: float, height: int, width: int
+                  ) -> np.ndarray:
+    y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+    r2 = (x - cx) ** 2 + (y - cy) ** 2
+    corners = [(0, 0), (width - 1, 0), (0, height - 1), (width - 1, height - 1)]
+    r2c = max((px - cx) ** 2 + (py - cy) ** 2 for px, py in corners)
+    out = (1.0 - vignetting * r2 / r2c).astype(np.float32)
+    out.setflags(write=False)
+    return out
+
+
 @dataclass(frozen=True)
 class CameraModel:
     """Exposure, blur, vignetting and noise of the image sensor (DN = 8-bit digital numbers).
@@ -86,13 +99,11 @@ class CameraModel:
                    ((w - 1) / 2 + ox, (h - 1) / 2 + oy))
 
     def vignette(self, height: int, width: int) -> np.ndarray:
-        """(H, W) float32 relative illumination."""
+        """(H, W) float32 relative illumination (read-only: computed once per camera and
+        frame size, then shared; every frame of every sample uses the same map)."""
         cx, cy = self.principal_point_px
-        y, x = np.mgrid[0:height, 0:width].astype(np.float32)
-        r2 = (x - cx) ** 2 + (y - cy) ** 2
-        corners = [(0, 0), (width - 1, 0), (0, height - 1), (width - 1, height - 1)]
-        r2c = max((px - cx) ** 2 + (py - cy) ** 2 for px, py in corners)
-        return (1.0 - self.vignetting * r2 / r2c).astype(np.float32)
+        return _vignette_map(float(cx), float(cy), float(self.vignetting), int(height),
+                             int(width))
 
     def expose(self, radiance: np.ndarray, *, vignette: np.ndarray | None = None
                ) -> np.ndarray:
