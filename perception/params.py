@@ -128,6 +128,13 @@ class TrackingParams:
         marker that grew, e.g. a 1-3 px marker of a 128x128 binarised frame pressed into
         contact, whose area then varies by more than ``merge_area_ratio`` from pixel
         quantisation alone. Default False (every oversized blob is a merged pair).
+    merged_pairs_share : bool
+        With ``merge_needs_lost_neighbour``: a merged pair's blob feeds both of its tracks,
+        the one matched to it and the nearest track left without a detection within the gate.
+        Their centroid is the blob's, their separation the predicted one (each at the blob's
+        centroid ± half the difference of their predicted positions): two markers a 128x128
+        frame images as one blob stay tracked, each off by at most half the change of their
+        separation. Default False (both flagged).
     """
 
     gate_fraction: float = 0.5
@@ -135,11 +142,15 @@ class TrackingParams:
     merge_area_ratio: float = 1.6
     max_lost_fraction: float = 0.1
     merge_needs_lost_neighbour: bool = False
+    merged_pairs_share: bool = False
 
     def __post_init__(self) -> None:
         _check_range("gate_fraction", self.gate_fraction, 0, 2, lo_open=True)
         _check_range("merge_area_ratio", self.merge_area_ratio, 1, 100, lo_open=True)
         _check_range("max_lost_fraction", self.max_lost_fraction, 0, 1)
+        if self.merged_pairs_share and not self.merge_needs_lost_neighbour:
+            raise PerceptionError("merged_pairs_share=True needs merge_needs_lost_neighbour="
+                                  "True (the pair's other track is the lost neighbour)")
 
 
 @dataclass(frozen=True)

@@ -196,6 +196,8 @@ class MarkerTracker:
         new_pos[track[good]] = det[match[good]]
         status[track[good]] = TRACKED
         status[track[~good]] = MERGED
+        if self.params.merged_pairs_share and not good.all():
+            self._share_pairs(track, match, det, good, new_pos, status)
 
         ok = status == TRACKED
         # velocity only from consecutive sightings; re-acquired tracks restart at zero
@@ -228,6 +230,30 @@ class MarkerTracker:
                        cdist(blobs, self.rest_points[unmatched]))
         out[big[d.min(axis=1) > self.gate_px]] = True
         return out
+
+    def _share_pairs(self, track: np.ndarray, match: np.ndarray, det: np.ndarray,
+                     good: np.ndarray, new_pos: np.ndarray, status: np.ndarray) -> None:
+        """Give each merged pair's blob to both of its tracks (``merged_pairs_share``), in
+        place: the matched track and the nearest unmatched one within the gate, at the
+        blob's centroid ± half their predicted separation."""
+        unmatched = np.ones(len(self.rest_points), dtype=bool)
+        unmatched[track] = False
+        pred = self.predicted()
+        free = np.flatnonzero(unmatched)
+        for k in np.flatnonzero(~good):
+            if free.size == 0:
+                return
+            t, c = track[k], det[match[k]]
+            d = np.minimum(np.linalg.norm(pred[free] - c, axis=1),
+                           np.linalg.norm(self.rest_points[free] - c, axis=1))
+            j = int(np.argmin(d))
+            if d[j] > self.gate_px:
+                continue
+            u = free[j]
+            half = 0.5 * (pred[t] - pred[u])
+            new_pos[t], new_pos[u] = c + half, c - half
+            status[t] = status[u] = TRACKED
+            free = np.delete(free, j)
 
     def _assign(self, det: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Gated optimal one-to-one assignment: (track indices, detection indices)."""

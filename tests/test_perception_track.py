@@ -130,6 +130,42 @@ def test_merged_pair_is_flagged_not_duplicated():
     assert len(np.unique(used)) == len(used)
 
 
+def test_merged_pair_shares_its_blob_when_asked():
+    """``merged_pairs_share``: two markers pushed together (each 3 px towards the other) and
+    imaged as one blob at their midpoint. Both tracks take the blob's centroid ± half their
+    predicted (rest) separation: each lands 3 px from its true place (the change of the pair's
+    half-separation), both are tracked; without the option both are lost."""
+    rest = _rest()
+    i, j = 0, 1
+    unit = (rest[j] - rest[i]) / SPACING
+    truth = rest.copy()
+    truth[i] += 3.0 * unit
+    truth[j] -= 3.0 * unit
+    off = np.array([0.4, -0.2])  # the blob's centroid, a little off the pair's midpoint
+    blob = 0.5 * (truth[i] + truth[j]) + off
+    det = np.vstack([np.delete(truth, [i, j], axis=0), blob])
+    areas = np.r_[np.full(len(det) - 1, 80.0), 150.0]
+    params = pc.TrackingParams(gate_fraction=1.0, use_velocity=False,
+                               merge_needs_lost_neighbour=True, merged_pairs_share=True)
+    tracker = pc.MarkerTracker(rest, rest_areas=np.full(len(rest), 80.0), params=params)
+    out = tracker.update(det, areas=areas)
+    assert (tracker.status == pc.TRACKED).all()
+    half = 0.5 * (rest[i] - rest[j])
+    assert np.allclose(out[i], blob + half) and np.allclose(out[j], blob - half)
+    # midpoint ± half the rest separation = the rest positions: off by the 3 px push
+    assert np.allclose(out[i] - truth[i], off - 3.0 * unit)
+    assert np.allclose(out[j] - truth[j], off + 3.0 * unit)
+    others = np.delete(np.arange(len(rest)), [i, j])
+    assert np.allclose(out[others], rest[others])
+
+    plain = pc.MarkerTracker(rest, rest_areas=np.full(len(rest), 80.0),
+                             params=pc.TrackingParams(gate_fraction=1.0, use_velocity=False,
+                                                      merge_needs_lost_neighbour=True))
+    assert np.isnan(plain.update(det, areas=areas)[[i, j]]).all()
+    with pytest.raises(pc.PerceptionError, match="merged_pairs_share=True needs"):
+        pc.TrackingParams(merged_pairs_share=True)
+
+
 def test_one_to_one_with_a_spurious_detection():
     rest = _rest()
     tracker = pc.MarkerTracker(rest)
