@@ -274,8 +274,13 @@ class Dataset:
 
     def write_sample(self, record: SampleRecord, image_png: bytes) -> None:
         """Image first, record last: a record's presence means the sample is complete."""
-        atomic_write_bytes(self.image_path(record.index), image_png)
-        atomic_write_bytes(self.record_path(record.index), record.to_npz_bytes())
+        self.write_encoded(record.index, record.to_npz_bytes(), image_png)
+
+    def write_encoded(self, index: int, record_npz: bytes, image_png: bytes) -> None:
+        """:meth:`write_sample` of a record already encoded (``SampleRecord.to_npz_bytes``,
+        done by the worker that computed it, so the process writing the files only writes)."""
+        atomic_write_bytes(self.image_path(index), image_png)
+        atomic_write_bytes(self.record_path(index), record_npz)
 
     def records(self) -> list[SampleRecord]:
         return [SampleRecord.from_npz(self.record_path(i)) for i in sorted(self.done())]

@@ -175,9 +175,11 @@ def warm_up(spec: SweepSpec, client: Any = None) -> list[float]:
 
 
 def run_chunk(spec: SweepSpec, indices: Sequence[int]
-              ) -> tuple[bytes, list[tuple[SampleRecord, bytes, float]]]:
+              ) -> tuple[bytes, list[tuple[int, bytes, bytes, float]]]:
     """Compute samples ``indices`` of ``spec`` (runs in a worker process). Returns the rest
-    frame (PNG) and, per sample, its record, its first frame (PNG) and the seconds it took."""
+    frame (PNG) and, per sample, its index, its record (``SampleRecord.to_npz_bytes``), its
+    first frame (PNG) and the seconds it took: encoded here, so the process that writes the
+    files (one for all the workers) only writes them."""
     import cv2
 
     chain = chain_for(spec)
@@ -196,7 +198,7 @@ def run_chunk(spec: SweepSpec, indices: Sequence[int]
         ok, png = cv2.imencode(".png", s.rendered.images[0])
         if not ok:  # pragma: no cover - OpenCV cannot fail on a uint8 image
             raise RuntimeError(f"could not encode sample {i} as PNG")
-        out.append((record(int(i), pose, s, reached), png.tobytes(),
+        out.append((int(i), record(int(i), pose, s, reached).to_npz_bytes(), png.tobytes(),
                     time.perf_counter() - t0))
     return cv2.imencode(".png", chain.rest_image)[1].tobytes(), out
 
@@ -387,12 +389,12 @@ def run_sweep(
                                          scheduler=scheduler, client=client):
             if not ds.rest_image_path.is_file():
                 ds.write_rest(rest_png)
-            for rec, png, secs in results:
-                ds.write_sample(rec, png)
+            for index, npz, png, secs in results:
+                ds.write_encoded(index, npz, png)
                 sample_seconds += secs
                 bar.update(1)
                 if on_sample is not None:
-                    on_sample(rec.index)
+                    on_sample(index)
     finally:
         bar.close()
     complete = len(ds.done()) == len(spec.poses)
