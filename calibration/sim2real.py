@@ -148,6 +148,7 @@ def blob_level(small: np.ndarray, area_px: float = BLOB_AREA_128) -> int:
         raise ValueError("no grey level shows markers in the resampled rest frame")
     return best[1]
 
+
 TAP_DEPTHS = ("contact", "tip")
 """What a data set's depth (``pose_3``) measures. ``contact``: the indentation beyond first
 contact at the tap's orientation (the simulator's own :class:`~tactip_sim.fem.pose.Pose`

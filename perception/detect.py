@@ -20,7 +20,9 @@ The method, with no per-image tuning (every threshold is a ratio to something me
 6. **Filters**: area ratio to the reference marker area, elongation and fill (glint arcs,
    merged pairs), specular glints (much brighter than the median marker), anything within one
    marker diameter of background brighter than the skin by half the marker contrast (the lit
-   rim and exterior), and the caller's sensor region.
+   rim and exterior), and the caller's sensor region. A blob rejected for its shape or size
+   that holds about two marker areas and narrows to a waist (two markers joined by a smear,
+   as on real skins) is cut across its major axis; both halves are kept if each is a marker.
 7. **Reliability**: the count against ``expected_count``, or without it the minimum count and
    the regularity of sizes and spacings (a marker array is regular, noise is not).
 
