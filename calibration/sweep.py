@@ -200,7 +200,13 @@ def run_chunk(spec: SweepSpec, indices: Sequence[int]
             raise RuntimeError(f"could not encode sample {i} as PNG")
         out.append((int(i), record(int(i), pose, s, reached).to_npz_bytes(), png.tobytes(),
                     time.perf_counter() - t0))
-    return cv2.imencode(".png", chain.rest_image)[1].tobytes(), out
+    if _REST_PNG.get("chain") is not chain:  # encoded once per chain, sent with each chunk
+        _REST_PNG.update(chain=chain, png=cv2.imencode(".png", chain.rest_image)[1].tobytes())
+    return _REST_PNG["png"], out
+
+
+_REST_PNG: dict[str, Any] = {}
+"""The last chain's rest frame as PNG (the chain is held, so its identity is not reused)."""
 
 
 def _more_sources(rig: RigModel) -> bool:
