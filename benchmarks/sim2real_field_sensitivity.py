@@ -56,9 +56,12 @@ def spread(scene, tilts: np.ndarray) -> tuple[float, float, float]:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("variants", nargs="*", choices=[[], *VARIANTS], metavar="VARIANT",
+    p.add_argument("variants", nargs="*", metavar="VARIANT",
                    help=f"variants to run (default all): {', '.join(VARIANTS)}")
     args = p.parse_args(argv)
+    unknown = [v for v in args.variants if v not in VARIANTS]
+    if unknown:
+        p.error(f"unknown variant {unknown[0]!r}: choose from {', '.join(VARIANTS)}")
     sys.path.insert(0, str(ROOT))
     import tactip_sim as ts
     from tactip_sim.scene import apply_preset, replace_in

@@ -372,9 +372,9 @@ class Chain:
         """The frames perception sees: ``images`` (``protocol.frame_average = "features"``,
         each perceived) or their 16-bit pixel mean alone (``"image"``: one perception)."""
         if len(images) > 1 and self.scene.protocol.frame_average == "image":
-            from tactip_sim.render.noise import average_frames
+            from tactip_sim.render.noise import mean_frame
 
-            return [average_frames(images)]
+            return [mean_frame(images)]
         return images
 
     def perceive(self, images: Sequence[np.ndarray]) -> Perceived:

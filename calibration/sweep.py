@@ -196,7 +196,7 @@ def run_chunk(spec: SweepSpec, indices: Sequence[int]
         else:
             s = chain.sample(reached, spec.set_tag, int(i), gain=gain)
         ok, png = cv2.imencode(".png", s.rendered.images[0])
-        if not ok:  # pragma: no cover - OpenCV cannot fail on a uint8 image
+        if not ok:  # pragma: no cover - OpenCV cannot fail on a uint8 or uint16 image
             raise RuntimeError(f"could not encode sample {i} as PNG")
         out.append((int(i), record(int(i), pose, s, reached).to_npz_bytes(), png.tobytes(),
                     time.perf_counter() - t0))

@@ -360,6 +360,15 @@ def detect_markers_detailed(
     )
 
 
+def _ellipse_shape(area, cxx, cyy, cxy):
+    """(elongation, fill) of blobs with pixel areas ``area`` and central second moments
+    ``cxx, cyy, cxy`` (px², a pixel's own 1/12 included): the ratio of the principal standard
+    deviations, and the area over that of the moment-equivalent ellipse."""
+    half = np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
+    l1, l2 = 0.5 * (cxx + cyy) + half, np.maximum(0.5 * (cxx + cyy) - half, 1e-12)
+    return np.sqrt(l1 / l2), area / (4.0 * np.pi * np.sqrt(l1 * l2))
+
+
 def _split_pairs(labels: np.ndarray, order: np.ndarray, rows: np.ndarray, th: np.ndarray,
                  level: float, area_ref: float, p: DetectionParams):
     """Halves of the blobs ``rows`` (indices after the raster ``order`` of the labels), each
@@ -384,16 +393,14 @@ def _split_pairs(labels: np.ndarray, order: np.ndarray, rows: np.ndarray, th: np
             if n < 2:
                 break
             hx, hy = x[s_], y[s_]
-            cxx, cyy = hx.var() + 1.0 / 12.0, hy.var() + 1.0 / 12.0
-            cxy = ((hx - hx.mean()) * (hy - hy.mean())).mean()
-            half = np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
-            l1, l2 = 0.5 * (cxx + cyy) + half, max(0.5 * (cxx + cyy) - half, 1e-12)
+            e_half, f_half = _ellipse_shape(float(n), hx.var() + 1.0 / 12.0,
+                                            hy.var() + 1.0 / 12.0,
+                                            ((hx - hx.mean()) * (hy - hy.mean())).mean())
             w = np.maximum(th[ys[s_], xs[s_]].astype(np.float64) - level, 0.0)
             if w.sum() <= 0:
                 break
             measures.append(((float((w * hx).sum() / w.sum()), float((w * hy).sum() / w.sum())),
-                             float(n), float(np.sqrt(l1 / l2)),
-                             float(n / (4.0 * np.pi * np.sqrt(l1 * l2)))))
+                             float(n), float(e_half), float(f_half)))
         if len(measures) < 2 or not all(
                 p.area_ratio_min <= m[1] / area_ref <= p.area_ratio_max
                 and m[2] <= p.max_elongation and m[3] >= p.min_fill for m in measures):
@@ -510,10 +517,7 @@ def _detect_binary(grey: np.ndarray, shape: tuple[int, int], region, expected_co
     sxx = np.bincount(lab, dx * dx, m) / area + 1.0 / 12.0
     syy = np.bincount(lab, dy * dy, m) / area + 1.0 / 12.0
     sxy = np.bincount(lab, dx * dy, m) / area
-    half = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
-    l1, l2 = 0.5 * (sxx + syy) + half, np.maximum(0.5 * (sxx + syy) - half, 1e-12)
-    elongation = np.sqrt(l1 / l2)
-    fill = area / (4.0 * np.pi * np.sqrt(l1 * l2))
+    elongation, fill = _ellipse_shape(area, sxx, syy, sxy)
     ref = (np.pi * float(expected_diameter_px) ** 2 / 4.0 if expected_diameter_px
            else float(median(area)))
     # two touching markers make one component of about twice the area, elongated along the

@@ -6,26 +6,26 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.render.noise import MEAN_SCALE, average_frames
+from tactip_sim.render.noise import MEAN_SCALE, mean_frame
 from tactip_sim.scene import SceneError, replace_in, scene_hash
 
 from .conftest import SCENES
 
 
-def test_average_frames_is_the_pixel_mean_in_16_bits():
+def test_mean_frame_is_the_pixel_mean_in_16_bits():
     a = np.full((3, 4), 10, np.uint8)
     b = np.full((3, 4), 12, np.uint8)
     b[0, 0] = 255
-    m = average_frames([a, b])
+    m = mean_frame([a, b])
     assert m.dtype == np.uint16
     assert m[1, 1] == 11 * 257 and m[0, 0] == round(132.5 * 257)  # 34052.5 -> even: 34052
     rng = np.random.default_rng(3)
     frames = [rng.integers(0, 256, (5, 7), dtype=np.uint8) for _ in range(60)]
     exact = np.mean(np.stack(frames).astype(np.float64), axis=0) * MEAN_SCALE
-    assert np.max(np.abs(average_frames(frames) - exact)) <= 0.5 + 1e-3
-    assert average_frames([np.full((2, 2), 255, np.uint8)] * 3).max() == 65535
+    assert np.max(np.abs(mean_frame(frames) - exact)) <= 0.5 + 1e-3
+    assert mean_frame([np.full((2, 2), 255, np.uint8)] * 3).max() == 65535
     with pytest.raises(ValueError, match="at least one frame"):
-        average_frames([])
+        mean_frame([])
 
 
 def test_the_key_is_left_out_of_the_hash_at_its_default_and_checked():
@@ -72,7 +72,7 @@ def test_recognition_images_of_a_frame_mean_are_on_the_rest_frames_8_bit_scale()
 
     rng = np.random.default_rng(1)
     frame = rng.integers(0, 256, (48, 64), dtype=np.uint8)
-    mean = average_frames([frame, frame])
+    mean = mean_frame([frame, frame])
     assert mean.dtype == np.uint16
     small = downsample(mean, (16, 12))
     assert small.dtype == np.uint8

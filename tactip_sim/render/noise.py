@@ -189,15 +189,16 @@ class CameraModel:
 
 
 MEAN_SCALE = 257
-""":func:`average_frames` writes the mean of 8-bit frames in 16 bits, DN × 257 (255 -> 65535)."""
+""":func:`mean_frame` writes the mean of 8-bit frames in 16 bits, DN × 257 (255 -> 65535)."""
 
 
-def average_frames(frames: list[np.ndarray]) -> np.ndarray:
-    """The pixel mean of 8-bit frames as a 16-bit image (``round(mean DN × 257)``): the mean
+def mean_frame(frames: list[np.ndarray]) -> np.ndarray:
+    """(Not :func:`perception.average_frames`, which averages a feature over frames.) The pixel
+    mean of 8-bit frames as a 16-bit image (``round(mean DN × 257)``): the mean
     of n frames takes n·255 + 1 values, which 8 bits would cut back to 256. Perception reads
     a uint16 frame at its own full scale, so the mean is the same brightness."""
     if not frames:
-        raise ValueError("average_frames needs at least one frame")
+        raise ValueError("mean_frame needs at least one frame")
     total = np.zeros(frames[0].shape, dtype=np.float32)
     for f in frames:
         total += f

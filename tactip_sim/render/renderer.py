@@ -122,7 +122,6 @@ class Renderer:
         self.albedo = Albedo() if albedo is None else albedo
         check_view(self.optics, self.pad)
         w, h = scene.camera.resolution
-        self._vignette = self.camera.vignette(h, w)
         self.crop = self._cavity_crop()
         self._loaded: dict[tuple[str, str, str], _Loaded] = {}
         self._background: dict[str, np.ndarray] = {}
@@ -436,7 +435,7 @@ class Renderer:
         t0 = time.perf_counter()
         radiance = self.render_radiance(m, d, seed=seed, spp=spp, refraction=mode)
         t1 = time.perf_counter()
-        image = self.camera.apply(radiance, gen if noise else None, vignette=self._vignette)
+        image = self.camera.apply(radiance, gen if noise else None)  # cached vignette
         t2 = time.perf_counter()
         px, vis, blobs = self.ground_truth(m, d, refraction=mode)
         meta = {
