@@ -20,7 +20,8 @@ problem only needs the normal-normal compliance ``G_ij = n' C_ij n = n' S_ij n``
 ``S_ij = (C_ij + C_ij')/2``. Since ``S_ji = S_ij``, the six distinct entries of ``S_ij`` for
 ``j <= i`` are packed by rows once when the model is built (:func:`pack_symmetric_blocks`,
 (s (s + 1) / 2, 6), a third of ``C``'s size): one working-set block of ``G`` is then a gather
-of 48-byte records instead of three 24-byte pieces from three rows of ``C`` per node pair.
+of 48-byte records instead of three 24-byte pieces from three rows of ``C`` per node pair, in
+one compiled pass (:mod:`~.reduced_kernels`).
 Rows of ``C`` and ``R`` for the contact nodes are read as contiguous slices (the candidates are
 in Morton order, so a contact patch is a few dozen index ranges) rather than copied by fancy
 indexing.
@@ -152,7 +153,6 @@ class ReducedModel:
         self.symmetric_blocks = pack_symmetric_blocks(comp)
         idx = np.arange(len(points), dtype=np.int64)
         self._row_start = idx * (idx + 1) // 2  # packed position of pair (i, 0)
-        self._records = self.symmetric_blocks.view(np.dtype((np.void, 48))).ravel()
         if bounds_path is not None:
             data = cache.load_npz(bounds_path, ["clusters", "bound", "normal_bound"])
             if data is not None and np.array_equal(data["clusters"], self.clusters):
@@ -216,12 +216,13 @@ class ReducedModel:
                      ) -> np.ndarray:
         """(r, c) mm/mN: ``G_ij = n' C_ij n`` for candidates ``rows`` and ``cols`` and one unit
         normal ``n`` (3,) shared by all nodes (a plate), from the packed symmetric blocks."""
+        from .reduced_kernels import gather_symmetric_blocks  # compiled on first use (Numba)
+
         n = np.asarray(normal, dtype=np.float64)
         weights = np.array([n[a] * n[b] * (1.0 if a == b else 2.0) for a, b in _SYMMETRIC])
-        i = np.asarray(rows, dtype=np.int64)[:, None]
-        j = np.asarray(cols, dtype=np.int64)[None, :]
-        pos = self._row_start[np.maximum(i, j)] + np.minimum(i, j)
-        records = self._records.take(pos).view(np.float64).reshape(*pos.shape, 6)
+        records = gather_symmetric_blocks(self.symmetric_blocks, self._row_start,
+                                          np.asarray(rows, dtype=np.int64),
+                                          np.asarray(cols, dtype=np.int64))
         return records @ weights
 
     def far_bound(self, nodes: np.ndarray, pressures: np.ndarray) -> np.ndarray:

@@ -60,13 +60,12 @@ def error_estimate(spacing_mm: float, radius_mm: float) -> float:
 def local_edge_mm(space: Space, centre_mm: np.ndarray, radius_mm: float) -> float:
     """Mean corner-edge length (mm) of the outer-surface triangles whose centroids lie within
     ``radius_mm`` of ``centre_mm`` (3,), or of the nearest triangle if none does."""
-    tri = space.nodes[space.faces[:, :3]]  # (f, 3, 3)
-    dist = np.linalg.norm(tri.mean(axis=1) - np.asarray(centre_mm), axis=1)
+    centroids, edges = space.surface_triangles  # (computed once per space)
+    dist = np.linalg.norm(centroids - np.asarray(centre_mm), axis=1)
     pick = dist <= radius_mm
     if not pick.any():
         pick = dist == dist.min()
-    t = tri[pick]
-    return float(np.linalg.norm(t - np.roll(t, 1, axis=1), axis=2).mean())
+    return float(edges[pick].mean())
 
 
 def contact_resolution(space: Space, order: int, points_mm: np.ndarray, forces: np.ndarray,

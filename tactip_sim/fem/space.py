@@ -8,6 +8,7 @@ node ``node``. P2 nodes are the mesh vertices followed by the edge midpoints (st
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
@@ -69,6 +70,17 @@ class Space:
     def free_dofs(self) -> np.ndarray:
         """(n_free,) int64, dofs not on the window face."""
         return np.flatnonzero(~np.repeat(self.fixed, 3))
+
+    @cached_property
+    def surface_triangles(self) -> tuple[np.ndarray, np.ndarray]:
+        """The outer-surface triangles' corner geometry, computed once per space (every
+        pose's :func:`~tactip_sim.fem.resolution.local_edge_mm` reads it):
+
+        centroids : (f, 3) mm, mean of each triangle's three corners
+        edges : (f, 3) mm, length of each corner edge (corner k to corner k - 1)
+        """
+        tri = self.nodes[self.faces[:, :3]]  # (f, 3, 3)
+        return tri.mean(axis=1), np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2)
 
     def element_geometry(self) -> tuple[np.ndarray, np.ndarray]:
         """``grad_lam`` (m, 4, 3) 1/mm and ``volume`` (m,) mm³ of every element."""

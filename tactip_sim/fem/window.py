@@ -112,14 +112,15 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
         values = values + v_load
         u_load = (model.block(np.arange(s), load[0]) @ np.ravel(load[1])).reshape(s, 3)
     p = markers.count
+    if p == 0 or tip_heights(markers, values).min() >= -WINDOW_TOL_MM:
+        return sol, np.zeros(p), values  # every tip clear of the window: nothing to do
+    # (most presses end above: the rods' linearisation is built only when a tip reaches it)
     jac = tip_jacobian(markers, np.zeros(6 * p))  # the rods' linearised kinematics
     z_rest = markers.rest_mm[:, 2] - WINDOW_Z_MM
 
     def heights(v: np.ndarray) -> np.ndarray:  # linearised tip heights above the window
         return z_rest + np.einsum("kj,kj->k", jac, v.reshape(p, 6))
 
-    if p == 0 or tip_heights(markers, values).min() >= -WINDOW_TOL_MM:
-        return sol, np.zeros(p), values  # every tip clear of the window: nothing to do
     if getattr(model, "marker_compliance", None) is None:
         raise ContactError(f"{label or 'contact'}: pins reach the window but the model has no "
                            "marker compliance to stop them")

@@ -129,7 +129,9 @@ class CameraModel:
             img = cv2.GaussianBlur(img, (k, k), self.blur_px, borderType=cv2.BORDER_REFLECT)
         vig = self.vignette(h, w) if vignette is None else vignette
         scale = np.float32(255.0 * self.exposure / FULL_SCALE_RADIANCE)
-        return img * (vig[..., None] if img.ndim == 3 else vig) * scale
+        out = img * (vig[..., None] if img.ndim == 3 else vig)
+        out *= scale  # (in place: one temporary fewer, the same products)
+        return out
 
     def noise_sigma(self, dn: np.ndarray) -> np.ndarray:
         """Per-pixel noise standard deviation (DN) of exposed ``dn``: read and shot noise
@@ -152,11 +154,22 @@ class CameraModel:
         (H, W) or (H, W, 3) uint8
         """
         if rng is not None and (self.read_noise > 0 or self.shot_noise > 0):
-            out = standard_normal_16bit(rng, dn.shape)
-            out *= self.noise_sigma(dn) if sigma is None else sigma
-            out += dn
-        else:
-            out = np.array(dn, dtype=np.float32)
+            # ``standard_normal_16bit(rng, shape) * sigma + dn``, rounded, clipped and cast in
+            # one compiled pass (the same float32 operations: the same bytes)
+            from .noise_kernels import digitise_noisy  # compiled on first use (Numba)
+
+            dn = np.ascontiguousarray(dn, dtype=np.float32)
+            bits = np.frombuffer(rng.bytes(2 * dn.size), dtype="<u2")
+            s = (np.zeros(0, np.float32) if sigma is None
+                 else np.ascontiguousarray(sigma, dtype=np.float32).reshape(-1))
+            if s.size not in (0, dn.size):
+                raise ValueError(f"sigma: expected {dn.shape}, got {np.shape(sigma)}")
+            out = np.empty(dn.shape, np.uint8)
+            digitise_noisy(dn.reshape(-1), bits, normal_table(), s,
+                           np.float32(self.read_noise**2), np.float32(self.shot_noise**2),
+                           out.reshape(-1))
+            return out
+        out = np.array(dn, dtype=np.float32)
         np.rint(out, out=out)
         np.clip(out, 0, 255, out=out)
         return out.astype(np.uint8)
