@@ -8,12 +8,13 @@ The same measure as ``bench_speed.py``'s ``raster`` rows: one ``Chain.sample`` w
 perception of the frame), nominal tip A, the default scene at 640x480, ``imaging.cap_layer =
 "raster"``. Two Python processes hold one chain each, this checkout's (``new``) and the
 other's (``old``), and take turns pose by pose: the old process presses pose i while this one
-waits, then this one presses pose i (the other way round on odd poses), so load from other processes falls on both alike and the
-ratio is measured within one run. Both share the on-disk cache (``TACTIP_CACHE_DIR`` or this
-checkout's ``.cache/tactip``). The first few poses warm caches and compiled code and are not
-timed. Prints per-stage medians (ms), poses per second (1 / mean time per pose), the ratio,
-and how far apart the two checkouts' outputs are on every pose: markers (mm), contact force,
-image pixels, perceived pin positions and centres of pressure (px).
+waits, then this one presses pose i (the other way round on odd poses), so load from other
+processes falls on both alike and the ratio is measured within one run. Both share the
+on-disk cache (``TACTIP_CACHE_DIR`` or this checkout's ``.cache/tactip``). The first few poses
+warm caches and compiled code and are not timed. Prints per-stage medians (ms), poses per
+second (1 / mean time per pose), the ratio, and how far apart the two checkouts' outputs are
+on every pose: markers (mm), contact force, image pixels, perceived pin positions and centres
+of pressure (px).
 """
 
 from __future__ import annotations
@@ -88,24 +89,26 @@ def serve() -> None:
 
 
 def _differences(old: list[dict], new: list[dict]) -> dict[str, float]:
+    pairs = list(zip(old, new, strict=True))
+
     def nanmax(a):
         a = np.abs(np.asarray(a, float))
         both = np.isfinite(a)
         return float(a[both].max()) if both.any() else 0.0
 
-    pixels = [int(np.count_nonzero(a["image"] != b["image"])) for a, b in zip(old, new)]
+    pixels = [int(np.count_nonzero(a["image"] != b["image"])) for a, b in pairs]
     nan_pins = sum(int(np.count_nonzero(np.isnan(a["pins"]) != np.isnan(b["pins"])))
-                   for a, b in zip(old, new))
+                   for a, b in pairs)
     return {
-        "markers_mm_max": max(nanmax(a["markers"] - b["markers"]) for a, b in zip(old, new)),
-        "force_N_max": max(abs(a["force"] - b["force"]) for a, b in zip(old, new)),
+        "markers_mm_max": max(nanmax(a["markers"] - b["markers"]) for a, b in pairs),
+        "force_N_max": max(abs(a["force"] - b["force"]) for a, b in pairs),
         "images_differing": int(sum(n > 0 for n in pixels)),
         "pixels_differing_max": int(max(pixels)),
         "pixel_dn_max": int(max(int(np.abs(a["image"].astype(int) - b["image"]).max())
-                                for a, b in zip(old, new))),
-        "pins_px_max": max(nanmax(a["pins"] - b["pins"]) for a, b in zip(old, new)),
+                                for a, b in pairs)),
+        "pins_px_max": max(nanmax(a["pins"] - b["pins"]) for a, b in pairs),
         "pins_found_differently": nan_pins,
-        "cop_px_max": max(nanmax(a["cop"] - b["cop"]) for a, b in zip(old, new)),
+        "cop_px_max": max(nanmax(a["cop"] - b["cop"]) for a, b in pairs),
     }
 
 

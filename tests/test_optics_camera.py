@@ -108,3 +108,16 @@ def test_top_level_project_is_the_scene_camera(scene, pad, camera):
     assert np.array_equal(ts.project(scene, pad.markers_mm), camera.project(pad.markers_mm))
     assert np.array_equal(ts.project(scene, pad.markers_mm, refraction="none"),
                           camera.project(pad.markers_mm, refraction="none"))
+
+
+@pytest.mark.parametrize("refraction", ["analytic", "none"])
+def test_project_is_the_sightlines_pixels(camera, pad, refraction):
+    """project() (pixels only) gives sightlines().px to the bit, with points in the gel, in
+    the window and beyond the lens's field (NaN)."""
+    rng = np.random.default_rng(2)
+    pts = np.concatenate([pad.pins.tips, pad.pins.tips + rng.normal(0.0, 0.5, (97, 3)),
+                          [[0.0, 0.0, -0.5 * camera.layers.thickness_mm], [60.0, 0.0, 0.1]]])
+    got = camera.project(pts, refraction=refraction)
+    want = camera.sightlines(pts, refraction=refraction).px
+    assert np.isnan(got[-1]).all()
+    assert np.array_equal(got, want, equal_nan=True)

@@ -22,9 +22,9 @@ problem only needs the normal-normal compliance ``G_ij = n' C_ij n = n' S_ij n``
 (s (s + 1) / 2, 6), a third of ``C``'s size): one working-set block of ``G`` is then a gather
 of 48-byte records instead of three 24-byte pieces from three rows of ``C`` per node pair, in
 one compiled pass (:mod:`~.reduced_kernels`).
-Rows of ``C`` and ``R`` for the contact nodes are read as contiguous slices (the candidates are
-in Morton order, so a contact patch is a few dozen index ranges) rather than copied by fancy
-indexing.
+Rows of ``C`` and ``R`` for the contact nodes are read where they lie, each scaled by its force
+and added in one compiled pass (:func:`~.reduced_kernels.weighted_rows`), rather than copied by
+fancy indexing.
 """
 
 from __future__ import annotations
@@ -47,14 +47,6 @@ _SYMMETRIC = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
 def _node_dofs(nodes: np.ndarray) -> np.ndarray:
     return (3 * np.asarray(nodes, dtype=np.int64)[:, None] + np.arange(3)).ravel()
-
-
-def _runs(sorted_nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Positions ``starts, stops`` (r,) of the maximal runs of consecutive integers in a
-    sorted index array: ``sorted_nodes[starts[k]:stops[k]]`` is ``a, a + 1, ..., b``."""
-    breaks = np.flatnonzero(np.diff(sorted_nodes) != 1) + 1
-    return (np.concatenate(([0], breaks)),
-            np.concatenate((breaks, [len(sorted_nodes)])))
 
 
 class ReducedModel:
@@ -247,47 +239,45 @@ class ReducedModel:
         under forces (w, 3) mN on candidates ``nodes``; NaN at the other candidates.
 
         By symmetry of ``C`` the displacements are ``f' C[nodes, :]``: the rows of the loaded
-        nodes are read as contiguous slices, one per run of consecutive candidate indices.
+        nodes, each scaled by its force and added in one compiled pass
+        (:func:`~.reduced_kernels.weighted_rows`).
         """
         s = len(self.clusters)
-        nv3 = 3 * self.n_vertex
         out = np.full((s, 3), np.nan)
         extra = np.zeros(0, dtype=np.int64)
         if at is not None:
             extra = np.unique(np.asarray(at, dtype=np.int64))
             extra = extra[extra >= self.n_vertex]
-        extra_dofs = _node_dofs(extra)
-        vert = np.zeros(nv3)
-        mid = np.zeros(len(extra_dofs))
-        for f, rows in self._loaded_rows(self.compliance, nodes, forces):
-            vert += f @ rows[:, :nv3]
-            if extra_dofs.size:
-                mid += f @ rows[:, extra_dofs]
+        vert, mid = self._weighted_rows(self.compliance, nodes, forces, 3 * self.n_vertex,
+                                        _node_dofs(extra))
         out[: self.n_vertex] = vert.reshape(-1, 3)
         out[extra] = mid.reshape(-1, 3)
         return out
 
     def marker_values(self, nodes: np.ndarray, forces: np.ndarray) -> np.ndarray:
         """(6 p,) marker operator output for forces (w, 3) mN on candidates ``nodes``."""
-        out = np.zeros(self.marker_response_t.shape[1])
-        for f, rows in self._loaded_rows(self.marker_response_t, nodes, forces):
-            out += f @ rows
-        return out
+        resp = self.marker_response_t
+        return self._weighted_rows(resp, nodes, forces, resp.shape[1],
+                                   np.zeros(0, dtype=np.int64))[0]
 
     @staticmethod
-    def _loaded_rows(matrix: np.ndarray, nodes: np.ndarray, forces: np.ndarray):
-        """Yield ``(f, rows)``: the forces (3 k,) of each run of consecutive loaded candidates
-        and the matching rows of the node-major ``matrix`` as a view (no copy), so that
-        ``sum f @ rows = ravel(forces) @ matrix[dofs(nodes)]``."""
+    def _weighted_rows(matrix: np.ndarray, nodes: np.ndarray, forces: np.ndarray, width: int,
+                       extra_cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``ravel(forces) @ matrix[dofs(nodes)]`` for the node-major ``matrix``: its first
+        ``width`` columns (width,) and its columns ``extra_cols`` (e,). The loaded nodes are
+        taken in ascending order (rows read in memory order); the sums are the same as the
+        one product's to round-off (tested)."""
+        from .reduced_kernels import weighted_rows  # compiled on first use (Numba)
+
         nodes = np.asarray(nodes, dtype=np.int64)
-        if nodes.size == 0:
-            return
         order = np.argsort(nodes, kind="stable")
-        nodes = nodes[order]
-        f = np.ascontiguousarray(np.asarray(forces, dtype=np.float64)[order]).ravel()
-        for start, stop in zip(*_runs(nodes), strict=True):
-            first = int(nodes[start])
-            yield f[3 * start: 3 * stop], matrix[3 * first: 3 * (first + stop - start)]
+        f = np.ascontiguousarray(np.asarray(forces, dtype=np.float64).reshape(-1, 3)[order])
+        out = np.zeros(width)
+        out_extra = np.zeros(len(extra_cols))
+        if nodes.size:
+            weighted_rows(matrix, nodes[order], f, int(width),
+                          np.ascontiguousarray(extra_cols, dtype=np.int64), out, out_extra)
+        return out, out_extra
 
 
 def pack_symmetric_blocks(compliance: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["gather_symmetric_blocks"]
+__all__ = ["gather_symmetric_blocks", "weighted_rows"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -31,3 +31,27 @@ def gather_symmetric_blocks(packed, row_start, rows, cols):  # pragma: no cover 
             for k in range(6):
                 out[a, b, k] = packed[pos, k]
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def weighted_rows(matrix, nodes, forces, width, extra_cols, out, out_extra):  # pragma: no cover
+    """Add ``forces' matrix[dofs(nodes)]`` to ``out`` and ``out_extra``.
+
+    ``matrix`` (3 s, w) node-major rows (dof ``3 k + a`` of candidate ``k``), ``nodes`` (k,)
+    candidates in ascending order, ``forces`` (k, 3); ``out`` (width,) receives the first
+    ``width`` columns, ``out_extra`` (e,) the columns ``extra_cols`` (e,). Row by row, each
+    row scaled by its force component and added (a loop of axpy's over contiguous rows, vectorised
+    by the compiler): NumPy needed one small matrix-vector product per run of consecutive
+    loaded candidates, and a column gather per run for ``extra_cols``.
+    """
+    for q in range(len(nodes)):
+        base = 3 * nodes[q]
+        for a in range(3):
+            f = forces[q, a]
+            if f == 0.0:
+                continue
+            row = matrix[base + a]
+            for c in range(width):
+                out[c] += f * row[c]
+            for e in range(len(extra_cols)):
+                out_extra[e] += f * row[extra_cols[e]]

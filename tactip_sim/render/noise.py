@@ -180,6 +180,8 @@ class CameraModel:
         and exposure once (:meth:`expose`), then fresh sensor noise per frame (:meth:`digitise`).
         """
         dn = self.expose(radiance)
+        if count == 1:  # (digitise computes the noise's sigma in its own pass)
+            return [self.digitise(dn, rng)]
         sigma = self.noise_sigma(dn)
         return [self.digitise(dn, rng, sigma=sigma) for _ in range(count)]
 

@@ -26,17 +26,14 @@ def digitise_noisy(dn, bits, table, sigma, read2, shot2, out):  # pragma: no cov
     (:func:`~tactip_sim.render.noise.normal_table`), ``out`` uint8. ``s`` is ``sigma`` (float32,
     :meth:`~tactip_sim.render.noise.CameraModel.noise_sigma`) when it has ``dn``'s length,
     else ``sqrt(read2 + shot2 * max(dn, 0))`` computed here (``read2``, ``shot2``: float32)."""
-    given = len(sigma) == len(dn)
-    zero = np.float32(0.0)
-    for k in range(len(dn)):
-        d = dn[k]
-        if given:
-            s = sigma[k]
-        else:
+    zero, top = np.float32(0.0), np.float32(255.0)
+    if len(sigma) == len(dn):  # (two loops without branches: the compiler vectorises them)
+        for k in range(len(dn)):
+            v = np.rint(table[bits[k]] * sigma[k] + dn[k])
+            out[k] = np.uint8(min(max(v, zero), top))
+    else:
+        for k in range(len(dn)):
+            d = dn[k]
             s = np.sqrt(read2 + shot2 * max(d, zero))
-        v = np.rint(table[bits[k]] * s + d)
-        if v < 0:
-            v = zero
-        elif v > 255:
-            v = np.float32(255.0)
-        out[k] = np.uint8(v)
+            v = np.rint(table[bits[k]] * s + d)
+            out[k] = np.uint8(min(max(v, zero), top))

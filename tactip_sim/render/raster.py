@@ -8,7 +8,7 @@ Here each cap's image is computed instead:
 
 1. **Geometry through the same camera model.** The cap is the renderer's own 48-gon
    (:func:`tactip_sim.optics.camera.cap_outline`, the polygon Mitsuba renders), and each of its
-   rim points is projected by :meth:`tactip_sim.optics.Camera.sightlines`: the lens model, the
+   rim points is projected by :meth:`tactip_sim.optics.Camera.project`: the lens model, the
    mount's shift and tilt, and Snell's law at both window faces solved exactly for that point.
    The projected polygon is the cap's image (its edges are straight in the image; the true
    images of the 48 edges curve by far less than a thousandth of a pixel).
@@ -135,7 +135,7 @@ class CapRaster:
         ring = cap_outline(markers_mm, directions, self.radius_mm, N_EDGE)
         n = len(ring)
         with np.errstate(invalid="ignore"):
-            px = self.camera.sightlines(ring.reshape(-1, 3), refraction=self.mode).px
+            px = self.camera.project(ring.reshape(-1, 3), refraction=self.mode)
         return px.reshape(n, N_EDGE, 2)
 
     def draw(self, markers_mm: np.ndarray, directions: np.ndarray, radiance: np.ndarray
