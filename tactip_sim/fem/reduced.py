@@ -20,8 +20,9 @@ problem only needs the normal-normal compliance ``G_ij = n' C_ij n = n' S_ij n``
 ``S_ij = (C_ij + C_ij')/2``. Since ``S_ji = S_ij``, the six distinct entries of ``S_ij`` for
 ``j <= i`` are packed by rows once when the model is built (:func:`pack_symmetric_blocks`,
 (s (s + 1) / 2, 6), a third of ``C``'s size): one working-set block of ``G`` is then a gather
-of 48-byte records instead of three 24-byte pieces from three rows of ``C`` per node pair, in
-one compiled pass (:mod:`~.reduced_kernels`).
+of 48-byte records instead of three 24-byte pieces from three rows of ``C`` per node pair,
+weighted by the normal in the same compiled pass (:func:`~.reduced_kernels.normal_blocks`; a
+working set's own block is computed on one triangle and mirrored: exactly symmetric).
 Rows of ``C`` and ``R`` for the contact nodes are read where they lie, each scaled by its force
 and added in one compiled pass (:func:`~.reduced_kernels.weighted_rows`), rather than copied by
 fancy indexing.
@@ -208,14 +209,15 @@ class ReducedModel:
                      ) -> np.ndarray:
         """(r, c) mm/mN: ``G_ij = n' C_ij n`` for candidates ``rows`` and ``cols`` and one unit
         normal ``n`` (3,) shared by all nodes (a plate), from the packed symmetric blocks."""
-        from .reduced_kernels import gather_symmetric_blocks  # compiled on first use (Numba)
+        from .reduced_kernels import normal_blocks  # compiled on first use (Numba)
 
         n = np.asarray(normal, dtype=np.float64)
         weights = np.array([n[a] * n[b] * (1.0 if a == b else 2.0) for a, b in _SYMMETRIC])
-        records = gather_symmetric_blocks(self.symmetric_blocks, self._row_start,
-                                          np.asarray(rows, dtype=np.int64),
-                                          np.asarray(cols, dtype=np.int64))
-        return records @ weights
+        same = rows is cols or (np.shape(rows) == np.shape(cols)
+                                and np.array_equal(rows, cols))
+        return normal_blocks(self.symmetric_blocks, self._row_start,
+                             np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64),
+                             weights, same)
 
     def far_bound(self, nodes: np.ndarray, pressures: np.ndarray) -> np.ndarray:
         load = np.bincount(self.clusters[nodes], weights=pressures,

@@ -12,24 +12,33 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["gather_symmetric_blocks", "weighted_rows"]
+__all__ = ["normal_blocks", "weighted_rows"]
 
 
 @numba.njit(cache=True, nogil=True)
-def gather_symmetric_blocks(packed, row_start, rows, cols):  # pragma: no cover - compiled
-    """(r, c, 6) float64: the packed symmetric blocks ``S_ij`` (``packed[row_start[max(i, j)]
-    + min(i, j)]``, :func:`tactip_sim.fem.reduced.pack_symmetric_blocks`) of every pair of
-    candidates ``rows`` (r,) x ``cols`` (c,): a copy, value for value, in one pass (NumPy
-    needed a (r, c) index array, then a gather of 48-byte records from it)."""
+def normal_blocks(packed, row_start, rows, cols, weights, same):  # pragma: no cover - compiled
+    """(r, c) float64 ``G_ab = w . S_ij`` for candidates ``i = rows[a]``, ``j = cols[b]``: the
+    packed symmetric blocks (``packed[row_start[max(i, j)] + min(i, j)]``,
+    :func:`tactip_sim.fem.reduced.pack_symmetric_blocks`) against the six ``weights`` of a
+    normal, summed in their order. ``same``: ``rows`` and ``cols`` are one array, so only the
+    lower triangle is computed and mirrored (``G`` is then exactly symmetric; ``S_ji = S_ij``).
+
+    One pass: NumPy needed a (r, c) index array, a gather of 48-byte records into a (r, c, 6)
+    copy and a matrix-vector product over it.
+    """
     r, c = len(rows), len(cols)
-    out = np.empty((r, c, 6))
+    out = np.empty((r, c))
     for a in range(r):
         i = rows[a]
-        for b in range(c):
+        for b in range(a + 1 if same else c):
             j = cols[b]
             pos = row_start[i] + j if j <= i else row_start[j] + i
+            total = 0.0
             for k in range(6):
-                out[a, b, k] = packed[pos, k]
+                total += packed[pos, k] * weights[k]
+            out[a, b] = total
+            if same:
+                out[b, a] = total
     return out
 
 
