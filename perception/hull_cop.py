@@ -62,7 +62,9 @@ def hull_cell_areas(points: np.ndarray, scale: float = HULL_SCALE) -> np.ndarray
     -------
     areas : (m,) float64, px²
     """
-    from .voronoi import voronoi_areas
+    from .region import convex_vertices
+    from .voronoi import _MIN_SEPARATION, voronoi_areas
+    from .voronoi_convex import ConvexVoronoi
 
     pts = as_points(points)
     ok = np.all(np.isfinite(pts), axis=1)
@@ -71,7 +73,16 @@ def hull_cell_areas(points: np.ndarray, scale: float = HULL_SCALE) -> np.ndarray
     region = centre + _REGION_SCALE * (border - centre)
     seeds = np.concatenate([pts[ok], border])
     areas = np.full(len(pts), np.nan)
-    areas[ok] = voronoi_areas(seeds, region)[: int(ok.sum())]
+    # The region is a convex hull's vertices (counter-clockwise) scaled about a point: a
+    # convex polygon, so ``voronoi_areas``'s convex path is taken here without building the
+    # shapely polygon it starts from (the same ring, the same areas; a fifth of this
+    # function's time). Anything that path declines goes to ``voronoi_areas`` as before.
+    ring = convex_vertices(region)
+    got = None if ring is None else ConvexVoronoi(ring, reuse=False).areas(
+        seeds, min_separation=_MIN_SEPARATION)
+    if got is None:
+        got = voronoi_areas(seeds, region)
+    areas[ok] = got[: int(ok.sum())]
     return areas
 
 

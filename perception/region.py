@@ -16,8 +16,8 @@ from shapely.geometry.base import BaseGeometry
 from .errors import RegionError
 from .geometry import as_points, marker_spacing
 
-__all__ = ["RegionLike", "as_polygon", "convex_ring", "fit_region", "mask_to_polygon",
-           "points_inside", "ring_area"]
+__all__ = ["RegionLike", "as_polygon", "convex_ring", "convex_vertices", "fit_region",
+           "mask_to_polygon", "points_inside", "ring_area"]
 
 RegionLike = Polygon | MultiPolygon | np.ndarray
 
@@ -221,7 +221,13 @@ def convex_ring(region: Polygon | MultiPolygon) -> np.ndarray | None:
     """
     if not isinstance(region, Polygon) or len(region.interiors) > 0:
         return None
-    xy = np.asarray(region.exterior.coords, dtype=np.float64)[:-1]
+    return convex_vertices(np.asarray(region.exterior.coords, dtype=np.float64)[:-1])
+
+
+def convex_vertices(xy: np.ndarray) -> np.ndarray | None:
+    """:func:`convex_ring` of a polygon given by its vertices (k, 2) float64 (the ring without
+    the closing repeat, as the polygon would hold them), for a caller that knows them to form
+    a valid simple polygon (e.g. a convex hull's vertices): no shapely polygon is built."""
     if len(xy) >= 2:
         xy = xy[(np.roll(xy, -1, axis=0) != xy).any(axis=1)]
     if len(xy) < 3:

@@ -72,3 +72,26 @@ def test_too_few_markers_and_bad_scale():
     assert np.isnan(hull_cop(np.array([[0.0, 0.0], [1.0, 1.0]]))).all()
     with pytest.raises(PerceptionError, match="scale=1.0 is out of range"):
         hull_border(pc.hex_lattice(19, 10.0, np.array([0.0, 0.0])), 1.0)
+
+
+@pytest.mark.parametrize("n", [19, 97, 331])
+def test_cell_areas_skip_the_shapely_region_to_the_bit(n):
+    """hull_cell_areas goes to the convex path with the border's ring directly: the same
+    areas, bit for bit, as voronoi_areas on that region (which builds the shapely polygon
+    first), with lost markers among the points."""
+    from perception.hull_cop import _REGION_SCALE
+    from perception.region import as_polygon, convex_ring, convex_vertices
+    from perception.voronoi import voronoi_areas
+
+    rng = np.random.default_rng(100 + n)
+    pts = pc.hex_lattice(n, 10.0, np.array([64.0, 64.0])) + rng.normal(0, 1.5, (n, 2))
+    pts[[1, n // 2]] = np.nan
+    ok = np.isfinite(pts).all(axis=1)
+    border = hull_border(pts)
+    centre = np.median(pts[ok], axis=0)
+    region = centre + _REGION_SCALE * (border - centre)
+    assert np.array_equal(convex_vertices(region), convex_ring(as_polygon(region)))
+    want = voronoi_areas(np.concatenate([pts[ok], border]), region)[: ok.sum()]
+    got = hull_cell_areas(pts)
+    assert np.isnan(got[~ok]).all()
+    assert np.array_equal(got[ok], want)

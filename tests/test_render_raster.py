@@ -152,6 +152,23 @@ def test_raster_is_deterministic_for_a_seed(both):
                           raster.render_radiance(m, d, seed=2))  # no sampler: exact coverage
 
 
+
+def test_caps_over_the_background_are_the_layer_composited(both):
+    """The one-pass composite (CapRaster.over) is draw()'s layer composited over the
+    background by Renderer._composite, to the bit."""
+    from tactip_sim.render.scene import cap_radiance
+
+    raster, _, m, d = both
+    mode = raster.optics.refraction_mode(None)
+    background = raster.background(mode)
+    assert background.dtype == np.float32
+    glow = cap_radiance(raster.scene, raster.pad.leds_mm, m, d, raster.albedo.cap)
+    layer, cover = raster.raster(mode).draw(m, d, glow)
+    want = raster._composite(background, layer, cover)
+    got = raster.raster(mode).over(background, m, d, glow)
+    assert np.array_equal(got, want)
+    assert np.array_equal(raster.render_radiance(m, d), want)
+
 # ----------------------------------------------------------------------------- the scene key
 def test_cap_layer_default_keeps_old_hashes(scene):
     d = scene_to_dict(scene)

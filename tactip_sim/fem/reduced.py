@@ -242,7 +242,8 @@ class ReducedModel:
 
         By symmetry of ``C`` the displacements are ``f' C[nodes, :]``: the rows of the loaded
         nodes, each scaled by its force and added in one compiled pass
-        (:func:`~.reduced_kernels.weighted_rows`).
+        (:func:`~.reduced_kernels.weighted_rows`), for the vertices; the few ``at`` nodes'
+        own rows of ``C`` against the forces (:func:`~.reduced_kernels.weighted_columns`).
         """
         s = len(self.clusters)
         out = np.full((s, 3), np.nan)
@@ -250,8 +251,8 @@ class ReducedModel:
         if at is not None:
             extra = np.unique(np.asarray(at, dtype=np.int64))
             extra = extra[extra >= self.n_vertex]
-        vert, mid = self._weighted_rows(self.compliance, nodes, forces, 3 * self.n_vertex,
-                                        _node_dofs(extra))
+        vert, mid = self._loaded(self.compliance, nodes, forces, 3 * self.n_vertex,
+                                 _node_dofs(extra))
         out[: self.n_vertex] = vert.reshape(-1, 3)
         out[extra] = mid.reshape(-1, 3)
         return out
@@ -259,27 +260,30 @@ class ReducedModel:
     def marker_values(self, nodes: np.ndarray, forces: np.ndarray) -> np.ndarray:
         """(6 p,) marker operator output for forces (w, 3) mN on candidates ``nodes``."""
         resp = self.marker_response_t
-        return self._weighted_rows(resp, nodes, forces, resp.shape[1],
-                                   np.zeros(0, dtype=np.int64))[0]
+        return self._loaded(resp, nodes, forces, resp.shape[1])[0]
 
     @staticmethod
-    def _weighted_rows(matrix: np.ndarray, nodes: np.ndarray, forces: np.ndarray, width: int,
-                       extra_cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _loaded(matrix: np.ndarray, nodes: np.ndarray, forces: np.ndarray, width: int,
+                symmetric_cols: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``ravel(forces) @ matrix[dofs(nodes)]`` for the node-major ``matrix``: its first
-        ``width`` columns (width,) and its columns ``extra_cols`` (e,). The loaded nodes are
-        taken in ascending order (rows read in memory order); the sums are the same as the
-        one product's to round-off (tested)."""
-        from .reduced_kernels import weighted_rows  # compiled on first use (Numba)
+        ``width`` columns (width,) and, for a symmetric ``matrix``, its columns
+        ``symmetric_cols`` (e,) (read as rows). The loaded nodes are taken in ascending order
+        (rows read in memory order); the sums are the one product's to round-off (tested)."""
+        from .reduced_kernels import weighted_columns, weighted_rows  # compiled on first use
 
         nodes = np.asarray(nodes, dtype=np.int64)
         order = np.argsort(nodes, kind="stable")
+        nodes = nodes[order]
         f = np.ascontiguousarray(np.asarray(forces, dtype=np.float64).reshape(-1, 3)[order])
         out = np.zeros(width)
-        out_extra = np.zeros(len(extra_cols))
+        cols = np.zeros(0, dtype=np.int64) if symmetric_cols is None else \
+            np.ascontiguousarray(symmetric_cols, dtype=np.int64)
+        out_cols = np.zeros(len(cols))
         if nodes.size:
-            weighted_rows(matrix, nodes[order], f, int(width),
-                          np.ascontiguousarray(extra_cols, dtype=np.int64), out, out_extra)
-        return out, out_extra
+            weighted_rows(matrix, nodes, f, int(width), out)
+            if cols.size:
+                weighted_columns(matrix, cols, nodes, f, out_cols)
+        return out, out_cols
 
 
 def pack_symmetric_blocks(compliance: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["normal_blocks", "weighted_rows"]
+__all__ = ["normal_blocks", "weighted_columns", "weighted_rows"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -43,15 +43,13 @@ def normal_blocks(packed, row_start, rows, cols, weights, same):  # pragma: no c
 
 
 @numba.njit(cache=True, nogil=True)
-def weighted_rows(matrix, nodes, forces, width, extra_cols, out, out_extra):  # pragma: no cover
-    """Add ``forces' matrix[dofs(nodes)]`` to ``out`` and ``out_extra``.
+def weighted_rows(matrix, nodes, forces, width, out):  # pragma: no cover - compiled
+    """Add ``forces' matrix[dofs(nodes), :width]`` to ``out`` (width,).
 
     ``matrix`` (3 s, w) node-major rows (dof ``3 k + a`` of candidate ``k``), ``nodes`` (k,)
-    candidates in ascending order, ``forces`` (k, 3); ``out`` (width,) receives the first
-    ``width`` columns, ``out_extra`` (e,) the columns ``extra_cols`` (e,). Row by row, each
-    row scaled by its force component and added (a loop of axpy's over contiguous rows, vectorised
-    by the compiler): NumPy needed one small matrix-vector product per run of consecutive
-    loaded candidates, and a column gather per run for ``extra_cols``.
+    candidates in ascending order, ``forces`` (k, 3). Row by row, each row scaled by its force
+    component and added (a loop of axpy's over contiguous rows, vectorised by the compiler):
+    NumPy needed one small matrix-vector product per run of consecutive loaded candidates.
     """
     for q in range(len(nodes)):
         base = 3 * nodes[q]
@@ -62,5 +60,22 @@ def weighted_rows(matrix, nodes, forces, width, extra_cols, out, out_extra):  # 
             row = matrix[base + a]
             for c in range(width):
                 out[c] += f * row[c]
-            for e in range(len(extra_cols)):
-                out_extra[e] += f * row[extra_cols[e]]
+
+
+@numba.njit(cache=True, nogil=True)
+def weighted_columns(matrix, rows, nodes, forces, out):  # pragma: no cover - compiled
+    """``out[e] = matrix[rows[e], dofs(nodes)] . forces`` (e,): for a symmetric ``matrix``
+    the columns ``rows`` of ``forces' matrix[dofs(nodes)]``, summed in the same order as
+    :func:`weighted_rows`, but read along each row ``rows[e]`` (the loaded candidates' dofs
+    lie in a few runs of it) instead of one scattered element from every loaded row."""
+    for e in range(len(rows)):
+        row = matrix[rows[e]]
+        total = 0.0
+        for q in range(len(nodes)):
+            base = 3 * nodes[q]
+            for a in range(3):
+                f = forces[q, a]
+                if f == 0.0:
+                    continue
+                total += f * row[base + a]
+        out[e] = total

@@ -138,6 +138,20 @@ class CapRaster:
             px = self.camera.project(ring.reshape(-1, 3), refraction=self.mode)
         return px.reshape(n, N_EDGE, 2)
 
+    def _caps(self, markers_mm: np.ndarray, directions: np.ndarray, radiance: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """The caps' coverage and radiance over the crop (h, w) float32, before the maps."""
+        from .raster_kernels import composite_caps
+
+        polys = np.ascontiguousarray(self.outlines(markers_mm, directions), np.float64)
+        dist = np.linalg.norm(np.asarray(markers_mm, float) - self.camera.centre_mm, axis=1)
+        order = np.argsort(-dist, kind="stable").astype(np.int64)
+        cover = np.zeros((self.height, self.width), np.float32)
+        glow = np.zeros((self.height, self.width), np.float32)
+        composite_caps(polys, order, np.ascontiguousarray(radiance, np.float64),
+                       float(self.x0), float(self.y0), SUB_ROWS, cover, glow)
+        return cover, glow
+
     def draw(self, markers_mm: np.ndarray, directions: np.ndarray, radiance: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray]:
         """The cap layer over the crop.
@@ -153,16 +167,23 @@ class CapRaster:
         glow : (h, w) float32, the caps' radiance reaching each pixel (already times coverage)
         cover : (h, w) float32, the fraction of each pixel the caps hide
         """
-        from .raster_kernels import composite_caps
-
-        polys = np.ascontiguousarray(self.outlines(markers_mm, directions), np.float64)
-        dist = np.linalg.norm(np.asarray(markers_mm, float) - self.camera.centre_mm, axis=1)
-        order = np.argsort(-dist, kind="stable").astype(np.int64)
-        cover = np.zeros((self.height, self.width), np.float32)
-        glow = np.zeros((self.height, self.width), np.float32)
-        composite_caps(polys, order, np.ascontiguousarray(radiance, np.float64),
-                       float(self.x0), float(self.y0), SUB_ROWS, cover, glow)
+        cover, glow = self._caps(markers_mm, directions, radiance)
         cover *= self.visible
         glow *= self.visible
         glow *= self.weight
         return glow, cover
+
+    def over(self, background: np.ndarray, markers_mm: np.ndarray, directions: np.ndarray,
+             radiance: np.ndarray) -> np.ndarray:
+        """The caps drawn over a copy of ``background`` (H, W) or (H, W, 3) float32: the
+        composite ``background (1 - cover) + glow`` of :meth:`draw`'s layer over the crop, in
+        one compiled pass with the maps (:func:`~.raster_kernels.finish_layer`; the same
+        float32 operations as :meth:`draw` and ``Renderer._composite``, the same image)."""
+        from .raster_kernels import finish_layer
+
+        cover, glow = self._caps(markers_mm, directions, radiance)
+        out = np.array(background, dtype=np.float32, copy=True)
+        win = out[self.y0:self.y0 + self.height, self.x0:self.x0 + self.width]
+        finish_layer(cover, glow, self.visible, self.weight,
+                     win if win.ndim == 3 else win[..., None])
+        return out

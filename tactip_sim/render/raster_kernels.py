@@ -14,7 +14,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["composite_caps", "polygon_coverage"]
+__all__ = ["composite_caps", "finish_layer", "polygon_coverage"]
 
 MAX_CROSSINGS = 8
 """Edge crossings kept per strip: a cap's image is convex (2 crossings); a projected outline
@@ -129,3 +129,25 @@ def composite_caps(polys, order, radiance, x0, y0, sub_rows, cover, glow):  # pr
                     cover[iy, ix] = cover[iy, ix] * (1.0 - a) + a
                     glow[iy, ix] = glow[iy, ix] * (1.0 - a) + a * lum
                 tmp[iy, ix] = 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def finish_layer(cover, glow, visible, weight, window):  # pragma: no cover - compiled
+    """Put the drawn caps over the background, in place: per pixel of the crop, the caps'
+    coverage ``c = cover visible`` and radiance ``g = glow visible weight`` (the part of the
+    pixel that can see them, the sensor's weight), then ``window = window (1 - c) + g`` on
+    every channel. All float32, in the order the NumPy passes took (one pass instead of five).
+
+    cover, glow, visible, weight : (h, w) float32; window : (h, w, k) float32, the background
+    under the crop (a view: updated in place).
+    """
+    height, width = cover.shape
+    one = np.float32(1.0)
+    for iy in range(height):
+        for ix in range(width):
+            v = visible[iy, ix]
+            c = cover[iy, ix] * v
+            g = glow[iy, ix] * v * weight[iy, ix]
+            keep = one - c
+            for k in range(window.shape[2]):
+                window[iy, ix, k] = window[iy, ix, k] * keep + g

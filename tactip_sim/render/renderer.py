@@ -368,8 +368,7 @@ class Renderer:
                 raise ValueError(f"shading={shade!r} is not allowed with imaging.cap_layer="
                                  "'raster': expected 'diffused' (or use cap_layer='mitsuba')")
             glow = cap_radiance(self.scene, self.pad.leds_mm, m, d, self.albedo.cap)
-            layer, cover = self.raster(mode).draw(m, d, glow)
-            return self._composite(background, layer, cover)
+            return self.raster(mode).over(background, m, d, glow)
         loaded = self._scene_for("layer", mode, shade)
         self._move_markers(loaded, m, d)
         layer = np.array(mi.render(loaded.scene, spp=spp, seed=int(seed)), dtype=np.float32)
