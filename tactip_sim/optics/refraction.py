@@ -137,28 +137,20 @@ def solve_sine(rho_mm: np.ndarray, heights_mm: np.ndarray, indices: np.ndarray,
     Returns
     -------
     (n,) float, ``s`` in ``[0, min(indices))``
+
+    Each point takes Newton steps until its own step is within ``tol`` (compiled:
+    :func:`~tactip_sim.optics.refraction_kernels.newton_sine`).
     """
-    rho = np.asarray(rho_mm, dtype=float)
-    h = np.asarray(heights_mm, dtype=float)
+    from .refraction_kernels import newton_sine  # compiled on first use (Numba)
+
+    rho = np.ascontiguousarray(rho_mm, dtype=float)
+    h = np.ascontiguousarray(heights_mm, dtype=float)
     n = np.asarray(indices, dtype=float)
-    cols = [np.ascontiguousarray(h[:, i]) for i in range(h.shape[1])]
-    n2 = [float(v) ** 2 for v in n]
     # air-only solution: to the right of the root because the other terms are >= 0
-    s = n[0] * rho / np.hypot(rho, cols[0])
+    s = n[0] * rho / np.hypot(rho, h[:, 0])
     s_max = n.min() * (1.0 - 1e-15)
-    for _ in range(max_iter):
-        s2 = s * s
-        g = -rho
-        dg = 0.0
-        for hi, ni2 in zip(cols, n2, strict=True):
-            inv = 1.0 / np.sqrt(np.maximum(ni2 - s2, 1e-300))
-            g = g + hi * s * inv
-            dg = dg + hi * ni2 * inv**3
-        step = g / dg
-        s = np.clip(s - step, 0.0, s_max)
-        if np.all(np.abs(step) <= tol):
-            break
-    return s
+    return newton_sine(rho, h, n * n, np.ascontiguousarray(s, dtype=float), float(s_max),
+                       float(tol), int(max_iter))
 
 
 def layer_heights(points_mm: np.ndarray, centre_mm: np.ndarray, layers: Layers) -> np.ndarray:
