@@ -305,7 +305,7 @@ def detect_markers_detailed(
     code[ok & ((ratio < p.area_ratio_min) | (ratio > p.area_ratio_max))] = _SIZE
     # two markers joined by a smear: one blob of about twice the area, rejected for its shape
     # or size, split across its major axis when both halves are marker-shaped
-    pair = (np.isin(code, (_SHAPE, _SIZE)) & finite & (ratio > _BINARY_PAIR_RATIO[0])
+    pair = (((code == _SHAPE) | (code == _SIZE)) & finite & (ratio > _BINARY_PAIR_RATIO[0])
             & (ratio < _BINARY_PAIR_RATIO[1]))
     if pair.any():
         halves = _split_pairs(labels, order, np.flatnonzero(pair), th_box, th_level,

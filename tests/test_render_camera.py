@@ -151,6 +151,9 @@ def test_compiled_digitise_is_the_numpy_formula(given_sigma):
     np.rint(want, out=want)
     np.clip(want, 0, 255, out=want)
     assert got.dtype == np.uint8 and np.array_equal(got, want.astype(np.uint8))
+    # one frame: exposure and noise in one pass, the bytes of expose() then digitise()
+    one = cam.frames(rad, np.random.default_rng(6), 1)
+    assert len(one) == 1 and np.array_equal(one[0], cam.apply(rad, np.random.default_rng(6)))
     quiet = CameraModel(read_noise=0.0, shot_noise=0.0)
     assert np.array_equal(quiet.digitise(dn, np.random.default_rng(5)),
                           np.clip(np.rint(dn), 0, 255).astype(np.uint8))

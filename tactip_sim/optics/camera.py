@@ -15,6 +15,7 @@ Mount: the lens centre sits ``camera.distance_mm`` below the window's inner face
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -254,12 +255,29 @@ def cap_outline(centres: np.ndarray, normals: np.ndarray, radius_mm: float,
     seen from the side its normal points to)."""
     nrm = normals / np.linalg.norm(normals, axis=1, keepdims=True)
     helper = np.where(np.abs(nrm[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    u = np.cross(helper, nrm)
+    u = _cross(helper, nrm)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = np.cross(nrm, u)
-    phi = np.linspace(0.0, 2 * np.pi, n_edge, endpoint=False)
-    ring = np.cos(phi)[None, :, None] * u[:, None] + np.sin(phi)[None, :, None] * v[:, None]
+    v = _cross(nrm, u)
+    cos, sin = _unit_circle(int(n_edge))
+    ring = cos[None, :, None] * u[:, None] + sin[None, :, None] * v[:, None]
     return centres[:, None, :] + radius_mm * ring
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n, 3) row-wise cross products: ``np.cross``'s own products and differences, the same
+    numbers, without its generic set-up (a third of :func:`cap_outline`'s time)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+
+
+@functools.lru_cache(maxsize=8)
+def _unit_circle(n_edge: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n_edge,) cosines and sines of the rim angles ``2 pi k / n_edge`` (computed once)."""
+    phi = np.linspace(0.0, 2 * np.pi, n_edge, endpoint=False)
+    cos, sin = np.cos(phi), np.sin(phi)
+    cos.setflags(write=False)
+    sin.setflags(write=False)
+    return cos, sin
 
 
 def project(scene: Scene, points_mm: np.ndarray, *, refraction: str | None = None

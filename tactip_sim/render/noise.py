@@ -118,6 +118,15 @@ class CameraModel:
         -------
         (H, W) or (H, W, 3) float32, DN before noise and quantisation
         """
+        img, vig, scale = self._blurred(radiance, vignette)
+        out = img * (vig[..., None] if img.ndim == 3 else vig)
+        out *= scale  # (in place: one temporary fewer, the same products)
+        return out
+
+    def _blurred(self, radiance: np.ndarray, vignette: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.float32]:
+        """:meth:`expose` before its products: the blurred radiance (float32), the vignette
+        map and the DN scale."""
         import cv2
 
         img = np.asarray(radiance, dtype=np.float32)
@@ -128,10 +137,7 @@ class CameraModel:
             k = 2 * int(np.ceil(3.0 * self.blur_px)) + 1  # odd: no half-pixel shift
             img = cv2.GaussianBlur(img, (k, k), self.blur_px, borderType=cv2.BORDER_REFLECT)
         vig = self.vignette(h, w) if vignette is None else vignette
-        scale = np.float32(255.0 * self.exposure / FULL_SCALE_RADIANCE)
-        out = img * (vig[..., None] if img.ndim == 3 else vig)
-        out *= scale  # (in place: one temporary fewer, the same products)
-        return out
+        return img, vig, np.float32(255.0 * self.exposure / FULL_SCALE_RADIANCE)
 
     def noise_sigma(self, dn: np.ndarray) -> np.ndarray:
         """Per-pixel noise standard deviation (DN) of exposed ``dn``: read and shot noise
@@ -156,32 +162,45 @@ class CameraModel:
         if rng is not None and (self.read_noise > 0 or self.shot_noise > 0):
             # ``standard_normal_16bit(rng, shape) * sigma + dn``, rounded, clipped and cast in
             # one compiled pass (the same float32 operations: the same bytes)
-            from .noise_kernels import digitise_noisy  # compiled on first use (Numba)
-
-            dn = np.ascontiguousarray(dn, dtype=np.float32)
-            bits = np.frombuffer(rng.bytes(2 * dn.size), dtype="<u2")
-            s = (np.zeros(0, np.float32) if sigma is None
+            s = (None if sigma is None
                  else np.ascontiguousarray(sigma, dtype=np.float32).reshape(-1))
-            if s.size not in (0, dn.size):
-                raise ValueError(f"sigma: expected {dn.shape}, got {np.shape(sigma)}")
-            out = np.empty(dn.shape, np.uint8)
-            digitise_noisy(dn.reshape(-1), bits, normal_table(), s,
-                           np.float32(self.read_noise**2), np.float32(self.shot_noise**2),
-                           out.reshape(-1))
-            return out
+            if s is not None and s.size != np.size(dn):
+                raise ValueError(f"sigma: expected {np.shape(dn)}, got {np.shape(sigma)}")
+            return self._noisy(dn, rng, sigma=s)
         out = np.array(dn, dtype=np.float32)
         np.rint(out, out=out)
         np.clip(out, 0, 255, out=out)
         return out.astype(np.uint8)
+
+    def _noisy(self, dn: np.ndarray, rng: np.random.Generator, *,
+               sigma: np.ndarray | None = None, vignette: np.ndarray | None = None,
+               scale: float = 1.0) -> np.ndarray:
+        """:meth:`digitise` with noise, compiled (:func:`~.noise_kernels.digitise_noisy`):
+        ``dn`` exposed DN, or with ``vignette`` (same shape) the blurred radiance, exposed as
+        ``dn vignette scale`` in the same pass; ``sigma`` flat float32 or None (computed)."""
+        from .noise_kernels import digitise_noisy  # compiled on first use (Numba)
+
+        dn = np.ascontiguousarray(dn, dtype=np.float32)
+        empty = np.zeros(0, np.float32)
+        vig = empty if vignette is None else \
+            np.ascontiguousarray(vignette, dtype=np.float32).reshape(-1)
+        bits = np.frombuffer(rng.bytes(2 * dn.size), dtype="<u2")
+        out = np.empty(dn.shape, np.uint8)
+        digitise_noisy(dn.reshape(-1), vig, np.float32(scale), bits, normal_table(),
+                       empty if sigma is None else sigma, np.float32(self.read_noise**2),
+                       np.float32(self.shot_noise**2), out.reshape(-1))
+        return out
 
     def frames(self, radiance: np.ndarray, rng: np.random.Generator | None, count: int
                ) -> list[np.ndarray]:
         """``count`` frames of one static exposure, as a camera delivers them: blur, vignetting
         and exposure once (:meth:`expose`), then fresh sensor noise per frame (:meth:`digitise`).
         """
+        if count == 1 and rng is not None and (self.read_noise > 0 or self.shot_noise > 0):
+            img, vig, scale = self._blurred(radiance)
+            if img.ndim == 2:  # exposure, sigma and noise in one compiled pass: the same bytes
+                return [self._noisy(img, rng, vignette=vig, scale=scale)]
         dn = self.expose(radiance)
-        if count == 1:  # (digitise computes the noise's sigma in its own pass)
-            return [self.digitise(dn, rng)]
         sigma = self.noise_sigma(dn)
         return [self.digitise(dn, rng, sigma=sigma) for _ in range(count)]
 

@@ -20,19 +20,31 @@ __all__ = ["digitise_noisy"]
 
 
 @numba.njit(cache=True, nogil=True)
-def digitise_noisy(dn, bits, table, sigma, read2, shot2, out):  # pragma: no cover - compiled
-    """``out = uint8(clip(rint(table[bits] * s + dn), 0, 255))`` elementwise, all flat arrays:
-    ``dn`` float32 exposed DN, ``bits`` uint16 random draws, ``table`` float32 normal quantiles
-    (:func:`~tactip_sim.render.noise.normal_table`), ``out`` uint8. ``s`` is ``sigma`` (float32,
-    :meth:`~tactip_sim.render.noise.CameraModel.noise_sigma`) when it has ``dn``'s length,
-    else ``sqrt(read2 + shot2 * max(dn, 0))`` computed here (``read2``, ``shot2``: float32)."""
+def digitise_noisy(dn, vignette, scale, bits, table, sigma, read2, shot2, out):  # pragma: no cover
+    """``out = uint8(clip(rint(table[bits] * s + d), 0, 255))`` elementwise, all flat arrays:
+    ``d`` the exposed DN, ``dn`` itself (float32) or, when ``vignette`` (float32) has its
+    length, the blurred radiance exposed here, ``d = dn vignette scale`` (``scale``: float32,
+    :meth:`~tactip_sim.render.noise.CameraModel.expose`'s products in its order); ``bits``
+    uint16 random draws, ``table`` float32 normal quantiles
+    (:func:`~tactip_sim.render.noise.normal_table`), ``out`` uint8. ``s`` is ``sigma``
+    (float32, :meth:`~tactip_sim.render.noise.CameraModel.noise_sigma`) when it has ``dn``'s
+    length, else ``sqrt(read2 + shot2 * max(d, 0))`` computed here (``read2``, ``shot2``:
+    float32)."""
     zero, top = np.float32(0.0), np.float32(255.0)
-    if len(sigma) == len(dn):  # (two loops without branches: the compiler vectorises them)
-        for k in range(len(dn)):
+    n = len(dn)
+    # (loops without branches inside: the compiler vectorises them)
+    if len(sigma) == n:
+        for k in range(n):
             v = np.rint(table[bits[k]] * sigma[k] + dn[k])
             out[k] = np.uint8(min(max(v, zero), top))
+    elif len(vignette) == n:
+        for k in range(n):
+            d = dn[k] * vignette[k] * scale
+            s = np.sqrt(read2 + shot2 * max(d, zero))
+            v = np.rint(table[bits[k]] * s + d)
+            out[k] = np.uint8(min(max(v, zero), top))
     else:
-        for k in range(len(dn)):
+        for k in range(n):
             d = dn[k]
             s = np.sqrt(read2 + shot2 * max(d, zero))
             v = np.rint(table[bits[k]] * s + d)
