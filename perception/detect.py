@@ -42,6 +42,7 @@ import cv2
 import numpy as np
 import shapely
 from scipy.spatial import cKDTree
+from shapely.geometry.base import BaseGeometry
 
 from .blobs import (
     BlobMoments,
@@ -232,7 +233,7 @@ def detect_markers_detailed(
     shape = (grey.shape[0], grey.shape[1])
     scale = full_scale(grey)
     _check_options(shape, expected_count, expected_diameter_px, noise_sigma, scale)
-    region = as_polygon(mask, image_shape=shape) if mask is not None else None
+    region = _region(mask, shape) if mask is not None else None
     if _is_binary(grey):
         return _detect_binary(grey, shape, region, expected_count, expected_diameter_px, p)
 
@@ -469,6 +470,23 @@ def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
             return False, (f"marker spacing is irregular (robust CV {cv:.2f} > "
                            f"max_spacing_dispersion={p.max_spacing_dispersion})")
     return True, f"found {n} markers of {diameter:.1f} px"
+
+
+_LAST_REGION: tuple[object, object] = (None, None)
+
+
+def _region(mask: RegionLike, shape: tuple[int, int]):
+    """:func:`~perception.region.as_polygon` of the mask, remembered for the last shapely
+    geometry passed: a pipeline passes the same (immutable) search region with every frame,
+    and its validity check cost a tenth of the detection."""
+    global _LAST_REGION
+    last, polygon = _LAST_REGION
+    if mask is last and isinstance(mask, BaseGeometry):
+        return polygon
+    polygon = as_polygon(mask, image_shape=shape)
+    if isinstance(mask, BaseGeometry):
+        _LAST_REGION = (mask, polygon)  # (one assignment: threads see either pair whole)
+    return polygon
 
 
 def _is_binary(grey: np.ndarray) -> bool:

@@ -168,6 +168,10 @@ def test_caps_over_the_background_are_the_layer_composited(both):
     got = raster.raster(mode).over(background, m, d, glow)
     assert np.array_equal(got, want)
     assert np.array_equal(raster.render_radiance(m, d), want)
+    colour = raster.raster(mode).over(np.stack([background, 2 * background], axis=-1), m, d,
+                                      glow)
+    assert np.array_equal(colour[..., 0], want)
+    assert np.array_equal(colour[..., 1], raster._composite(2 * background, layer, cover))
 
 # ----------------------------------------------------------------------------- the scene key
 def test_cap_layer_default_keeps_old_hashes(scene):

@@ -61,16 +61,22 @@ def solve_lcp(G: np.ndarray, g0: np.ndarray, *, active: np.ndarray | None = None
     g : (k,) float, mm, gaps
     iterations : active-set iterations used (NNLS fallback adds the PDAS limit)
     """
+    from .contact_kernels import active_block  # compiled on first use (Numba)
+
     k = len(g0)
+    G = np.ascontiguousarray(G, dtype=np.float64)
     act = (g0 < 0) if active is None else np.asarray(active, dtype=bool).copy()
     seen: set[bytes] = set()
     for it in range(1, tol.pdas_max_iter + 1):
         p = np.zeros(k)
         idx = np.flatnonzero(act)
-        if idx.size:  # (two plain gathers are faster than one np.ix_ gather)
+        if idx.size:
             # sla.cho_factor / cho_solve's own LAPACK calls, without their wrappers' checks
-            # (~50 us a call, a tenth of a pose's solve): the same routines and arguments
-            low, info = _POTRF(G[idx][:, idx], lower=True, overwrite_a=True, clean=False)
+            # (~50 us a call, a tenth of a pose's solve), on ``G[idx][:, idx]`` gathered
+            # straight into LAPACK's column order (no reordering copy): the same routines,
+            # arguments and matrix
+            low, info = _POTRF(active_block(G, idx), lower=True, overwrite_a=True,
+                               clean=False)
             if info == 0:
                 p[idx], info = _POTRS(low, -g0[idx], lower=True, overwrite_b=True)
             if info != 0:

@@ -179,11 +179,11 @@ class CapRaster:
         composite ``background (1 - cover) + glow`` of :meth:`draw`'s layer over the crop, in
         one compiled pass with the maps (:func:`~.raster_kernels.finish_layer`; the same
         float32 operations as :meth:`draw` and ``Renderer._composite``, the same image)."""
-        from .raster_kernels import finish_layer
+        from .raster_kernels import finish_layer, finish_layer_channels
 
         cover, glow = self._caps(markers_mm, directions, radiance)
         out = np.array(background, dtype=np.float32, copy=True)
         win = out[self.y0:self.y0 + self.height, self.x0:self.x0 + self.width]
-        finish_layer(cover, glow, self.visible, self.weight,
-                     win if win.ndim == 3 else win[..., None])
+        (finish_layer if win.ndim == 2 else finish_layer_channels)(
+            cover, glow, self.visible, self.weight, win)
         return out

@@ -14,7 +14,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["composite_caps", "finish_layer", "polygon_coverage"]
+__all__ = ["composite_caps", "finish_layer", "finish_layer_channels", "polygon_coverage"]
 
 MAX_CROSSINGS = 8
 """Edge crossings kept per strip: a cap's image is convex (2 crossings); a projected outline
@@ -135,12 +135,25 @@ def composite_caps(polys, order, radiance, x0, y0, sub_rows, cover, glow):  # pr
 def finish_layer(cover, glow, visible, weight, window):  # pragma: no cover - compiled
     """Put the drawn caps over the background, in place: per pixel of the crop, the caps'
     coverage ``c = cover visible`` and radiance ``g = glow visible weight`` (the part of the
-    pixel that can see them, the sensor's weight), then ``window = window (1 - c) + g`` on
-    every channel. All float32, in the order the NumPy passes took (one pass instead of five).
+    pixel that can see them, the sensor's weight), then ``window = window (1 - c) + g``. All
+    float32, in the order the NumPy passes took (one pass instead of five).
 
-    cover, glow, visible, weight : (h, w) float32; window : (h, w, k) float32, the background
-    under the crop (a view: updated in place).
+    cover, glow, visible, weight : (h, w) float32; window : (h, w) float32, the background
+    under the crop (a view: updated in place). :func:`finish_layer_channels` for colour.
     """
+    height, width = cover.shape
+    one = np.float32(1.0)
+    for iy in range(height):
+        for ix in range(width):
+            v = visible[iy, ix]
+            c = cover[iy, ix] * v
+            g = glow[iy, ix] * v * weight[iy, ix]
+            window[iy, ix] = window[iy, ix] * (one - c) + g
+
+
+@numba.njit(cache=True, nogil=True)
+def finish_layer_channels(cover, glow, visible, weight, window):  # pragma: no cover
+    """:func:`finish_layer` on a (h, w, k) float32 window: every channel alike."""
     height, width = cover.shape
     one = np.float32(1.0)
     for iy in range(height):
