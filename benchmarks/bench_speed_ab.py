@@ -13,8 +13,8 @@ processes falls on both alike and the ratio is measured within one run. Both sha
 on-disk cache (``TACTIP_CACHE_DIR`` or this checkout's ``.cache/tactip``). The first few poses
 warm caches and compiled code and are not timed. Prints per-stage medians (ms), poses per
 second (1 / mean time per pose), the ratio, and how far apart the two checkouts' outputs are
-on every pose: markers (mm), contact force, analytic marker and cap-image centres (px), image
-pixels, perceived pin positions and centres of pressure (px).
+on every pose: markers (mm), contact force, analytic marker and cap-image centres (px) and
+visibility, image pixels, perceived pin positions and centres of pressure (px).
 """
 
 from __future__ import annotations
@@ -56,6 +56,7 @@ def _run(chain, tag: int, index: int, pose) -> dict:
             "markers": np.asarray(s.state.markers_mm), "force": float(s.state.force_N),
             "image": s.rendered.images[0], "pins": s.pins_px,
             "truth": np.concatenate([s.rendered.markers_px, s.rendered.blobs_px]),
+            "visible": np.asarray(s.rendered.visible),
             "cop": np.concatenate([p.cop_area, p.cop_growth, p.cop_hull])}
 
 
@@ -104,6 +105,8 @@ def _differences(old: list[dict], new: list[dict]) -> dict[str, float]:
         "markers_mm_max": max(nanmax(a["markers"] - b["markers"]) for a, b in pairs),
         "force_N_max": max(abs(a["force"] - b["force"]) for a, b in pairs),
         "truth_px_max": max(nanmax(a["truth"] - b["truth"]) for a, b in pairs),
+        "visible_differing": sum(int(np.count_nonzero(a["visible"] != b["visible"]))
+                                 for a, b in pairs),
         "images_differing": int(sum(n > 0 for n in pixels)),
         "pixels_differing_max": int(max(pixels)),
         "pixel_dn_max": int(max(int(np.abs(a["image"].astype(int) - b["image"]).max())

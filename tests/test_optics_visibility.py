@@ -96,3 +96,19 @@ def test_blob_offset_is_second_order_in_cap_size(pad, camera):
     assert off[1] / off[0] == pytest.approx(4.0, rel=0.05)
     assert off[2] / off[1] == pytest.approx(4.0, rel=0.05)
     assert off[2] < 0.2  # at the default 1.6 mm caps
+
+
+def test_compiled_disc_blocking_is_the_numpy_pairs():
+    """The compiled pair loop against the all-pairs NumPy form, on segments through a cloud of
+    tilted discs (many hits and misses; a segment never blocked by its own disc)."""
+    from tactip_sim.optics.visibility import _blocked_by_discs, _blocked_by_discs_numpy
+
+    rng = np.random.default_rng(5)
+    centres = rng.uniform(-3.0, 3.0, (150, 3)) + [0.0, 0.0, 5.0]
+    normals = rng.normal(size=(150, 3)) + [0.0, 0.0, 3.0]
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    start = rng.uniform(-4.0, 4.0, (150, 3)) + [0.0, 0.0, -6.0]
+    got = _blocked_by_discs(start, centres, centres, normals, 0.6)
+    want = _blocked_by_discs_numpy(start, centres, centres, normals, 0.6)
+    assert 10 < got.sum() < 140
+    assert np.array_equal(got, want)

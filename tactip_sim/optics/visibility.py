@@ -98,7 +98,18 @@ def _segment_hits_box(a: np.ndarray, b: np.ndarray, box: np.ndarray) -> np.ndarr
 
 def _blocked_by_discs(start: np.ndarray, end: np.ndarray, centres: np.ndarray,
                       normals: np.ndarray, radius: float) -> np.ndarray:
-    """(n,) bool: segment ``start[i] -> end[i]`` passes through disc ``j != i``."""
+    """(n,) bool: segment ``start[i] -> end[i]`` passes through disc ``j != i`` (compiled,
+    pair by pair: :func:`~tactip_sim.optics.visibility_kernels.blocked_by_discs`; this NumPy
+    form is its reference, :func:`_blocked_by_discs_numpy`)."""
+    from .visibility_kernels import blocked_by_discs  # compiled on first use (Numba)
+
+    as64 = (np.ascontiguousarray(a, dtype=np.float64) for a in (start, end, centres, normals))
+    return blocked_by_discs(*as64, float(radius))
+
+
+def _blocked_by_discs_numpy(start: np.ndarray, end: np.ndarray, centres: np.ndarray,
+                            normals: np.ndarray, radius: float) -> np.ndarray:
+    """:func:`_blocked_by_discs` with every pair at once in NumPy (the tests' reference)."""
     d = end - start  # (n, 3)
     dn = d @ normals.T  # (n, m)
     num = np.einsum("jk,jk->j", centres, normals)[None, :] - start @ normals.T
