@@ -188,3 +188,19 @@ def test_pointwise_sine_solve_is_the_batch_solve_to_round_off():
     rho[3] = np.nan
     out = solve_sine(rho, h, n)
     assert np.isnan(out[3]) and np.array_equal(np.delete(out, 3), np.delete(got, 3))
+
+
+def test_compiled_air_directions_are_the_numpy_passes(camera, pad):
+    """refracted_air_directions (one compiled pass) against its NumPy form, to the bit: points
+    in the gel, in the window, on the window's faces, on the axis and NaN."""
+    from tactip_sim.optics.refraction import _refracted_air_directions_numpy
+
+    layers, c = camera.layers, camera.centre_mm
+    rng = np.random.default_rng(3)
+    pts = np.concatenate([pad.markers_mm + rng.normal(0.0, 0.5, pad.markers_mm.shape),
+                          rng.uniform([-20, -20, layers.window_bottom_mm], [20, 20, 0], (50, 3)),
+                          [[c[0], c[1], 3.0], [1.0, 2.0, 0.0], [1.0, 2.0, layers.window_bottom_mm],
+                           [np.nan, 0.0, 1.0]]])
+    got = refracted_air_directions(pts, c, layers)
+    assert np.array_equal(got, _refracted_air_directions_numpy(pts, c, layers), equal_nan=True)
+    assert np.isnan(got[-1]).all() and np.allclose(np.linalg.norm(got[:-1], axis=1), 1.0)

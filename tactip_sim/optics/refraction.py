@@ -179,7 +179,21 @@ def refracted_air_directions(points_mm: np.ndarray, centre_mm: np.ndarray, layer
     Returns
     -------
     (n, 3) float, unit vectors
+
+    One compiled pass over the points (:func:`~.refraction_kernels.air_directions`).
     """
+    from .refraction_kernels import air_directions  # compiled on first use (Numba)
+
+    p = np.ascontiguousarray(points_mm, dtype=float).reshape(-1, 3)
+    c = np.ascontiguousarray(centre_mm, dtype=float)
+    return air_directions(p, c, float(layers.window_bottom_mm),
+                          np.array([layers.n_air, layers.n_window, layers.n_gel]), 1e-13, 60)
+
+
+def _refracted_air_directions_numpy(points_mm: np.ndarray, centre_mm: np.ndarray,
+                                    layers: Layers) -> np.ndarray:
+    """:func:`refracted_air_directions` in NumPy array passes (the tests' reference: the
+    compiled loop takes the same steps point by point)."""
     p = np.asarray(points_mm, dtype=float).reshape(-1, 3)
     c = np.asarray(centre_mm, dtype=float)
     delta = p[:, :2] - c[:2]
