@@ -157,3 +157,18 @@ def test_compiled_digitise_is_the_numpy_formula(given_sigma):
     quiet = CameraModel(read_noise=0.0, shot_noise=0.0)
     assert np.array_equal(quiet.digitise(dn, np.random.default_rng(5)),
                           np.clip(np.rint(dn), 0, 255).astype(np.uint8))
+
+
+@pytest.mark.parametrize("count", [1, 2, 7, 307_200])
+def test_16bit_draws_are_the_generators_bytes(count):
+    """random_bits_16 draws what np.frombuffer(rng.bytes(2 n), '<u2') does (Generator.bytes'
+    own little-endian uint32 integers), also after other draws from the generator."""
+    from tactip_sim.render.noise import random_bits_16
+
+    a, b = np.random.default_rng(21), np.random.default_rng(21)
+    a.integers(0, 2**31 - 1)
+    b.integers(0, 2**31 - 1)
+    want = np.frombuffer(a.bytes(2 * count), dtype="<u2")
+    got = random_bits_16(b, count)
+    assert got.dtype == np.dtype("<u2") and np.array_equal(got, want)
+    assert a.integers(0, 1000, 5).tolist() == b.integers(0, 1000, 5).tolist()  # same state
