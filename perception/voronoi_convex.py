@@ -109,6 +109,36 @@ class _Topology:
 
 
 def _triangulate(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> _Topology | None:
+    """Qhull's Delaunay triangulation of the seeds and four ghosts, and the cell edges it
+    implies (:func:`perception.voronoi_kernels.topology`: the bookkeeping in one compiled
+    pass, the arrays of :func:`_triangulate_numpy`'s NumPy passes); None when Qhull fails or
+    drops a seed."""
+    from .voronoi_kernels import topology  # compiled on first use (Numba)
+
+    n = len(seeds)
+    centre = complex(*(0.5 * (lo + hi)))
+    half_diag = 0.5 * float(np.hypot(*(hi - lo))) + 1.0
+    ghosts = 4.0 * half_diag * _GHOSTS
+    xy = np.concatenate([seeds - (centre.real, centre.imag),
+                         np.stack([ghosts.real, ghosts.imag], axis=1)])
+    try:
+        tri = Delaunay(xy)
+    except QhullError:
+        return None
+    simp = np.ascontiguousarray(tri.simplices)
+    ok, own, nbr, t_from, t_to, _, starts, far_t, far_v, pair_own, pair_nbr = topology(
+        simp, np.ascontiguousarray(tri.neighbors), n)
+    if not ok:
+        return None  # a seed Qhull dropped (too close to another) or left on the hull
+    return _Topology(n=n, centre=centre, half_diag=half_diag, lo=lo, hi=hi, ghosts=ghosts,
+                     simplices=simp, far_t=far_t, far_v=far_v, own=own, nbr=nbr,
+                     t_from=t_from, t_to=t_to, starts=starts, pair_own=pair_own,
+                     pair_nbr=pair_nbr)
+
+
+def _triangulate_numpy(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray
+                       ) -> _Topology | None:
+    """:func:`_triangulate` with its bookkeeping in NumPy passes (the tests' reference)."""
     n = len(seeds)
     centre = complex(*(0.5 * (lo + hi)))
     half_diag = 0.5 * float(np.hypot(*(hi - lo))) + 1.0

@@ -20,7 +20,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["circumcentres", "clip_cells", "still_delaunay"]
+__all__ = ["circumcentres", "clip_cells", "still_delaunay", "topology"]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -57,6 +57,88 @@ def still_delaunay(pts, simplices, verts, twice_area, far_t, far_v, tol):  # pra
         if not abs(pts[far_v[f]] - verts[t]) >= radius * (1.0 - 0.5 * tol):
             return False
     return True
+
+
+@numba.njit(cache=True, nogil=True)
+def topology(simp, nb, n):  # pragma: no cover - compiled
+    """The cell edges of a triangulation, :func:`perception.voronoi_convex._triangulate`'s
+    bookkeeping in one pass (integers only: the same arrays as its NumPy form).
+
+    simp, nb : (t, 3) int32, the triangles' corners (counter-clockwise) and their neighbours
+        across the edge opposite each corner (-1: none); n : real seeds (the first n points)
+
+    Returns ``ok`` (False: a real seed has fewer than 3 cell edges or an edge without a
+    triangle beyond it) and, when ok: ``own``, ``nbr``, ``t_from`` (int32), ``t_to``,
+    ``count``, ``starts``, ``far_t``, ``far_v`` (int64), ``pair_own``, ``pair_nbr`` (int32):
+    the directed edges own -> nbr of the triangles whose own corner is a real seed, sorted by
+    ``own`` (stable: in triangle order), the triangle across each (``t_from``) and its own
+    (``t_to``); edges per real seed and where each seed's run starts; for every interior edge
+    (triangle, corner) in row order, the triangle and the far corner of its neighbour; the
+    edges between two real seeds.
+    """
+    t = len(simp)
+    count = np.zeros(n, np.int64)
+    for k in range(t):
+        for c in range(3):
+            if simp[k, c] < n:
+                count[simp[k, c]] += 1
+    starts = np.empty(n, np.int64)
+    total = 0
+    for i in range(n):
+        starts[i] = total
+        total += count[i]
+    own = np.empty(total, np.int32)
+    nbr = np.empty(total, np.int32)
+    t_from = np.empty(total, np.int32)
+    t_to = np.empty(total, np.int64)
+    fill = starts.copy()
+    ok = True
+    for k in range(t):  # a counting sort by own corner, stable in (triangle, corner) order
+        for c in range(3):
+            o = simp[k, c]
+            if o < n:
+                q = fill[o]
+                fill[o] += 1
+                own[q] = o
+                nbr[q] = simp[k, (c + 1) % 3]
+                t_from[q] = nb[k, (c + 2) % 3]
+                t_to[q] = k
+                if t_from[q] < 0:
+                    ok = False
+    for i in range(n):
+        if count[i] < 3:
+            ok = False
+    sums = np.empty(t, np.int64)
+    for k in range(t):
+        sums[k] = np.int64(simp[k, 0]) + simp[k, 1] + simp[k, 2]
+    m = 0
+    for k in range(t):
+        for c in range(3):
+            if nb[k, c] >= 0:
+                m += 1
+    far_t = np.empty(m, np.int64)
+    far_v = np.empty(m, np.int64)
+    m = 0
+    for k in range(t):
+        for c in range(3):
+            j = nb[k, c]
+            if j >= 0:  # the neighbour's corners minus the two shared ones
+                far_t[m] = k
+                far_v[m] = sums[j] - (sums[k] - simp[k, c])
+                m += 1
+    pairs = 0
+    for q in range(total):
+        if nbr[q] < n:
+            pairs += 1
+    pair_own = np.empty(pairs, np.int32)
+    pair_nbr = np.empty(pairs, np.int32)
+    pairs = 0
+    for q in range(total):
+        if nbr[q] < n:
+            pair_own[pairs] = own[q]
+            pair_nbr[pairs] = nbr[q]
+            pairs += 1
+    return ok, own, nbr, t_from, t_to, count, starts, far_t, far_v, pair_own, pair_nbr
 
 
 @numba.njit(inline="always")

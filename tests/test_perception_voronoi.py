@@ -265,3 +265,23 @@ def test_non_convex_region_uses_geos():
         pc.voronoi_areas(pts, ell, method="convex")
     with pytest.raises(pc.PerceptionError, match="method"):
         pc.voronoi_areas(pts, ell, method="fast")
+
+
+@pytest.mark.parametrize("n", [3, 19, 97, 331])
+def test_compiled_triangulation_bookkeeping_is_the_numpy_one(n):
+    """The cell edges of a triangulation (one compiled pass) against the NumPy passes they
+    replaced: the same arrays, dtypes and order, on jittered lattices and a co-circular one."""
+    from perception.voronoi_convex import _triangulate, _triangulate_numpy
+
+    rng = np.random.default_rng(n)
+    for jitter in (0.0, 1.0):
+        seeds = pc.hex_lattice(n, 10.0, np.array([64.0, 64.0])) + rng.normal(0, jitter, (n, 2))
+        lo, hi = seeds.min(axis=0) - 5.0, seeds.max(axis=0) + 5.0
+        got, want = _triangulate(seeds, lo, hi), _triangulate_numpy(seeds, lo, hi)
+        assert (got is None) == (want is None)
+        if got is None:
+            continue
+        for name in ("simplices", "far_t", "far_v", "own", "nbr", "t_from", "t_to", "starts",
+                     "pair_own", "pair_nbr"):
+            a, b = getattr(got, name), getattr(want, name)
+            assert a.dtype == b.dtype and np.array_equal(a, b), name
