@@ -7,11 +7,19 @@ Usage::
     python benchmarks/bench_neohookean.py                    # P2, four poses
     python benchmarks/bench_neohookean.py --order 1          # quick
     python benchmarks/bench_neohookean.py --baseline abb2079 # also time revision abb2079
+    python benchmarks/bench_neohookean.py --friction 0.5     # with friction, along paths
 
 With ``--baseline REF`` the package at git revision REF is exported to a temporary folder and
 the same poses are solved there in a second process, one pose at a time in alternation with
 this checkout (both see the same load on a shared machine); the ratio of the medians and the
 largest displacement difference between the two answers are printed.
+
+With ``--friction MU`` each pose is reached along a load path with Coulomb friction instead
+(``Simulator.press_path(..., solver="neo_hookean")``, pins stopped at the window): a tap in
+``--steps`` steps, and for the plate poses also a re-orientation in contact about the pad's
+tip (the rig's path) from the untilted pose at the same depth. It prints the seconds of each
+step (a step is one Newton solve: what one pose costs when the path is walked anyway) and,
+beside them, the frictionless press of the same pose.
 """
 
 from __future__ import annotations
@@ -50,6 +58,38 @@ def worker(order: int, index: int, out: str) -> None:
              markers=nh.marker_displacements_mm, load=load)
 
 
+def friction_run(order: int, mu: float, steps: int) -> None:
+    """Time the friction paths of every pose in this process (prints as it goes)."""
+    import tactip_sim as ts
+
+    sim = ts.Simulator(ts.load_scene(SCENE), element_order=order)
+    print(f"P{order}, {sim.body.space.n_dofs} dofs, friction {mu:g}, {steps} steps per path; "
+          f"load {os.getloadavg()[0]:.1f}", flush=True)
+    per_step = []
+    for roll, pitch, depth, radius in POSES:
+        pose = ts.Pose(roll, pitch, depth)
+        indenter = None if radius is None else ts.Sphere(radius)
+        t0 = time.perf_counter()
+        press = sim.press(pose, indenter, solver="neo_hookean")
+        t_press = time.perf_counter() - t0
+        paths = [("tap", None)]
+        if radius is None:
+            paths.append(("re-orient", ts.Pose(0.0, 0.0, depth)))
+        for name, start in paths:
+            states = sim.press_path(pose, indenter, start=start, steps=steps, friction=mu,
+                                    solver="neo_hookean",
+                                    pivot_mm=None if start is None else sim.tip_mm)
+            secs = [s.seconds for s in states]
+            per_step += secs
+            moved = np.abs(states[-1].markers_mm - press.markers_mm).max()
+            print(f"{pose!s:40s} {'plate' if radius is None else f'sphere {radius:g}':10s} "
+                  f"{name:9s} {len(states):2d} steps, median {np.median(secs):5.1f} s/step "
+                  f"(max {max(secs):5.1f}), {sum(s.iterations for s in states):3d} its; "
+                  f"frictionless press {t_press:5.1f} s; markers {moved:.3f} mm from it; "
+                  f"load {os.getloadavg()[0]:.1f}", flush=True)
+    print(f"median {np.median(per_step):.1f} s per step with friction (P{order})")
+
+
 def run(python_path: Path, order: int, index: int, tmp: Path, tag: str) -> dict:
     out = tmp / f"{tag}_{index}.npz"
     env = dict(os.environ, PYTHONPATH=str(python_path))
@@ -64,11 +104,17 @@ def main() -> None:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--order", type=int, default=2, choices=(1, 2), help="element order")
     ap.add_argument("--baseline", metavar="REF", help="also time the package at git revision REF")
+    ap.add_argument("--friction", type=float, metavar="MU",
+                    help="reach each pose along load paths with this Coulomb coefficient")
+    ap.add_argument("--steps", type=int, default=4, help="steps per path (with --friction)")
     ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.worker is not None:
         worker(a.order, a.worker, a.out)
+        return
+    if a.friction is not None:
+        friction_run(a.order, a.friction, a.steps)
         return
     import tactip_sim as ts
 

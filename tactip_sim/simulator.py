@@ -19,6 +19,7 @@ import dataclasses
 import logging
 import time
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
@@ -37,6 +38,9 @@ from .fem.window import stop_at_window, window_generalised_forces
 from .geometry import Pad, build_pad
 from .mesh import TetMesh, tetrahedralise
 from .scene import Scene
+
+if TYPE_CHECKING:
+    from .fem.neohookean import NeoHookeanHistory
 
 SOLVERS = ("reduced", "full", "neo_hookean")
 log = logging.getLogger(__name__)
@@ -266,7 +270,7 @@ class Simulator:
         steps : steps of the tap and of the re-orientation, each, in [1, 10000]
         friction : Coulomb coefficient in [0, 10] (default: the scene's
             ``indenter.friction_coefficient``); 0 gives :meth:`press`'s answer at every step
-        solver : "reduced" or "full" (default: the simulator's; not "neo_hookean")
+        solver : "reduced", "full" or "neo_hookean" (default: the simulator's)
         progress : called with the number of steps done after each
         tap_steps : steps of the tap alone, in [1, 10000] (default ``steps``)
         pivot_mm : (3,) the robot's tool centre point in the sensor frame (a flat plate
@@ -276,14 +280,14 @@ class Simulator:
 
         Each state's ``seconds`` is the time of its own step. The pins stop at the window as
         in :meth:`press` for a flat indenter on the reduced model
-        (:func:`~tactip_sim.fem.window.friction_with_window`); otherwise they are not stopped
-        (``window_forces_N`` is NaN).
+        (:func:`~tactip_sim.fem.window.friction_with_window`) and for every indenter with the
+        neo-Hookean solve (:func:`~tactip_sim.fem.neohookean.neo_hookean_path`); otherwise
+        they are not stopped (``window_forces_N`` is NaN).
 
         Raises
         ------
         ValueError
-            ``friction`` or ``steps`` out of range, a depth <= 0, the path leaves contact, or
-            the neo-Hookean solver.
+            ``friction`` or ``steps`` out of range, a depth <= 0, or the path leaves contact.
         """
         from .fem.loadpath import path_poses
 
@@ -294,22 +298,19 @@ class Simulator:
     def continue_path(self, poses: list[Pose], history=None, *, friction: float | None = None,
                       indenter: Indenter | None = None, solver: str | None = None,
                       progress=None, pivot_mm=None
-                      ) -> tuple[list[ContactState], FrictionHistory]:
+                      ) -> tuple[list[ContactState], FrictionHistory | NeoHookeanHistory]:
         """The steps ``poses`` of a load path with Coulomb friction, from ``history`` (the
-        ``FrictionHistory`` an earlier call returned: the path goes on in contact) or from the
+        history an earlier call with the same solver returned: ``FrictionHistory``, or
+        ``NeoHookeanHistory`` for "neo_hookean"; the path goes on in contact) or from the
         pad at rest (a first contact at ``poses[0]``'s orientation). One state per step and the
         history at the end. The other parameters are :meth:`press_path`'s."""
         from .fem.loadpath import about_pivot, check_friction, run_path
 
         indenter = self.indenter if indenter is None else indenter
         solver = self.solver if solver is None else _check_solver(solver)
-        if solver == "neo_hookean":
-            raise ValueError("solver='neo_hookean' has no friction or load path: allowed "
-                             "'reduced' or 'full'")
         mu = check_friction(self.scene.indenter.friction_coefficient if friction is None
                             else friction, "friction" if friction is not None
                             else "indenter.friction_coefficient")
-        op = self.reduced if solver == "reduced" else FullOperator(self.body)
         sk = self.body.skin_thickness_mm
 
         def placer(p: Pose):
@@ -323,6 +324,10 @@ class Simulator:
             if progress is not None:
                 progress(k)
 
+        if solver == "neo_hookean":
+            return self._neo_hookean_path(poses, placer, mu, history, indenter, step_done,
+                                          stamps)
+        op = self.reduced if solver == "reduced" else FullOperator(self.body)
         # pins stop at the window as in press (a flat indenter on the reduced model)
         window = solver == "reduced" and bool(getattr(indenter, "flat", False))
         with single_threaded_blas():
@@ -346,6 +351,22 @@ class Simulator:
                 out.append(self._state(p, indenter, solver, sol, markers, dirs, u,
                                        sol.iterations, t0, held))
         return out, sols[-1].history
+
+    def _neo_hookean_path(self, poses, placer, mu, history, indenter, step_done, stamps
+                          ) -> tuple[list[ContactState], object]:
+        """:meth:`continue_path` with the neo-Hookean solve (the pins stop at the window, as
+        in its :meth:`press`)."""
+        from .fem.neohookean import neo_hookean_path
+
+        results = neo_hookean_path(self.body, poses, placer, mu=mu, markers=self.body.markers,
+                                   tol=self.tol, history=history, progress=step_done)
+        out = []
+        for k, (p, res) in enumerate(zip(poses, results, strict=True)):
+            t0 = time.perf_counter() - (stamps[k + 1] - stamps[k])
+            markers, dirs = self.body.markers.from_field(res.u, finite=True)
+            out.append(self._state(p, indenter, "neo_hookean", res.contact, markers, dirs,
+                                   res.u, res.iterations, t0, res.window_forces))
+        return out, results[-1].history
 
     @property
     def tip_mm(self) -> np.ndarray:

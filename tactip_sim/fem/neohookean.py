@@ -1,4 +1,5 @@
-"""Large-deformation reference: compressible neo-Hookean pad with the same frictionless contact.
+"""Large-deformation reference: compressible neo-Hookean pad with the same contact, frictionless
+or with Coulomb friction along a load path.
 
 Strain energy per reference volume (``F = I + grad u``, ``J = det F``, ``I1 = tr F'F``)::
 
@@ -21,10 +22,22 @@ with ``tol.max_load_steps`` steps raises :class:`~.contact.ContactError` naming 
 An earlier version solved each iteration's linear contact problem with compliance columns of
 the tangent (one solve per dof of every contact node): the same answers (1e-15 mm plate,
 1e-11 mm sphere, P1) at 4-5x the cost on P2 (docs/fem.md).
+
+**Friction** (:func:`neo_hookean_path`): a load path in steps, as :mod:`.loadpath` walks the
+linear pad; each step is one Newton solve from the last step's state in which the contact
+nodes' tangential forces follow Coulomb's law by penalty regularisation and return mapping
+(:func:`_coulomb`; a stuck node stays within ``mu p / k`` of its anchor, ``k`` = 1000 times its
+own stiffness). Regularised, not exact like the linear solver's stick (:mod:`.friction`):
+eliminating each stuck node's tangential dofs instead made the stick/slip sets cycle on the
+pad (a node's force jumps between the states); the penalty law is continuous across them.
+Steps whose Newton iteration fails are split. At ``mu = 0`` a path gives the frictionless
+press to solver precision.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,9 +46,11 @@ import scipy.sparse as sp
 from .contact import ContactError, ContactSolution
 from .elasticity import Factor, element_dofs
 from .elements import quadrature, shape_gradients
+from .friction import indenter_motion
 from .indenters import Placement
 from .markers import Markers
 from .model import ElasticBody
+from .pose import Pose
 from .tolerances import TOL, Tolerances, single_threaded_blas
 from .window import WINDOW_Z_MM
 
@@ -51,6 +66,39 @@ class NeoHookeanResult:
     load_steps: int
     window_forces: np.ndarray | None = None
     """(p,) mN, the window's force on each pin tip along +z (None when solved without pins)."""
+    stick: np.ndarray | None = None
+    """(k,) bool for each contact node: stuck (True) or slipping; None without friction."""
+    history: NeoHookeanHistory | None = None
+    """The state a next friction load step starts from (None without friction)."""
+
+
+@dataclass(frozen=True)
+class NeoHookeanHistory:
+    """What one load step of the neo-Hookean solve with friction hands the next.
+
+    placement : the indenter at the end of the step (its material points are the stick
+        anchors of the next step)
+    pose : the pose there (a step that fails is split by interpolating poses from it)
+    u : (n_dofs,) mm, the displacement
+    active : (k,) int, candidates in contact
+    pressures : (k,) mN, their normal forces
+    tangential : (k, 3) mN, the tangential parts of their forces (sensor frame)
+    window : (p,) mN or None, the window's force on each pin tip
+    """
+
+    placement: Placement
+    pose: Pose
+    u: np.ndarray
+    active: np.ndarray
+    pressures: np.ndarray
+    tangential: np.ndarray
+    window: np.ndarray | None = None
+
+    @classmethod
+    def at_rest(cls, placement: Placement, pose: Pose, n_dofs: int) -> NeoHookeanHistory:
+        """The pad at rest, the indenter at ``placement`` (``pose``, e.g. just touching)."""
+        return cls(placement, pose, np.zeros(n_dofs), np.zeros(0, dtype=np.int64),
+                   np.zeros(0), np.zeros((0, 3)))
 
 
 class NeoHookeanBody:
@@ -142,6 +190,106 @@ def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, 
                            tips)
 
 
+def neo_hookean_path(body: ElasticBody, poses: list[Pose],
+                     placer: Callable[[Pose], Placement], *, mu: float,
+                     markers: Markers | None = None, tol: Tolerances = TOL,
+                     history: NeoHookeanHistory | None = None,
+                     progress: Callable[[int], None] | None = None) -> list[NeoHookeanResult]:
+    """The neo-Hookean pad along a load path with Coulomb friction (the large-deformation
+    counterpart of :func:`~.loadpath.run_path`): one result per pose of ``poses`` (from
+    :func:`~.loadpath.path_poses`), each a load step from the last.
+
+    A step's stick anchors are the indenter's material points the contact nodes sat on at
+    its start (as in :mod:`.friction`). A step whose Newton iteration fails is split in two
+    by the pose halfway (the path is then walked more finely, which friction may notice);
+    more than ``tol.max_load_steps`` splits in one path raise :class:`~.contact.ContactError`.
+
+    Parameters
+    ----------
+    body : the discretised pad
+    poses : the poses after each step
+    placer : places the indenter at a pose
+    mu : friction coefficient in [0, 10]; 0 gives :func:`solve_neo_hookean`'s answer
+    markers : the pins (their tips stop at the window), or None
+    tol : tolerances
+    history : where the path starts (an earlier path's last ``history``, in contact); by
+        default the pad at rest with the indenter touching at ``poses[0]``'s orientation
+    progress : called with the number of steps done after each
+
+    Raises
+    ------
+    ValueError
+        ``mu`` out of range.
+    LoadPathError
+        A step after the first carries no contact force (the path left contact).
+    ContactError
+        Newton did not converge even after ``tol.max_load_steps`` splits.
+    """
+    from .loadpath import LoadPathError, check_friction, interpolate
+
+    mu = check_friction(mu)
+    if not poses:
+        raise LoadPathError("a load path needs at least one step")
+    nh = NeoHookeanBody(body)
+    space = body.space
+    rest = space.nodes[space.candidates]
+    fresh = history is None
+    if history is None:
+        p0 = poses[0]
+        touch = Pose(p0.roll_deg, p0.pitch_deg, 0.0, p0.offset_mm, p0.yaw_deg)
+        history = NeoHookeanHistory.at_rest(placer(touch), touch, space.n_dofs)
+    tips = None if markers is None or markers.count == 0 else _Tips(markers)
+    out: list[NeoHookeanResult] = []
+    splits = 0
+    with single_threaded_blas():
+        for k, pose in enumerate(poses):
+            label = f"{pose} (step {k + 1} of {len(poses)})"
+            pending, iterations, steps = [pose], 0, 0
+            while pending:
+                target = pending[-1]
+                try:
+                    res = _friction_step(nh, rest, history, target, placer(target), mu, tips,
+                                         tol)
+                except _NoConvergence:
+                    splits += 1
+                    if splits > tol.max_load_steps:
+                        raise ContactError(f"{label}: Newton did not converge even with "
+                                           f"{tol.max_load_steps} step splits") from None
+                    pending.append(interpolate(history.pose, target, 0.5))
+                    continue
+                pending.pop()
+                history = res.history
+                iterations += res.iterations
+                steps += 1
+            if (k > 0 or not fresh) and res.contact.active.size == 0:
+                raise LoadPathError(f"the load path leaves contact at step {k + 1} ({pose}): "
+                                    "every step after the first must keep depth_mm > 0 in "
+                                    "contact")
+            out.append(dataclasses.replace(res, iterations=iterations, load_steps=steps))
+            if progress is not None:
+                progress(k + 1)
+    return out
+
+
+def _friction_step(nh: NeoHookeanBody, rest: np.ndarray, history: NeoHookeanHistory,
+                   pose: Pose, placement: Placement, mu: float, tips: _Tips | None,
+                   tol: Tolerances) -> NeoHookeanResult:
+    """One load step with friction from ``history`` to ``placement`` (raises _NoConvergence)."""
+    s = len(rest)
+    pressures, tangential = np.zeros(s), np.zeros((s, 3))
+    pressures[history.active] = history.pressures
+    tangential[history.active] = history.tangential
+    x0 = rest + history.u.reshape(-1, 3)[nh.body.space.candidates]
+    fr = _Friction(mu, history.placement, x0, pressures, tangential)
+    u, contact, window, its, stick = _newton(nh, placement, history.u, history.active, tips,
+                                             history.window, tol, fr)
+    tang = contact.forces - contact.pressures[:, None] * placement.gap(
+        rest[contact.active] + contact.u[contact.active])[1]
+    nxt = NeoHookeanHistory(placement, pose, u, contact.active, contact.pressures, tang,
+                            window)
+    return NeoHookeanResult(u, contact, its, 1, window, stick, nxt)
+
+
 def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label: str,
                 tol: Tolerances, load_step_mm: float | None, tips: _Tips | None
                 ) -> NeoHookeanResult:
@@ -161,8 +309,8 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
         trial = Placement(placement.indenter, placement.rotation, origin_first - target * m,
                           placement.contact_point_mm, placement.max_depth_mm)
         try:
-            u_new, contact_new, window_new, its = _newton(nh, trial, u, active, tips, window,
-                                                          tol)
+            u_new, contact_new, window_new, its, _ = _newton(nh, trial, u, active, tips,
+                                                             window, tol)
         except _NoConvergence:
             step /= 2
             steps += 1
@@ -270,6 +418,26 @@ class _BlockPattern:
             out[:, k] = np.bincount(self.bi, weights=y[:, k], minlength=self.n_nodes)
         return out
 
+    def rows_of(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The blocks in the rows of ``nodes`` (k,) and, for each, its row's place in
+        ``nodes``: what :meth:`rows_matvec` reads."""
+        where = np.full(self.n_nodes, -1)
+        where[nodes] = np.arange(len(nodes))
+        blocks = np.flatnonzero(where[self.bi] >= 0)
+        return blocks, where[self.bi[blocks]]
+
+    def rows_matvec(self, blocks: np.ndarray, x: np.ndarray,
+                    rows: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """(k, 3) rows of the node vector product of :meth:`matvec` at the nodes of
+        ``rows`` (from :meth:`rows_of`)."""
+        sel, place = rows
+        y = np.einsum("bij,bj->bi", blocks[sel], x[self.bj[sel]])
+        k = int(place.max(initial=-1)) + 1
+        out = np.zeros((k, 3))
+        for c in range(3):
+            out[:, c] = np.bincount(place, weights=y[:, c], minlength=k)
+        return out
+
     def factor(self, blocks: np.ndarray, fixed: np.ndarray):
         """Factorise the blocks with the dofs ``fixed`` (n_nodes, 3) replaced by identity rows
         and columns; returns a solver ``b -> x`` for (3 n_nodes,) or (3 n_nodes, k) right-hand
@@ -308,9 +476,64 @@ def _normal_basis(normals: np.ndarray) -> np.ndarray:
     return np.stack([normals, t1, t2], axis=2)
 
 
+@dataclass(frozen=True)
+class _Friction:
+    """Coulomb friction over one load step: ``mu``; ``start`` the indenter at the step's start;
+    ``x0`` (s, 3) the candidates' positions then (their stick anchors are the indenter's
+    material points there); ``pressures`` (s,) and ``tangential`` (s, 3) the forces then (the
+    return mapping starts from the tangential ones; the first iteration's slip limits read
+    the normal ones)."""
+
+    mu: float
+    start: Placement
+    x0: np.ndarray
+    pressures: np.ndarray
+    tangential: np.ndarray
+
+
+# rounds of the slip forces' fixed point on one linearisation (each one solve with its factor;
+# they contract by ~0.3 a round on the pad, so 1e-12 takes ~25; beyond that the Newton
+# iteration goes on with the last round)
+_SLIP_ROUNDS = 40
+# the stick law's penalty stiffness, in units of each contact node's own stiffness (the mean
+# diagonal of its tangent block): a stuck node stays within mu p / k of its anchor, 1e-3 of
+# what its own stiffness would let the friction limit move it
+PENALTY = 1e3
+
+
+def _coulomb(mu: float, p: np.ndarray, q0: np.ndarray, slip: np.ndarray, k_pen: np.ndarray,
+             normals: np.ndarray, overshot: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Coulomb's law at the contact nodes by penalty regularisation and return mapping
+    (Wriggers, Computational Contact Mechanics, 2nd ed., 2006, §5.2): the trial force
+    ``t = P_t q0 - k_pen slip`` from the force ``q0`` (k, 3) at the step's start and the slip
+    ``slip`` (k, 3) over the step; a node sticks if ``|t| <= mu p`` (force ``t``), else it
+    slips with ``mu p t/|t|``. The force is continuous across the two states. A node that
+    ``overshot`` (k,) — slipped in the last iterate and then moved along its friction force,
+    past its anchor — takes the stick law for one iteration: along its slip the slip law has
+    no stiffness, so from the wrong side of the anchor the iteration would jump across the
+    thin stick zone (``|slip| <= mu p/k_pen``) back and forth.
+
+    Returns the stick mask (k,), the tangential forces (k, 3) and their stiffness
+    ``-df/dslip`` (k, 3, 3) at ``p`` held: ``k_pen P_t`` when stuck, ``mu p k_pen/|t|
+    (P_t - tt'/|t|^2)`` when slipping (symmetric, positive semi-definite). At ``mu = 0``
+    every node slips with no force."""
+    proj = np.eye(3) - normals[:, :, None] * normals[:, None, :]
+    trial = np.einsum("kij,kj->ki", proj, q0) - k_pen[:, None] * slip
+    tn = np.linalg.norm(trial, axis=1)
+    bound = mu * np.maximum(p, 0.0)
+    stick = (mu > 0) & ((tn <= bound) | (False if overshot is None else overshot))
+    th = trial / np.maximum(tn, 1e-300)[:, None]
+    force = np.where(stick[:, None], trial, bound[:, None] * th)
+    scale = np.where(stick, k_pen, bound * k_pen / np.maximum(tn, 1e-300))
+    shape = np.where(stick[:, None, None], proj, proj - th[:, :, None] * th[:, None, :])
+    return stick, force, scale[:, None, None] * shape
+
+
 def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: np.ndarray,
-            tips: _Tips | None, window0: np.ndarray | None, tol: Tolerances
-            ) -> tuple[np.ndarray, ContactSolution, np.ndarray | None, int]:
+            tips: _Tips | None, window0: np.ndarray | None, tol: Tolerances,
+            friction: _Friction | None = None
+            ) -> tuple[np.ndarray, ContactSolution, np.ndarray | None, int, np.ndarray | None]:
     """Semi-smooth Newton on equilibrium and the contact conditions together.
 
     Each iteration linearises both: the active candidates' normal gaps close exactly
@@ -323,6 +546,17 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     active sets then keep the nodes and tips pushed (``p > 0``, ``q > 0``) and take in those
     that penetrate; the iteration stops when the sets repeat and the increment is below
     ``tol.geometry_mm``.
+
+    With ``friction`` each contact node also carries a tangential force from its slip
+    relative to its anchor (the indenter's material point it sat on at the step's start),
+    by :func:`_coulomb`'s penalty law and return mapping, with that law's stiffness in the
+    tangent. A slipping node's force ``mu p`` follows the normal force ``p`` it produces (a
+    reaction): on each linearisation that is a fixed point, a few solves with the same
+    factor, so the tangent stays symmetric and CHOLMOD still applies. It stops when, besides
+    the above, the stick set repeats and no slip force moves by more than
+    ``tol.newton_rtol`` of the largest normal force. At ``mu = 0`` every node slips with zero
+    force: the frictionless iteration. Returns also the stick mask of the final contact
+    nodes (None without friction).
     """
     body = nh.body
     space = body.space
@@ -342,6 +576,13 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         held = np.union1d(np.flatnonzero(window0 > 0) if window0 is not None else held,
                           np.flatnonzero(tips.heights(u) < -tol.gap_mm))
         last_q = np.zeros(tips.count) if window0 is None else window0.copy()
+    if friction is not None:
+        # where each candidate's anchor is at the end of the step
+        anchor = friction.x0 + indenter_motion(friction.start, placement, friction.x0)
+        p_now = friction.pressures.copy()  # the last iterate's normal forces
+        k_pen = np.full(len(cand), np.nan)  # each node's penalty, set when it first touches
+        decided = None  # (active, stick mask, friction forces, their stiffness), last iterate
+        f_last = np.zeros((len(cand), 3))  # the last iterate's force on each slipping node
     for it in range(1, tol.newton_max_iter + 1):
         x = rest + u.reshape(-1, 3)[cand]
         g, nu = placement.gap(x)
@@ -349,42 +590,93 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             f_int, blocks = _tangent_blocks(nh, pattern, u)
         except FloatingPointError:
             raise _NoConvergence from None
+        curvature = None
         if tips is not None and np.any(last_q[held] > 0):
             # the window's forces turn with the rods: their second-order term in the tangent
-            rows_a, rows_b, vals = tips.curvature(u, held, last_q[held])
-            blocks = pattern.add_dofs(blocks, rows_a, rows_b, -vals)
+            curvature = tips.curvature(u, held, last_q[held])
+        nodes_a = cand[active]
+        stick = np.zeros(len(active), dtype=bool)
+        f_ext = np.zeros((space.n_nodes, 3))
+        if friction is not None:
+            new = np.isnan(k_pen[active])
+            k_pen[active[new]] = PENALTY * _stiffness(blocks, pattern, nodes_a[new])
+            slip = _tangential(x[active] - anchor[active], nu[active])
+            if decided is not None and np.array_equal(decided[0], active):
+                stick, f_fric, k_fric = decided[1:]
+            else:
+                stick, f_fric, k_fric = _coulomb(
+                    friction.mu, p_now[active], friction.tangential[active], slip,
+                    k_pen[active], nu[active],
+                    np.einsum("ki,ki->k", slip, f_last[active]) > 0)
+            blocks = blocks.copy()
+            blocks[pattern.diag[nodes_a]] += k_fric
+            f_ext[nodes_a] = f_fric
         basis = np.broadcast_to(np.eye(3), (space.n_nodes, 3, 3)).copy()
         moved = np.zeros(space.n_nodes, dtype=bool)
-        nodes_a = cand[active]
         basis[nodes_a] = _normal_basis(nu[active])
         moved[nodes_a] = True
-        rot = pattern.rotate(blocks, basis, moved)
-        r = -np.einsum("nai,na->ni", basis, f_int)  # rotated out-of-balance force
         fixed = clamped.copy()
         fixed[nodes_a, 0] = True
         a_fixed = np.zeros((space.n_nodes, 3))
         a_fixed[nodes_a, 0] = -g[active]
-        rhs = r - pattern.matvec(rot, a_fixed)
-        rhs[fixed] = a_fixed[fixed]
-        try:
-            solve = pattern.factor(rot, fixed)
-        except (np.linalg.LinAlgError, RuntimeError):
-            raise _NoConvergence from None
-        a = np.asarray(solve(rhs.ravel())).reshape(-1, 3)
-        a[fixed] = a_fixed[fixed]
-        window_rot = np.zeros((space.n_nodes, 3))  # the window's generalised force, rotated
-        q = np.zeros(len(held))
+        # with the window's curvature term; if that makes the tangent indefinite (many tips
+        # newly held with a rough iterate's forces), without it: a modified Newton step,
+        # towards the same solution
+        for curv in ((curvature, None) if curvature is not None else (None,)):
+            full = blocks if curv is None else pattern.add_dofs(blocks, curv[0], curv[1],
+                                                                -curv[2])
+            rot = pattern.rotate(full, basis, moved)
+            try:
+                solve = pattern.factor(rot, fixed)
+                break
+            except (np.linalg.LinAlgError, RuntimeError):
+                if curv is None:
+                    raise _NoConvergence from None
+        k_fixed = pattern.matvec(rot, a_fixed)
+        rows = pattern.rows_of(nodes_a)
+        schur = w = c_rot = None
         if len(held):
             c_rot = np.einsum("knj,nji->kni", tips.jacobian(u, held), basis)  # (h, nodes, 3)
             c_free = c_rot * ~fixed[None]
             w = np.asarray(solve(np.ascontiguousarray(c_free.reshape(len(held), -1).T)))
             w = w.reshape(3 * space.n_nodes, len(held))  # K^-1 C' (zero at the fixed dofs)
             schur = c_free.reshape(len(held), -1) @ w
-            z = tips.heights(u)[held]
-            q = np.linalg.solve(schur, -z - c_rot.reshape(len(held), -1) @ a.ravel())
-            a = a + (w @ q).reshape(-1, 3)
-            window_rot = np.einsum("kni,k->ni", c_rot, q)
-        pressures = (pattern.matvec(rot, a) - r - window_rot)[nodes_a, 0]
+            z_held = tips.heights(u)[held]
+
+        def linear(f_ext: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+            """The linearised step under the external forces ``f_ext`` (n_nodes, 3): the
+            rotated increment, the window's forces on the held tips, the rotated
+            out-of-balance force and the indenter's reactions at the contact nodes (local)."""
+            r = np.einsum("nai,na->ni", basis, f_ext - f_int)  # rotated out-of-balance force
+            rhs = r - k_fixed
+            rhs[fixed] = a_fixed[fixed]
+            a = np.asarray(solve(rhs.ravel())).reshape(-1, 3)
+            a[fixed] = a_fixed[fixed]
+            window_rot = np.zeros((space.n_nodes, 3))  # the window's force, rotated
+            q = np.zeros(len(held))
+            if len(held):
+                q = np.linalg.solve(schur, -z_held - c_rot.reshape(len(held), -1) @ a.ravel())
+                a = a + (w @ q).reshape(-1, 3)
+                window_rot = np.einsum("kni,k->ni", c_rot, q)
+            react = pattern.rows_matvec(rot, a, rows) - (r + window_rot)[nodes_a]
+            return a, q, r, react
+
+        a, q, r, react = linear(f_ext)
+        if friction is not None and friction.mu > 0 and np.any(~stick):
+            # the slip forces' magnitudes mu p follow the pressures they produce: a fixed point
+            # on this linearisation, one solve with the same factor per round
+            sl = np.flatnonzero(~stick & (np.abs(f_fric).max(axis=1) > 0))
+            direction = f_fric[sl] / np.linalg.norm(f_fric[sl], axis=1)[:, None]
+            for _ in range(_SLIP_ROUNDS):
+                f_new = friction.mu * np.maximum(react[sl, 0], 0.0)[:, None] * direction
+                if np.abs(f_new - f_fric[sl]).max(initial=0.0) <= 1e-12 * max(
+                        float(np.abs(react[:, 0]).max(initial=0.0)), 1e-300):
+                    break
+                f_fric = f_fric.copy()
+                f_fric[sl] = f_new
+                f_ext[nodes_a] = f_fric
+                a, q, r, react = linear(f_ext)
+        pressures = react[:, 0]
         du = np.einsum("nij,nj->ni", basis, a).ravel()
         alpha = 1.0
         while nh.min_jacobian(u + alpha * du) <= 0:
@@ -393,18 +685,44 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
                 raise _NoConvergence
         u = u + alpha * du
         change = float(np.abs(alpha * du).max())
-        g_new, nu_new = placement.gap(rest + u.reshape(-1, 3)[cand])
+        x_new = rest + u.reshape(-1, 3)[cand]
+        g_new, nu_new = placement.gap(x_new)
         keep = active[pressures > 0.0]
         enter = np.setdiff1d(np.flatnonzero(g_new < -tol.gap_mm), active)
         new_active = np.union1d(keep, enter)
         same = np.array_equal(new_active, active)
+        tangential = np.zeros((len(active), 3))
+        if friction is not None:
+            tangential = f_fric
+            p_now[:] = 0.0
+            p_now[active] = pressures
+            f_last[:] = 0.0
+            f_last[active[~stick]] = f_fric[~stick]
+            if same:
+                slip_new = _tangential(x_new[active] - anchor[active], nu_new[active])
+                # a stuck node is judged by the linear model's force (its slip grows by the
+                # increment's tangential part); its slip at the new iterate carries the
+                # linearisation's error, which the penalty would turn into a force
+                slip_lin = slip + _tangential(alpha * du.reshape(-1, 3)[nodes_a], nu[active])
+                slip_new = np.where(stick[:, None], slip_lin, slip_new)
+                stick_new, f_new, k_new = _coulomb(
+                    friction.mu, pressures, friction.tangential[active], slip_new,
+                    k_pen[active], nu_new[active],
+                    np.einsum("ki,ki->k", slip_new, f_last[active]) > 0)
+                decided = (active, stick_new, f_new, k_new)
+                # a stuck node's force follows its slip (the increment's test covers it); a
+                # slipping node's must settle
+                sl = ~stick & ~stick_new
+                moved_force = float(np.abs(f_new[sl] - f_fric[sl]).max(initial=0.0))
+                same = (np.array_equal(stick_new, stick) and moved_force
+                        <= tol.newton_rtol * max(float(pressures.max(initial=0.0)), 1e-300))
         if tips is not None:
             z_new = tips.heights(u)
             new_held = np.union1d(held[q > 0.0],
                                   np.setdiff1d(np.flatnonzero(z_new < -tol.gap_mm), held))
             same = same and np.array_equal(new_held, held)
         if alpha == 1.0 and same and change <= max(tol.geometry_mm, 1e-9):
-            forces = pressures[:, None] * nu_new[active]
+            forces = pressures[:, None] * nu_new[active] + tangential
             comp = float(np.max(np.abs(pressures * g_new[active]), initial=0.0))
             final = ContactSolution(u.reshape(-1, 3)[cand], active, forces, pressures, g_new,
                                     comp, it, it)
@@ -412,13 +730,23 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             if tips is not None:
                 window = np.zeros(tips.count)
                 window[held] = q
-            return u, final, window, it
+            return u, final, window, it, (stick if friction is not None else None)
         active = new_active
         if tips is not None:
             last_q = np.zeros(tips.count)
             last_q[held] = q
             held = new_held
     raise _NoConvergence
+
+
+def _tangential(v: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(k, 3) the parts of ``v`` (k, 3) orthogonal to the unit ``normals`` (k, 3)."""
+    return v - np.einsum("ki,ki->k", v, normals)[:, None] * normals
+
+
+def _stiffness(blocks: np.ndarray, pattern: _BlockPattern, nodes: np.ndarray) -> np.ndarray:
+    """(k,) mN/mm, a stiffness scale of each node: the mean diagonal of its tangent block."""
+    return np.trace(blocks[pattern.diag[nodes]], axis1=1, axis2=2) / 3.0
 
 
 class _Tips:

@@ -1,0 +1,183 @@
+"""Coulomb friction in the neo-Hookean (large-deformation) solve (docs/fem.md, Friction).
+
+Checks against independent answers:
+
+* the frictionless limit: a load path at mu = 0 is the frictionless press (a hyperelastic,
+  frictionless equilibrium does not depend on the path), to solver precision;
+* the small-strain limit: at 0.1 mm the neo-Hookean path with friction is the linear
+  friction solver's path (a second method: compliance of the assembled linear operator,
+  the stick/slip problem solved on the contact nodes alone, :mod:`tactip_sim.fem.friction`);
+* the laws themselves at a converged large deformation: equilibrium off the contact (the
+  internal force of the deformed body, recomputed), closed gaps, pushing contact forces,
+  Coulomb's cone with stuck nodes held at their anchors and slipping nodes dragged against
+  their slip;
+* path dependence with friction, and bad input named.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tactip_sim as ts
+from tactip_sim.fem.friction import indenter_motion
+from tactip_sim.fem.full import FullOperator
+from tactip_sim.fem.indenters import place
+from tactip_sim.fem.loadpath import LoadPathError, about_pivot, path_poses, run_path
+from tactip_sim.fem.neohookean import NeoHookeanBody, neo_hookean_path, solve_neo_hookean
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return ts.Simulator(ts.load_scene(SCENE), element_order=1)  # P1, the bundled 2 mm mesh
+
+
+def placer_of(sim: ts.Simulator, indenter, pivot=None):
+    """Places ``indenter``; with ``pivot`` (a plate) the robot turns it about that point."""
+    body = sim.body
+    rest = body.space.nodes[body.space.candidates]
+
+    def placer(p):
+        pl = place(indenter, p, rest, skin_thickness_mm=body.skin_thickness_mm)
+        return pl if pivot is None else about_pivot(pl, pivot)
+    return placer
+
+
+@pytest.mark.parametrize("indenter", [ts.Plate(), ts.Sphere(10.0)], ids=["plate", "sphere"])
+def test_frictionless_path_is_the_press(sim, indenter):
+    """mu = 0 along a tap in two steps and along a re-orientation: the frictionless press of
+    the end pose, to solver precision."""
+    placer = placer_of(sim, indenter)
+    body = sim.body
+    end = ts.Pose(3, -2, 1.0)
+    press = solve_neo_hookean(body, placer(end), end.depth_mm, markers=body.markers)
+    scale = np.abs(press.u).max()
+    for start in (None, ts.Pose(-2, 1, 0.8)):
+        res = neo_hookean_path(body, path_poses(end, start=start, steps=2), placer, mu=0.0,
+                               markers=body.markers)
+        assert np.abs(res[-1].u - press.u).max() < 1e-8 * scale
+        assert not res[-1].stick.any()
+
+
+def test_small_strain_limit_is_the_linear_friction_solver(sim):
+    """At 0.1 mm the pad is linear: a tap and a 4° turn in contact about the pad's tip (the
+    rig's pivot) with mu = 0.5, solved by
+    the neo-Hookean Newton iteration and by the linear compliance-based stick/slip solver,
+    give the same stick/slip states, forces within 1 % of the largest and markers within 1 %
+    of their largest displacement at every step."""
+    body = sim.body
+    placer = placer_of(sim, ts.Plate(), sim.tip_mm)
+    poses = path_poses(ts.Pose(4, 0, 0.1), start=ts.Pose(0, 0, 0.1), steps=3)
+    rest = body.space.nodes[body.space.candidates]
+    lin = run_path(poses, placer, rest, FullOperator(body), mu=0.5)
+    nh = neo_hookean_path(body, poses, placer, mu=0.5)
+    op = FullOperator(body)
+    for a, b in zip(lin, nh, strict=True):
+        np.testing.assert_array_equal(a.contact.active, b.contact.active)
+        np.testing.assert_array_equal(a.stick, b.stick)
+        scale = np.abs(a.contact.forces).max()
+        assert np.abs(a.contact.forces - b.contact.forces).max() < 0.01 * scale
+        m_lin = body.markers.from_field(op.field(a.contact.active, a.contact.forces))[0]
+        m_nh = body.markers.from_field(b.u, finite=True)[0]
+        moved = np.abs(m_lin - body.markers.rest_mm).max()
+        assert moved > 0.01
+        assert np.abs(m_nh - m_lin).max() < 0.01 * moved
+    assert lin[-1].stick.any() and (~lin[-1].stick).any()  # both states at the end
+
+
+def test_converged_path_obeys_equilibrium_and_coulomb(sim):
+    """A sphere tapped to 1.2 mm in 0.1 mm steps, mu = 0.3 (at the end 7 of 8 contact nodes
+    stick, the rim slips): the
+    deformed body's internal force (recomputed from the displacement) balances the contact
+    forces off the clamped face, every gap is closed, every force pushes and lies in
+    Coulomb's cone; stuck nodes sit on their anchors (the indenter's material point they sat
+    on when the step began) to 1e-4 mm (the penalty's elastic slip), slipping nodes carry
+    ``mu p`` and are dragged against their slip."""
+    body = sim.body
+    mu = 0.3
+    placer = placer_of(sim, ts.Sphere(12.0))
+    poses = path_poses(ts.Pose(2, -1, 1.2), steps=12)
+    res = neo_hookean_path(body, poses, placer, mu=mu)
+    prev, last = res[-2], res[-1]
+    c = last.contact
+    cand = body.space.candidates
+    f_int, _ = NeoHookeanBody(body).residual(last.u)
+    ext = np.zeros((body.space.n_nodes, 3))
+    ext[cand[c.active]] = c.forces
+    out = (f_int - ext.ravel())[body.free]
+    fmax = np.abs(c.forces).max()
+    assert np.abs(out).max() < 1e-7 * fmax
+    assert np.abs(c.gap[c.active]).max() < 1e-8 and c.gap.min() > -1e-8
+    rest = body.space.nodes[cand]
+    x = rest + c.u
+    _, normals = placer(poses[-1]).gap(x[c.active])
+    p = np.einsum("ki,ki->k", c.forces, normals)
+    q = c.forces - p[:, None] * normals
+    assert p.min() > 0 and np.allclose(p, c.pressures, rtol=1e-9, atol=1e-9 * fmax)
+    qn = np.linalg.norm(q, axis=1)
+    assert np.all(qn <= mu * p * (1 + 1e-9))
+    # anchors: where each node sat at the step's start, carried by the indenter's motion
+    x0 = rest[c.active] + prev.u.reshape(-1, 3)[cand[c.active]]
+    anchor = x0 + indenter_motion(placer(poses[-2]), placer(poses[-1]), x0)
+    slip = x[c.active] - anchor
+    slip -= np.einsum("ki,ki->k", slip, normals)[:, None] * normals
+    st = last.stick
+    assert st.any() and (~st).any()  # both states occur on this path
+    assert np.abs(slip[st]).max() < 1e-4
+    np.testing.assert_allclose(qn[~st], mu * p[~st], rtol=1e-6)
+    sn = np.linalg.norm(slip, axis=1)
+    moving = ~st & (sn > 1e-3)
+    cos = np.einsum("ki,ki->k", q[moving], slip[moving]) / (qn[moving] * sn[moving])
+    assert np.all(cos < -0.99)
+
+
+def test_friction_makes_the_pose_depend_on_the_path(sim):
+    """Turning 8° in contact (mu = 0.5) leaves the markers measurably elsewhere than a vertical
+    tap to the same pose; at mu = 0 the two paths agree to solver precision."""
+    body = sim.body
+    placer = placer_of(sim, ts.Plate())
+    end, start = ts.Pose(8, -4, 1.0), ts.Pose(0, 0, 1.0)
+
+    def markers(mu, path_start):
+        res = neo_hookean_path(body, path_poses(end, start=path_start, steps=4), placer, mu=mu,
+                               markers=body.markers)
+        return body.markers.from_field(res[-1].u, finite=True)[0]
+
+    assert np.abs(markers(0.0, None) - markers(0.0, start)).max() < 1e-7
+    assert np.abs(markers(0.5, None) - markers(0.5, start)).max() > 0.01
+
+
+def test_pins_stop_at_the_window_along_a_path_with_friction(sim):
+    """A flat plate tapped to 3.6 mm in 0.4 mm steps with mu = 0.5: without the window in
+    the solve the pin tips would end below its inner face (friction holds the skin, the
+    rods lean further than in the frictionless press, whose tips stay above); with it none
+    does, the held tips rest on it and the pad pushes back harder."""
+    body = sim.body
+    placer = placer_of(sim, ts.Plate())
+    poses = path_poses(ts.Pose(0, 0, 3.6), steps=9)
+    free = neo_hookean_path(body, poses, placer, mu=0.5)
+    assert body.markers.from_field(free[-1].u, finite=True)[0][:, 2].min() < -0.02
+    res = neo_hookean_path(body, poses, placer, mu=0.5, markers=body.markers)
+    tips = body.markers.from_field(res[-1].u, finite=True)[0]
+    q = res[-1].window_forces
+    assert (q > 0).sum() >= 5 and tips[:, 2].min() >= -1e-6
+    np.testing.assert_allclose(tips[q > 0, 2], 0.0, atol=1e-6)
+    assert res[-1].contact.pressures.sum() > free[-1].contact.pressures.sum()
+
+
+def test_bad_input_is_named(sim):
+    placer = placer_of(sim, ts.Plate())
+    body = sim.body
+    with pytest.raises(ValueError, match=r"friction_coefficient=-0.1 is out of range: "
+                                         r"allowed \[0, 10\]"):
+        neo_hookean_path(body, path_poses(ts.Pose(0, 0, 1.0), steps=1), placer, mu=-0.1)
+    up = [ts.Pose(0, 0, 0.5), ts.Pose(0, 0, -0.5)]
+    with pytest.raises(LoadPathError, match="leaves contact at step 2"):
+        neo_hookean_path(body, up, placer, mu=0.5)
+    with pytest.raises(LoadPathError, match="at least one step"):
+        neo_hookean_path(body, [], placer, mu=0.5)
