@@ -58,6 +58,28 @@ def check_steps(steps: int, name: str = "steps") -> int:
     return int(steps)
 
 
+def touching(pose: Pose) -> Pose:
+    """``pose`` at depth 0: the indenter just touching at its orientation and offset."""
+    return Pose(pose.roll_deg, pose.pitch_deg, 0.0, pose.offset_mm, pose.yaw_deg)
+
+
+def check_path(poses: list[Pose], mu: float) -> float:
+    """``mu`` checked (:func:`check_friction`) for a path of ``poses``, which must not be
+    empty (else :class:`LoadPathError`)."""
+    mu = check_friction(mu)
+    if not poses:
+        raise LoadPathError("a load path needs at least one step")
+    return mu
+
+
+def check_in_contact(step: int, pose: Pose, first: bool, n_active: int) -> None:
+    """Raise :class:`LoadPathError` if a path's ``step`` (0-based) at ``pose`` carries no
+    contact force (``n_active`` contact nodes) after the path's ``first`` step."""
+    if not first and n_active == 0:
+        raise LoadPathError(f"the load path leaves contact at step {step + 1} ({pose}): "
+                            "every step after the first must keep depth_mm > 0 in contact")
+
+
 def interpolate(a: Pose, b: Pose, t: float) -> Pose:
     """The pose a fraction ``t`` of the way from ``a`` to ``b`` (every component linear)."""
     oa, ob = np.asarray(a.offset_mm), np.asarray(b.offset_mm)
@@ -96,7 +118,7 @@ def path_poses(pose: Pose, *, start: Pose | None = None, steps: int = 10,
     if first.depth_mm <= 0:
         raise LoadPathError(f"start depth_mm={first.depth_mm:g} leaves contact: the path "
                             "re-orients in contact, allowed depth_mm > 0")
-    touch = Pose(first.roll_deg, first.pitch_deg, 0.0, first.offset_mm, first.yaw_deg)
+    touch = touching(first)
     out = [interpolate(touch, first, k / taps) for k in range(1, taps + 1)]
     if start is not None:
         out += [interpolate(start, pose, k / steps) for k in range(1, steps + 1)]
@@ -154,14 +176,10 @@ def run_path(poses: list[Pose], placer: Callable[[Pose], Placement], rest_mm: np
     LoadPathError
         A step after the first carries no contact force (the path left contact).
     """
-    mu = check_friction(mu)
-    if not poses:
-        raise LoadPathError("a load path needs at least one step")
-    p0 = poses[0]
+    mu = check_path(poses, mu)
     fresh = history is None
     if history is None:
-        history = FrictionHistory.at_rest(
-            placer(Pose(p0.roll_deg, p0.pitch_deg, 0.0, p0.offset_mm, p0.yaw_deg)))
+        history = FrictionHistory.at_rest(placer(touching(poses[0])))
     out: list[FrictionSolution] = []
     for k, pose in enumerate(poses):
         label = f"{pose} (step {k + 1} of {len(poses)})"
@@ -171,9 +189,7 @@ def run_path(poses: list[Pose], placer: Callable[[Pose], Placement], rest_mm: np
         else:
             sol = friction_with_window(operator, markers, placer(pose), rest_mm, mu=mu,
                                        history=history, label=label, tol=tol)
-        if (k > 0 or not fresh) and sol.contact.active.size == 0:
-            raise LoadPathError(f"the load path leaves contact at step {k + 1} ({pose}): "
-                                "every step after the first must keep depth_mm > 0 in contact")
+        check_in_contact(k, pose, k == 0 and fresh, sol.contact.active.size)
         out.append(sol)
         history = sol.history
         if progress is not None:

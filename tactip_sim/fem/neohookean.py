@@ -225,18 +225,15 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
     ContactError
         Newton did not converge even after ``tol.max_load_steps`` splits.
     """
-    from .loadpath import LoadPathError, check_friction, interpolate
+    from .loadpath import check_in_contact, check_path, interpolate, touching
 
-    mu = check_friction(mu)
-    if not poses:
-        raise LoadPathError("a load path needs at least one step")
+    mu = check_path(poses, mu)
     nh = NeoHookeanBody(body)
     space = body.space
     rest = space.nodes[space.candidates]
     fresh = history is None
     if history is None:
-        p0 = poses[0]
-        touch = Pose(p0.roll_deg, p0.pitch_deg, 0.0, p0.offset_mm, p0.yaw_deg)
+        touch = touching(poses[0])
         history = NeoHookeanHistory.at_rest(placer(touch), touch, space.n_dofs)
     tips = None if markers is None or markers.count == 0 else _Tips(markers)
     out: list[NeoHookeanResult] = []
@@ -261,10 +258,7 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
                 history = res.history
                 iterations += res.iterations
                 steps += 1
-            if (k > 0 or not fresh) and res.contact.active.size == 0:
-                raise LoadPathError(f"the load path leaves contact at step {k + 1} ({pose}): "
-                                    "every step after the first must keep depth_mm > 0 in "
-                                    "contact")
+            check_in_contact(k, pose, k == 0 and fresh, res.contact.active.size)
             out.append(dataclasses.replace(res, iterations=iterations, load_steps=steps))
             if progress is not None:
                 progress(k + 1)
@@ -632,36 +626,17 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             except (np.linalg.LinAlgError, RuntimeError):
                 if curv is None:
                     raise _NoConvergence from None
-        k_fixed = pattern.matvec(rot, a_fixed)
-        rows = pattern.rows_of(nodes_a)
-        schur = w = c_rot = None
+        held_window = None
         if len(held):
             c_rot = np.einsum("knj,nji->kni", tips.jacobian(u, held), basis)  # (h, nodes, 3)
             c_free = c_rot * ~fixed[None]
             w = np.asarray(solve(np.ascontiguousarray(c_free.reshape(len(held), -1).T)))
             w = w.reshape(3 * space.n_nodes, len(held))  # K^-1 C' (zero at the fixed dofs)
-            schur = c_free.reshape(len(held), -1) @ w
-            z_held = tips.heights(u)[held]
-
-        def linear(f_ext: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-            """The linearised step under the external forces ``f_ext`` (n_nodes, 3): the
-            rotated increment, the window's forces on the held tips, the rotated
-            out-of-balance force and the indenter's reactions at the contact nodes (local)."""
-            r = np.einsum("nai,na->ni", basis, f_ext - f_int)  # rotated out-of-balance force
-            rhs = r - k_fixed
-            rhs[fixed] = a_fixed[fixed]
-            a = np.asarray(solve(rhs.ravel())).reshape(-1, 3)
-            a[fixed] = a_fixed[fixed]
-            window_rot = np.zeros((space.n_nodes, 3))  # the window's force, rotated
-            q = np.zeros(len(held))
-            if len(held):
-                q = np.linalg.solve(schur, -z_held - c_rot.reshape(len(held), -1) @ a.ravel())
-                a = a + (w @ q).reshape(-1, 3)
-                window_rot = np.einsum("kni,k->ni", c_rot, q)
-            react = pattern.rows_matvec(rot, a, rows) - (r + window_rot)[nodes_a]
-            return a, q, r, react
-
-        a, q, r, react = linear(f_ext)
+            held_window = (c_rot, w, c_free.reshape(len(held), -1) @ w,
+                           tips.heights(u)[held])
+        linear = _Linearised(pattern, rot, basis, f_int, fixed, a_fixed, solve, nodes_a,
+                             held_window)
+        a, q, r, react = linear.step(f_ext)
         if friction is not None and friction.mu > 0 and np.any(~stick):
             # the slip forces' magnitudes mu p follow the pressures they produce: a fixed point
             # on this linearisation, one solve with the same factor per round
@@ -675,7 +650,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
                 f_fric = f_fric.copy()
                 f_fric[sl] = f_new
                 f_ext[nodes_a] = f_fric
-                a, q, r, react = linear(f_ext)
+                a, q, r, react = linear.step(f_ext)
         pressures = react[:, 0]
         du = np.einsum("nij,nj->ni", basis, a).ravel()
         alpha = 1.0
@@ -737,6 +712,42 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             last_q[held] = q
             held = new_held
     raise _NoConvergence
+
+
+class _Linearised:
+    """One Newton iteration's linear system (rotated tangent ``rot``, its factor ``solve``,
+    the dofs ``fixed`` to ``a_fixed``, the held tips' ``window`` = (C rotated, K^-1 C',
+    Schur complement, heights) or None), solved for any external forces."""
+
+    def __init__(self, pattern: _BlockPattern, rot: np.ndarray, basis: np.ndarray,
+                 f_int: np.ndarray, fixed: np.ndarray, a_fixed: np.ndarray, solve,
+                 nodes_a: np.ndarray, window: tuple | None) -> None:
+        self.pattern, self.rot, self.basis, self.f_int = pattern, rot, basis, f_int
+        self.fixed, self.a_fixed, self.solve, self.nodes_a = fixed, a_fixed, solve, nodes_a
+        self.window = window
+        self.k_fixed = pattern.matvec(rot, a_fixed)
+        self.rows = pattern.rows_of(nodes_a)
+
+    def step(self, f_ext: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The increment under the external forces ``f_ext`` (n_nodes, 3), rotated; the
+        window's forces on the held tips; the rotated out-of-balance force; the indenter's
+        reactions at the contact nodes (local frames)."""
+        r = np.einsum("nai,na->ni", self.basis, f_ext - self.f_int)
+        rhs = r - self.k_fixed
+        fixed = self.fixed
+        rhs[fixed] = self.a_fixed[fixed]
+        a = np.asarray(self.solve(rhs.ravel())).reshape(-1, 3)
+        a[fixed] = self.a_fixed[fixed]
+        window_rot = np.zeros_like(a)  # the window's force, rotated
+        q = np.zeros(0)
+        if self.window is not None:
+            c_rot, w, schur, z = self.window
+            q = np.linalg.solve(schur, -z - c_rot.reshape(len(z), -1) @ a.ravel())
+            a = a + (w @ q).reshape(-1, 3)
+            window_rot = np.einsum("kni,k->ni", c_rot, q)
+        react = (self.pattern.rows_matvec(self.rot, a, self.rows)
+                 - (r + window_rot)[self.nodes_a])
+        return a, q, r, react
 
 
 def _tangential(v: np.ndarray, normals: np.ndarray) -> np.ndarray:
