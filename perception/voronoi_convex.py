@@ -108,13 +108,9 @@ class _Topology:
     pair_nbr: np.ndarray
 
 
-def _triangulate(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> _Topology | None:
-    """Qhull's Delaunay triangulation of the seeds and four ghosts, and the cell edges it
-    implies (:func:`perception.voronoi_kernels.topology`: the bookkeeping in one compiled
-    pass, the arrays of :func:`_triangulate_numpy`'s NumPy passes); None when Qhull fails or
-    drops a seed."""
-    from .voronoi_kernels import topology  # compiled on first use (Numba)
-
+def _delaunay(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple | None:
+    """Qhull's Delaunay triangulation of the seeds (centred on the box ``lo``..``hi``) and four
+    far ghosts: (n, centre, half diagonal, ghosts, triangulation), or None when Qhull fails."""
     n = len(seeds)
     centre = complex(*(0.5 * (lo + hi)))
     half_diag = 0.5 * float(np.hypot(*(hi - lo))) + 1.0
@@ -122,9 +118,22 @@ def _triangulate(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> _Topology
     xy = np.concatenate([seeds - (centre.real, centre.imag),
                          np.stack([ghosts.real, ghosts.imag], axis=1)])
     try:
-        tri = Delaunay(xy)
+        return n, centre, half_diag, ghosts, Delaunay(xy)
     except QhullError:
         return None
+
+
+def _triangulate(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> _Topology | None:
+    """Qhull's Delaunay triangulation of the seeds and four ghosts, and the cell edges it
+    implies (:func:`perception.voronoi_kernels.topology`: the bookkeeping in one compiled
+    pass, the arrays of :func:`_triangulate_numpy`'s NumPy passes); None when Qhull fails or
+    drops a seed."""
+    from .voronoi_kernels import topology  # compiled on first use (Numba)
+
+    framed = _delaunay(seeds, lo, hi)
+    if framed is None:
+        return None
+    n, centre, half_diag, ghosts, tri = framed
     simp = np.ascontiguousarray(tri.simplices)
     ok, own, nbr, t_from, t_to, _, starts, far_t, far_v, pair_own, pair_nbr = topology(
         simp, np.ascontiguousarray(tri.neighbors), n)
@@ -139,16 +148,10 @@ def _triangulate(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> _Topology
 def _triangulate_numpy(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray
                        ) -> _Topology | None:
     """:func:`_triangulate` with its bookkeeping in NumPy passes (the tests' reference)."""
-    n = len(seeds)
-    centre = complex(*(0.5 * (lo + hi)))
-    half_diag = 0.5 * float(np.hypot(*(hi - lo))) + 1.0
-    ghosts = 4.0 * half_diag * _GHOSTS
-    xy = np.concatenate([seeds - (centre.real, centre.imag),
-                         np.stack([ghosts.real, ghosts.imag], axis=1)])
-    try:
-        tri = Delaunay(xy)
-    except QhullError:
+    framed = _delaunay(seeds, lo, hi)
+    if framed is None:
         return None
+    n, centre, half_diag, ghosts, tri = framed
     simp = np.ascontiguousarray(tri.simplices)
     nb = tri.neighbors
     own = simp.ravel()  # directed edge own -> nbr of triangle t: corners p, p + 1
