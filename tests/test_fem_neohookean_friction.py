@@ -170,6 +170,21 @@ def test_pins_stop_at_the_window_along_a_path_with_friction(sim):
     assert res[-1].contact.pressures.sum() > free[-1].contact.pressures.sum()
 
 
+def test_a_step_that_does_not_move_changes_nothing(sim):
+    """A step to the pose the path is already at (mu = 0.5, nodes on the cone's edge after the
+    tap) converges and leaves the pad where it was (nodes exactly on the cone flip between
+    stick and slip on round-off; the iteration must not chase them)."""
+    body = sim.body
+    placer = placer_of(sim, ts.Plate())
+    pose = ts.Pose(0, 0, 1.5)
+    res = neo_hookean_path(body, path_poses(pose, steps=3), placer, mu=0.5,
+                           markers=body.markers)
+    again = neo_hookean_path(body, [pose], placer, mu=0.5, markers=body.markers,
+                             history=res[-1].history)
+    assert again[0].load_steps == 1 and again[0].iterations <= 3  # (17 when it chased them)
+    assert np.abs(again[0].u - res[-1].u).max() < 1e-9
+
+
 def test_bad_input_is_named(sim):
     placer = placer_of(sim, ts.Plate())
     body = sim.body
