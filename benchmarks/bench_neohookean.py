@@ -17,7 +17,8 @@ largest displacement difference between the two answers are printed.
 With ``--friction MU`` each pose is reached along a load path with Coulomb friction instead
 (``Simulator.press_path(..., solver="neo_hookean")``, pins stopped at the window): a tap in
 ``--steps`` steps, and for the plate poses also a re-orientation in contact about the pad's
-tip (the rig's path) from the untilted pose at the same depth. It prints the seconds of each
+tip (the rig's path) from the untilted pose at the same depth (from roll 6°, pitch −4° for the
+untilted pose). It prints the seconds of each
 step (a step is one Newton solve: what one pose costs when the path is walked anyway) and,
 beside them, the frictionless press of the same pose.
 """
@@ -73,8 +74,10 @@ def friction_run(order: int, mu: float, steps: int) -> None:
         press = sim.press(pose, indenter, solver="neo_hookean")
         t_press = time.perf_counter() - t0
         paths = [("tap", None)]
-        if radius is None:
-            paths.append(("re-orient", ts.Pose(0.0, 0.0, depth)))
+        if radius is None:  # turned in contact from the untilted pose (or to it)
+            tilted = roll != 0.0 or pitch != 0.0
+            paths.append(("re-orient", ts.Pose(0.0, 0.0, depth) if tilted
+                          else ts.Pose(6.0, -4.0, depth)))
         for name, start in paths:
             states = sim.press_path(pose, indenter, start=start, steps=steps, friction=mu,
                                     solver="neo_hookean",
