@@ -79,6 +79,24 @@ def test_press_with_friction_along_a_path(capsys):
     assert out["force_vector_N"] != pytest.approx(frictionless["force_vector_N"], abs=1e-4)
 
 
+def test_press_with_friction_and_the_neo_hookean_solver(capsys):
+    """The large-deformation solve along a tap with friction, through the command: at
+    mu = 0 the frictionless neo-Hookean press (to solver precision); with mu = 0.5 the
+    tangential force of the tap differs from it."""
+    argv = ["press", SCENE, *P1, "--roll", "3", "--depth", "1.0", "--solver", "neo_hookean",
+            "--json"]
+    assert main([*argv]) == 0
+    direct = json.loads(capsys.readouterr().out)
+    assert main([*argv, "--friction", "0", "--path", "tap", "--steps", "2"]) == 0
+    tap0 = json.loads(capsys.readouterr().out)
+    assert tap0["solver"] == direct["solver"] == "neo_hookean"
+    assert tap0["force_vector_N"] == pytest.approx(direct["force_vector_N"], abs=1e-9)
+    assert main([*argv, "--friction", "0.5", "--steps", "2"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["load_path"]["friction"] == 0.5 and out["max_penetration_mm"] < 1e-6
+    assert out["force_vector_N"] != pytest.approx(direct["force_vector_N"], abs=1e-3)
+
+
 def test_press_takes_friction_from_the_scene(capsys):
     argv = ["press", SCENE, *P1, "--indenter", "sphere", "--radius", "10", "--roll", "6",
             "--depth", "1.0", "--steps", "2", "--json"]
