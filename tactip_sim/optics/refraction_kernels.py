@@ -23,14 +23,14 @@ __all__ = ["air_directions", "newton_sine"]
 
 
 @numba.njit(cache=True, nogil=True)
-def _newton(rho, h0, h1, h2, n2, s, s_max, tol, max_iter):  # pragma: no cover - compiled
-    """One point's Newton solve of :func:`newton_sine` for three layers."""
+def _newton(rho, heights, n2, s, s_max, tol, max_iter):  # pragma: no cover - compiled
+    """One point's Newton solve of :func:`newton_sine`: layer ``heights`` (k,), from ``s``."""
     for _ in range(max_iter):
         s2 = s * s
         g = -rho
         dg = 0.0
-        for i in range(3):
-            h = h0 if i == 0 else (h1 if i == 1 else h2)
+        for i in range(len(heights)):
+            h = heights[i]
             inv = 1.0 / math.sqrt(max(n2[i] - s2, 1e-300))
             g += h * s * inv
             dg += h * n2[i] * inv * inv * inv
@@ -57,6 +57,7 @@ def air_directions(points, centre, window_bottom, n, tol, max_iter):  # pragma: 
     zc, zb = centre[2], window_bottom
     n2 = n * n
     s_max = min(n[0], min(n[1], n[2])) * (1.0 - 1e-15)
+    heights = np.empty(3)
     for k in range(p):
         dx, dy, z = points[k, 0] - centre[0], points[k, 1] - centre[1], points[k, 2]
         rho = math.hypot(dx, dy)
@@ -65,8 +66,8 @@ def air_directions(points, centre, window_bottom, n, tol, max_iter):  # pragma: 
         m = zb if z < zb else z
         h1 = (0.0 if m > 0.0 else m) - zb
         h2 = 0.0 if z < 0.0 else z
-        s = _newton(rho, h0, h1, h2, n2, n[0] * rho / math.hypot(rho, h0), s_max, tol,
-                    max_iter)
+        heights[0], heights[1], heights[2] = h0, h1, h2
+        s = _newton(rho, heights, n2, n[0] * rho / math.hypot(rho, h0), s_max, tol, max_iter)
         sin_air = s / n[0]
         if rho > 0:
             out[k, 0] = sin_air * (dx / rho)
@@ -84,26 +85,8 @@ def newton_sine(rho, heights, n2, s0, s_max, tol, max_iter):  # pragma: no cover
     method from ``s0`` (n,), clipped to ``[0, s_max]``: ``rho`` (n,), ``heights`` (n, k),
     ``n2`` (k,) the squared indices; a point stops when its step is within ``tol`` or after
     ``max_iter`` steps."""
-    n, k = heights.shape
+    n = heights.shape[0]
     out = np.empty(n)
     for p in range(n):
-        s = s0[p]
-        for _ in range(max_iter):
-            s2 = s * s
-            g = -rho[p]
-            dg = 0.0
-            for i in range(k):
-                h = heights[p, i]
-                inv = 1.0 / math.sqrt(max(n2[i] - s2, 1e-300))
-                g += h * s * inv
-                dg += h * n2[i] * inv * inv * inv
-            step = g / dg
-            s -= step
-            if s < 0.0:  # (np.clip's order; a NaN stays NaN)
-                s = 0.0
-            elif s > s_max:
-                s = s_max
-            if abs(step) <= tol:
-                break
-        out[p] = s
+        out[p] = _newton(rho[p], heights[p], n2, s0[p], s_max, tol, max_iter)
     return out
