@@ -275,10 +275,8 @@ def _friction_step(nh: NeoHookeanBody, rest: np.ndarray, history: NeoHookeanHist
     tangential[history.active] = history.tangential
     x0 = rest + history.u.reshape(-1, 3)[nh.body.space.candidates]
     fr = _Friction(mu, history.placement, x0, pressures, tangential)
-    u, contact, window, its, stick = _newton(nh, placement, history.u, history.active, tips,
-                                             history.window, tol, fr)
-    tang = contact.forces - contact.pressures[:, None] * placement.gap(
-        rest[contact.active] + contact.u[contact.active])[1]
+    u, contact, window, its, (stick, tang) = _newton(nh, placement, history.u, history.active,
+                                                     tips, history.window, tol, fr)
     nxt = NeoHookeanHistory(placement, pose, u, contact.active, contact.pressures, tang,
                             window)
     return NeoHookeanResult(u, contact, its, 1, window, stick, nxt)
@@ -486,8 +484,8 @@ class _Friction:
 
 
 # rounds of the slip forces' fixed point on one linearisation (each one solve with its factor;
-# they contract by ~0.3 a round on the pad, so 1e-12 takes ~25; beyond that the Newton
-# iteration goes on with the last round)
+# 4-10 rounds reached 1e-12 in the P1 runs looked at; beyond the limit the Newton iteration
+# goes on with the last round)
 _SLIP_ROUNDS = 40
 # the stick law's penalty stiffness, in units of each contact node's own stiffness (the mean
 # diagonal of its tangent block): a stuck node stays within mu p / k of its anchor, 1e-3 of
@@ -527,7 +525,8 @@ def _coulomb(mu: float, p: np.ndarray, q0: np.ndarray, slip: np.ndarray, k_pen: 
 def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: np.ndarray,
             tips: _Tips | None, window0: np.ndarray | None, tol: Tolerances,
             friction: _Friction | None = None
-            ) -> tuple[np.ndarray, ContactSolution, np.ndarray | None, int, np.ndarray | None]:
+            ) -> tuple[np.ndarray, ContactSolution, np.ndarray | None, int,
+                       tuple[np.ndarray, np.ndarray] | None]:
     """Semi-smooth Newton on equilibrium and the contact conditions together.
 
     Each iteration linearises both: the active candidates' normal gaps close exactly
@@ -549,8 +548,8 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     factor, so the tangent stays symmetric and CHOLMOD still applies. It stops when, besides
     the above, the stick set repeats and no slip force moves by more than
     ``tol.newton_rtol`` of the largest normal force. At ``mu = 0`` every node slips with zero
-    force: the frictionless iteration. Returns also the stick mask of the final contact
-    nodes (None without friction).
+    force: the frictionless iteration. Returns also, with friction, the stick mask and the
+    tangential forces (k, 3) of the final contact nodes (None without friction).
     """
     body = nh.body
     space = body.space
@@ -710,7 +709,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             if tips is not None:
                 window = np.zeros(tips.count)
                 window[held] = q
-            return u, final, window, it, (stick if friction is not None else None)
+            return u, final, window, it, (None if friction is None else (stick, tangential))
         active = new_active
         if tips is not None:
             last_q = np.zeros(tips.count)
