@@ -24,7 +24,7 @@ import json
 import os
 import tempfile
 import zipfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -286,9 +286,13 @@ class Dataset:
         return [SampleRecord.from_npz(self.record_path(i)) for i in sorted(self.done())]
 
     # -- finalised tables ---------------------------------------------------------------------
-    def finalise(self, tip: str) -> None:
-        """Rebuild ``targets.csv`` and ``truth.npz`` from the records (index order)."""
-        recs = self.records()
+    def finalise(self, tip: str, records: Sequence[SampleRecord] | None = None) -> None:
+        """Rebuild ``targets.csv`` and ``truth.npz`` from the records (index order).
+
+        records : every sample's record, as a sweep holds them (read from ``records/`` if
+            None). A sweep passes them so that it does not read back and re-check thousands of
+            files it has just written."""
+        recs = self.records() if records is None else sorted(records, key=lambda r: r.index)
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(TARGET_COLUMNS)

@@ -14,6 +14,22 @@ from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 
+QUIET_WORKERS = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
+    "distributed.worker.memory.monitor-interval": "1s",
+}
+"""Dask settings of the local clusters :func:`open_client` starts. By default every worker
+samples its task thread's stack every 10 ms (the dashboard's profile), its event loop wakes
+every 20 ms to time itself, and it polls its resources every 0.5 s and its memory every 0.1 s.
+Each wake-up takes the GIL from the sample being computed; the processes of a cluster also
+share the machine's cores with the client and the scheduler. Slower diagnostics, same work:
+2 workers on 2 cores went from 1.67-1.83x one worker to 1.90-1.99x (BENCHMARKS.md,
+"Scaling"). Memory limits are still enforced, at most 1 s late. For a cluster started by
+hand (``--scheduler``), the same keys can be set in its Dask configuration."""
+
+
 def open_client(workers: int, scheduler: str | None, *, cluster_of_one: bool = False):
     """A Dask client: on ``scheduler`` if given, else on a LocalCluster of ``workers``
     single-threaded processes; None for in-process work (``workers <= 1``, no scheduler,
@@ -28,9 +44,12 @@ def open_client(workers: int, scheduler: str | None, *, cluster_of_one: bool = F
     if scheduler is not None:
         client = Client(scheduler)
     else:
+        import dask
+
         quiet_interrupt("distributed.nanny")  # the local nannies run in this process
-        client = Client(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                     dashboard_address=":0"))  # any free port: no clash
+        with dask.config.set(QUIET_WORKERS):  # the nannies hand it to their workers
+            client = Client(LocalCluster(n_workers=workers, threads_per_worker=1,
+                                         processes=True, dashboard_address=":0"))  # any port
     client.register_plugin(SweepWorkerSetup())  # also on workers that join or restart later
     return client
 
@@ -83,4 +102,4 @@ def progress(total: int, initial: int, enabled: bool, desc: str):
                 dynamic_ncols=True, smoothing=0.1)
 
 
-__all__ = ["close_client", "execute", "open_client", "progress"]
+__all__ = ["QUIET_WORKERS", "close_client", "execute", "open_client", "progress"]

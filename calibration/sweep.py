@@ -3,12 +3,15 @@ dataset on disk.
 
 Each sample is a pure function of (sweep spec, index): :meth:`Chain.sample` seeded by the pose
 set's tag and the index, so serial, ``--workers N`` and a Dask cluster
-(:mod:`calibration.executor`) give byte-identical datasets. Results come back to the client,
-which writes them atomically.
+(:mod:`calibration.executor`) give byte-identical datasets. Every file is written atomically
+(image first, record last), by the process that computed the sample when it runs on this
+machine (in this process, or a local cluster's worker); a remote cluster's results come back
+to the client, which writes them. The records stay in memory for the final tables.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import time
 from collections.abc import Callable, Sequence
@@ -174,16 +177,23 @@ def warm_up(spec: SweepSpec, client: Any = None) -> list[float]:
     return list(client.run(_set_up, spec).values())
 
 
-def run_chunk(spec: SweepSpec, indices: Sequence[int]
-              ) -> tuple[bytes, list[tuple[int, bytes, bytes, float]]]:
+def run_chunk(spec: SweepSpec, indices: Sequence[int], out: str | None = None
+              ) -> tuple[bytes | None, list[tuple[SampleRecord, bytes | None, bytes | None,
+                                                 float]]]:
     """Compute samples ``indices`` of ``spec`` (runs in a worker process). Returns the rest
-    frame (PNG) and, per sample, its index, its record (``SampleRecord.to_npz_bytes``), its
-    first frame (PNG) and the seconds it took: encoded here, so the process that writes the
-    files (one for all the workers) only writes them."""
+    frame (PNG) and, per sample, its record, the record's file (``SampleRecord.to_npz_bytes``),
+    its first frame (PNG) and the seconds it took: encoded here, so the process that writes the
+    files (one for all the workers) only writes them, and keeps the records for the tables.
+
+    out : a dataset folder this process can write (a local cluster's workers share the
+        client's disk): the sample's files and the rest frame are written here, as
+        :meth:`Dataset.write_encoded` writes them (image first, record last, each atomic), and
+        ``None`` comes back in place of their bytes. The client process, which also runs
+        Dask's scheduler, then only keeps the records: on 2 cores its time is the workers'."""
     import cv2
 
     chain = chain_for(spec)
-    out = []
+    results = []
     for i in indices:
         t0 = time.perf_counter()
         pose = spec.poses.poses[int(i)]
@@ -198,11 +208,20 @@ def run_chunk(spec: SweepSpec, indices: Sequence[int]
         ok, png = cv2.imencode(".png", s.rendered.images[0])
         if not ok:  # pragma: no cover - OpenCV cannot fail on a uint8 or uint16 image
             raise RuntimeError(f"could not encode sample {i} as PNG")
-        out.append((int(i), record(int(i), pose, s, reached).to_npz_bytes(), png.tobytes(),
-                    time.perf_counter() - t0))
+        rec = record(int(i), pose, s, reached)
+        npz, png = rec.to_npz_bytes(), png.tobytes()
+        if out is not None:
+            Dataset(out).write_encoded(rec.index, npz, png)
+            npz = png = None
+        results.append((rec, npz, png, time.perf_counter() - t0))
     if _REST_PNG.get("chain") is not chain:  # encoded once per chain, sent with each chunk
         _REST_PNG.update(chain=chain, png=cv2.imencode(".png", chain.rest_image)[1].tobytes())
-    return _REST_PNG["png"], out
+    if out is None:
+        return _REST_PNG["png"], results
+    ds = Dataset(out)
+    if not ds.rest_image_path.is_file():  # workers may race here: same bytes, atomic writes
+        ds.write_rest(_REST_PNG["png"])
+    return None, results
 
 
 _REST_PNG: dict[str, Any] = {}
@@ -347,6 +366,18 @@ class SweepResult:
     sample_seconds: float  # summed per-sample compute time (across workers)
 
 
+def _local_cluster(workers: int, scheduler: str | None, client: Any) -> bool:
+    """Whether the sweep's samples are computed by worker processes on this machine (a Dask
+    ``LocalCluster``, the one ``--workers N`` starts or a client's), which can then write the
+    dataset's files themselves. In this process (no cluster) the files are written here, and
+    a remote scheduler's workers send them back (they need no shared filesystem)."""
+    if client is None:
+        return scheduler is None and workers > 1
+    from dask.distributed import LocalCluster
+
+    return isinstance(getattr(client, "cluster", None), LocalCluster)
+
+
 def run_sweep(
     spec: SweepSpec,
     out: str | Path,
@@ -383,6 +414,7 @@ def run_sweep(
     })
     done = ds.done()
     todo = [i for i in range(len(spec.poses)) if i not in done]
+    written: list[SampleRecord] = []
     if limit is not None:
         todo = todo[:limit]
     chunks = [todo[k:k + chunk] for k in range(0, len(todo), chunk)]
@@ -390,22 +422,29 @@ def run_sweep(
     sample_seconds = 0.0
     bar = progress_bar(total=len(spec.poses), initial=len(done), enabled=progress,
                        desc=f"{spec.tip}/{spec.poses.name}")
+    fn = run_chunk
+    if _local_cluster(workers, scheduler, client):
+        fn = functools.partial(run_chunk, out=str(ds.root.resolve()))
     try:
-        for rest_png, results in execute(run_chunk, spec, chunks, workers=workers,
+        for rest_png, results in execute(fn, spec, chunks, workers=workers,
                                          scheduler=scheduler, client=client):
-            if not ds.rest_image_path.is_file():
+            if rest_png is not None and not ds.rest_image_path.is_file():
                 ds.write_rest(rest_png)
-            for index, npz, png, secs in results:
-                ds.write_encoded(index, npz, png)
+            for rec, npz, png, secs in results:
+                if npz is not None:
+                    ds.write_encoded(rec.index, npz, png)
+                written.append(rec)
                 sample_seconds += secs
                 bar.update(1)
                 if on_sample is not None:
-                    on_sample(index)
+                    on_sample(rec.index)
     finally:
         bar.close()
-    complete = len(ds.done()) == len(spec.poses)
-    if complete:
-        ds.finalise(spec.tip)
+    # the samples found complete at the start (checked then) and the ones written since (each
+    # written atomically): neither re-listed nor re-read from disk
+    if len(done) + len(written) == len(spec.poses):
+        ds.finalise(spec.tip, [SampleRecord.from_npz(ds.record_path(i)) for i in sorted(done)]
+                    + written)
     return SweepResult(ds, len(todo), len(done), time.perf_counter() - t0, sample_seconds)
 
 

@@ -154,6 +154,32 @@ def test_dask_cluster_by_address_is_byte_identical_to_serial(spec, serial, tmp_p
     assert _files(out) == _files(serial)
 
 
+def _worker_timers(dask_worker) -> tuple[bool, float, float]:
+    cbs = dask_worker.periodic_callbacks
+    return "profile" in cbs, cbs["tick"].callback_time, cbs["monitor"].callback_time
+
+
+def test_local_cluster_workers_sample_their_diagnostics_slowly(spec, serial, tmp_path):
+    """The clusters ``--workers N`` starts do not profile their tasks' stacks every 10 ms nor
+    wake their event loop every 20 ms (QUIET_WORKERS); this process's settings stay as they
+    were, and the sweep's files (written by the workers themselves) are the serial run's."""
+    import dask
+
+    from calibration.executor import close_client, open_client
+
+    before = dask.config.get("distributed.worker.profile.enabled")
+    client = open_client(2, None)
+    try:
+        timers = set(client.run(_worker_timers).values())
+        out = tmp_path / "local"
+        run_sweep(spec, out, client=client, progress=False, chunk=2)
+    finally:
+        close_client(client)
+    assert timers == {(False, 1000.0, 2000.0)}  # ms: the defaults are a profile, 20 and 500
+    assert dask.config.get("distributed.worker.profile.enabled") == before
+    assert _files(out) == _files(serial)
+
+
 def _opencv_threads() -> int:
     import cv2
 
