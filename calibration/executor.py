@@ -3,8 +3,9 @@
 The executor knows nothing of what a sample is: it sends ``fn(spec, chunk)`` tasks out and
 yields their results as they complete. ``--workers N`` starts a Dask ``LocalCluster`` of N
 single-threaded processes; ``--scheduler ADDRESS`` uses any running Dask scheduler (other
-machines included). Results come back to the client, so workers need no shared filesystem.
-Every worker, local or remote, gets :class:`~calibration.dask_setup.SweepWorkerSetup` (one
+machines included). A remote cluster's results come back to the client, so its workers need
+no shared filesystem; a local cluster's workers write their files themselves
+(:func:`calibration.sweep.run_chunk`). Every worker, local or remote, gets :class:`~calibration.dask_setup.SweepWorkerSetup` (one
 OpenCV thread, glibc heap reuse).
 """
 
