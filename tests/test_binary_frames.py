@@ -56,6 +56,38 @@ def test_touching_pairs_are_split_into_their_two_markers():
     assert d.max() < 1.0  # both members of the pair found near their centres
 
 
+def _jpeg(image: np.ndarray, quality: int) -> np.ndarray:
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    assert ok
+    return cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
+
+
+@pytest.mark.parametrize("quality", [50, 75, 95])
+def test_binarised_frame_saved_as_jpeg_keeps_its_known_centres(quality):
+    """JPEG's ringing turns a two-level frame into a grey one whose 1-3 px markers the
+    grey-level path cannot size; it is cut back to two levels and read as binarised."""
+    rng = np.random.default_rng(7)
+    centres = pc.hex_lattice(331, 5.0, C) + rng.uniform(-0.3, 0.3, (331, 2))
+    image = _jpeg(_binarised(centres), quality)
+    assert len(np.unique(image)) > 2  # no longer two-level
+    det = pc.detect_markers_detailed(image, expected_count=331)
+    assert det.reliable and det.count == 331, det.reason
+    dist, _ = cKDTree(det.points).query(centres)
+    assert np.median(dist) < 0.2 and dist.max() < 0.6
+
+
+def test_dark_markers_on_a_bright_ground_are_the_same_markers():
+    rng = np.random.default_rng(8)
+    centres = pc.hex_lattice(331, 5.0, C) + rng.uniform(-0.3, 0.3, (331, 2))
+    image = _binarised(centres, specks=[(64, 9)])
+    bright = pc.detect_markers_detailed(image, expected_count=331)
+    dark = pc.detect_markers_detailed(255 - image, expected_count=331)
+    assert bright.reliable and dark.reliable, dark.reason
+    np.testing.assert_array_equal(dark.points, bright.points)
+    dist, _ = cKDTree(dark.points).query(centres)
+    assert dist.max() < 0.6
+
+
 def test_blank_and_single_level_frames_are_flagged_not_crashing():
     for image in (np.zeros((128, 128), np.uint8), np.full((128, 128), 255, np.uint8)):
         det = pc.detect_markers_detailed(image, expected_count=331)
@@ -72,6 +104,16 @@ def test_real_128px_frames_find_99_percent_of_pins_in_every_frame():
                        for f in frames[::4]])
     assert len(counts) >= 200
     assert np.mean((counts >= 0.99 * 331) & (counts <= 1.01 * 331)) >= 0.95
+
+
+@pytest.mark.skipif(not REAL128.is_dir(), reason="../shared/real/tactip331_tap128 absent")
+def test_real_128px_frames_saved_as_jpeg_or_inverted_still_find_99_percent_of_pins():
+    frames = sorted((REAL128 / "images").glob("*.png"))[::10]
+    for convert in (lambda g: _jpeg(g, 75), lambda g: 255 - g):
+        counts = np.array([pc.detect_markers_detailed(
+            convert(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)), expected_count=331).count
+            for f in frames])
+        assert np.mean((counts >= 0.99 * 331) & (counts <= 1.01 * 331)) >= 0.95
 
 
 @pytest.mark.skipif(not (SHARED / "real").is_dir(), reason="../shared/real absent")
