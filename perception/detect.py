@@ -31,9 +31,9 @@ markers of 4-9 px, or thresholded full-resolution frames) carry no intensity to 
 to measure: :func:`_detect_binary` takes the connected components of the bright level, their
 pixel centroids, the reference area from their median, the same area and shape filters, and
 rejects components close to much larger bright structures (the rim ring and its fragments).
-A binarised frame whose dark level alone gives a reliable array has dark markers, and a grey
-frame whose grey-level detection is unreliable but whose pixels nearly all sit at its two
-extremes (a binarised frame saved as JPEG) is cut at mid-range and read as binarised.
+A binarised frame whose dark level alone gives a reliable array has dark markers. A grey frame
+whose grey-level detection is unreliable is read a second time, cut at its Otsu level, and that
+reading is kept if it is reliable (a binarised frame saved as JPEG, blurred or resampled).
 """
 
 from __future__ import annotations
@@ -243,7 +243,7 @@ def detect_markers_detailed(
                        noise_sigma, p)
     if not det.reliable:
         two = _rebinarised(grey)
-        if two is not None:  # a binarised frame saved with a lossy codec (JPEG)
+        if two is not None:  # a binarised frame saved as JPEG, blurred or resampled
             alt = _detect_binary(two, shape, region, expected_count, expected_diameter_px, p)
             if alt.reliable:
                 return alt
@@ -519,27 +519,16 @@ def _is_binary(grey: np.ndarray) -> bool:
     return not np.any((grey != lo) & (grey != hi))
 
 
-#: A frame that is not exactly two-level but has at least this fraction of its pixels within
-#: :data:`_NEAR_LEVEL_BAND` of its range from its darkest or brightest level is a binarised
-#: frame saved with a lossy codec. JPEG's ringing leaves 0.977 of the pixels of the real
-#: 128x128 taps there at quality 50 and 0.9999 at 75 (0.911 at 30); the real raw 640x480
-#: frames have 0.35-0.61. It is only tried when the grey-level detection is unreliable.
-_NEAR_LEVEL_FRACTION = 0.95
-_NEAR_LEVEL_BAND = 0.15
-
-
 def _rebinarised(grey: np.ndarray) -> np.ndarray | None:
-    """``grey`` cut at mid-range into 0 / 255 if it is a lossily saved binarised frame (see
-    :data:`_NEAR_LEVEL_FRACTION`), else None."""
-    lo, hi = float(grey.min()), float(grey.max())
-    span = hi - lo
-    if span <= 0.0:
+    """``grey`` cut at its Otsu level into 0 / 255 (None for a flat frame): the second reading
+    of a frame the grey-level path found unreliable. A binarised frame saved as JPEG, blurred
+    or resampled to another size keeps its markers as two classes of pixels, but its ringing
+    or soft edges mislead the grey-level path's noise floor and its 2 px diameter floor."""
+    if grey.min() == grey.max():
         return None
-    band = _NEAR_LEVEL_BAND * span
-    near = np.count_nonzero((grey <= lo + band) | (grey >= hi - band))
-    if near < _NEAR_LEVEL_FRACTION * grey.size:
-        return None
-    return np.where(grey > lo + 0.5 * span, np.uint8(255), np.uint8(0))
+    g8 = grey if grey.dtype == np.uint8 else np.clip(grey * 255.0, 0, 255).astype(np.uint8)
+    _, out = cv2.threshold(g8, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+    return out if out.min() != out.max() else None
 
 
 #: Components nearer than this many marker diameters to a much larger bright structure (the

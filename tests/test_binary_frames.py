@@ -62,13 +62,17 @@ def _jpeg(image: np.ndarray, quality: int) -> np.ndarray:
     return cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
 
 
-@pytest.mark.parametrize("quality", [50, 75, 95])
-def test_binarised_frame_saved_as_jpeg_keeps_its_known_centres(quality):
-    """JPEG's ringing turns a two-level frame into a grey one whose 1-3 px markers the
-    grey-level path cannot size; it is cut back to two levels and read as binarised."""
+@pytest.mark.parametrize("convert", ["jpeg30", "jpeg50", "jpeg75", "jpeg95", "blur0.7"])
+def test_binarised_frame_saved_as_jpeg_or_blurred_keeps_its_known_centres(convert):
+    """JPEG's ringing or a blur turns a two-level frame into a grey one whose 1-3 px markers
+    the grey-level path cannot read; cut back to two levels, it is read as binarised."""
     rng = np.random.default_rng(7)
     centres = pc.hex_lattice(331, 5.0, C) + rng.uniform(-0.3, 0.3, (331, 2))
-    image = _jpeg(_binarised(centres), quality)
+    image = _binarised(centres)
+    if convert.startswith("jpeg"):
+        image = _jpeg(image, int(convert[4:]))
+    else:
+        image = cv2.GaussianBlur(image, (0, 0), float(convert[4:]))
     assert len(np.unique(image)) > 2  # no longer two-level
     det = pc.detect_markers_detailed(image, expected_count=331)
     assert det.reliable and det.count == 331, det.reason
