@@ -33,7 +33,10 @@ pixel centroids, the reference area from their median, the same area and shape f
 rejects components close to much larger bright structures (the rim ring and its fragments).
 A binarised frame whose dark level alone gives a reliable array has dark markers. A grey frame
 whose grey-level detection is unreliable is read a second time, cut at its Otsu level, and that
-reading is kept if it is reliable (a binarised frame saved as JPEG, blurred or resampled).
+reading is kept if it is reliable (a binarised frame saved as JPEG, blurred or resampled),
+unless the caller gave a noise sigma above 0: then the frame's noise is known, and so is the
+floor no marker rose above (a :class:`~perception.FeaturePipeline` whose rest frame was read
+as grey passes its sigma; one read as binarised passes 0).
 """
 
 from __future__ import annotations
@@ -241,7 +244,8 @@ def detect_markers_detailed(
         return _detect_binary(grey, shape, region, expected_count, expected_diameter_px, p)
     det = _detect_grey(grey, shape, scale, region, expected_count, expected_diameter_px,
                        noise_sigma, p)
-    if not det.reliable:
+    if not det.reliable and not noise_sigma:  # a sigma given > 0 is the caller's word on
+        # the frame's noise (a pipeline's grey rest frame); 0 is a binarised rest frame's
         two = _rebinarised(grey)
         if two is not None:  # a binarised frame saved as JPEG, blurred or resampled
             alt = _detect_binary(two, shape, region, expected_count, expected_diameter_px, p)
