@@ -17,6 +17,10 @@ depth (mm)      ``pose_3``       z, only used to choose the reference frame
 image           ``sensor_image`` else ``image``; ``--image-column``
 =============  ===============  =============================================================
 
+A folder without ``targets.csv`` may hold a plain ``labels.csv`` instead; a default column
+the file lacks is looked for under its descriptive names (:data:`COLUMN_ALIASES`: e.g.
+``roll_deg_Rx``, ``pitch_deg_Ry``, ``depth_mm``).
+
 Reference (rest) frame: ``--rest IMAGE`` if given; else the folder's ``images/rest.png`` (this
 project's datasets); else the *least-deformed* frame, taken as the frame of the shallowest
 press (smallest depth column) when the folder has a depth column that varies, and the first
@@ -55,6 +59,18 @@ that a tilted press pushes outward is found as far as it can be tracked
 
 IMAGE_COLUMNS = ("sensor_image", "image")
 """Image columns looked for, in this order (Bristol data sets, then this project's)."""
+LABEL_FILES = ("targets.csv", "labels.csv")
+"""Label files looked for, in this order: the Bristol layout's, then a plain ``labels.csv``
+(e.g. ``../shared/real/tactip331_tap``: ``image, depth_mm, roll_deg_Rx, pitch_deg_Ry``)."""
+COLUMN_ALIASES = {
+    "roll": ("pose_4", "roll_deg_Rx", "roll_deg", "Rx"),
+    "pitch": ("pose_5", "pitch_deg_Ry", "pitch_deg", "Ry"),
+    "depth": ("pose_3", "depth_mm"),
+}
+"""Where a column left at its default (``pose_4``, ``pose_5``, ``pose_3``) is absent, the
+first of these names the file has is taken (and recorded in ``BristolFolder.columns``): the
+descriptive names of a plain label file. A column given on the command line is never
+replaced."""
 
 
 @dataclass(frozen=True)
@@ -111,14 +127,16 @@ class BristolFolder:
 
         columns = columns or ColumnMap()
         root = Path(root)
-        path = root / "targets.csv"
-        if not path.is_file():
+        path = next((root / f for f in LABEL_FILES if (root / f).is_file()), None)
+        if path is None:
             raise DatasetError(f"{root}: no targets.csv (a Bristol-layout folder holds "
-                               "targets.csv and the images it names)")
+                               "targets.csv and the images it names; a plain labels.csv "
+                               "is read too)")
         with path.open(newline="") as fh:
             reader = csv.DictReader(fh)
             header = reader.fieldnames or []
             rows = list(reader)
+        columns = _aliased(columns, header)
         if not rows:
             raise DatasetError(f"{path}: no rows")
         for i, r in enumerate(rows):  # DictReader: None for a short row's missing cells,
@@ -175,6 +193,22 @@ class BristolFolder:
 
     def __len__(self) -> int:
         return len(self.images)
+
+
+def _aliased(columns: ColumnMap, header: Sequence[str]) -> ColumnMap:
+    """``columns`` with each quantity left at its default column, where the file lacks that
+    column, moved to the first of its :data:`COLUMN_ALIASES` the file has."""
+    from dataclasses import replace
+
+    default = ColumnMap()
+    moved = {}
+    for key, names in COLUMN_ALIASES.items():
+        col = getattr(columns, key)
+        if col == getattr(default, key) and col not in header:
+            found = next((n for n in names if n in header), None)
+            if found is not None:
+                moved[key] = found
+    return replace(columns, **moved) if moved else columns
 
 
 def _floats(values: Sequence[str], path: Path, col: str) -> np.ndarray:
@@ -295,7 +329,9 @@ class FrameTable:
         return {"frames": len(self.folder), "flagged": int((~self.reliable).sum()),
                 "rest": str(self.folder.rest), "rest_choice": self.folder.rest_choice,
                 "rest_markers": self.rest_markers,
-                "image_size": list(self.folder.image_size)}
+                "image_size": list(self.folder.image_size),
+                "columns": {k: getattr(self.folder.columns, k) for k in
+                            ("image", "roll", "pitch", "depth", "roll_sign", "pitch_sign")}}
 
 
 OTHER_SENSOR_CHECK_FRAMES = 5

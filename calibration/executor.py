@@ -5,15 +5,14 @@ yields their results as they complete. ``--workers N`` starts a Dask ``LocalClus
 single-threaded processes; ``--scheduler ADDRESS`` uses any running Dask scheduler (other
 machines included). A remote cluster's results come back to the client, so its workers need
 no shared filesystem; a local cluster's workers write their files themselves
-(:func:`calibration.sweep.run_chunk`). Every worker, local or remote, gets :class:`~calibration.dask_setup.SweepWorkerSetup` (one
-OpenCV thread, glibc heap reuse).
+(:func:`calibration.sweep.run_chunk`). Every worker, local or remote, gets
+:class:`~calibration.dask_setup.SweepWorkerSetup` (one OpenCV thread, glibc heap reuse).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
-
 
 QUIET_WORKERS = {
     "distributed.worker.profile.enabled": False,

@@ -274,7 +274,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "on. By default the feature and the order are chosen by cross-validation among all "
         "candidates (each reported); --cv K also reports the K-fold cross-validated R² and "
         "the nested-CV R² of the choice.")
-    p.add_argument("dataset", help="labelled folder: targets.csv + images (in it or images/)")
+    p.add_argument("dataset", help="labelled folder: targets.csv (or a plain labels.csv) + "
+                   "images (in it or images/)")
     p.add_argument("--order", default="auto", choices=["1", "2", "3", "auto"],
                    help="polynomial order; 'auto' (default): the best of 1-3 by "
                    "cross-validation")
@@ -312,7 +313,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "features", help="per-frame features of a labelled folder (CSV)",
         description="Perceive every frame of a labelled folder against its reference frame "
         "and write the per-frame centres of pressure, marker counts and verdicts as CSV.")
-    p.add_argument("dataset", help="labelled folder: targets.csv + images (in it or images/)")
+    p.add_argument("dataset", help="labelled folder: targets.csv (or a plain labels.csv) + "
+                   "images (in it or images/)")
     p.add_argument("--out", required=True, help="CSV file to write")
     _folder_arguments(p)
     p.set_defaults(func=_cmd_features)

@@ -71,6 +71,36 @@ def test_folder_reads_columns_images_and_picks_the_shallowest_press_as_rest(fold
     np.testing.assert_array_equal(flipped.angles_deg[:, 0], -f.angles_deg[:, 0])
 
 
+def test_a_plain_labels_csv_with_descriptive_columns_is_read(folder, tmp_path):
+    """A folder with ``labels.csv`` (image, depth_mm, roll_deg_Rx, pitch_deg_Ry) in place of
+    targets.csv: the same frames, angles and rest choice as the Bristol columns give; a column
+    named on the command line is kept even where an alias exists."""
+    import shutil
+
+    root, _ = folder
+    plain = tmp_path / "plain"
+    shutil.copytree(root / "images", plain)
+    rows = (root / "targets.csv").read_text().splitlines()
+    out = ["image,depth_mm,roll_deg_Rx,pitch_deg_Ry,pose_4"]
+    for line in rows[1:]:
+        name, _, _, depth, roll, pitch, _ = line.split(",")
+        out.append(f"{name},{depth},{roll},{pitch},99")  # a decoy pose_4 column
+    (plain / "labels.csv").write_text("\n".join(out) + "\n")
+    ref = BristolFolder.open(root)
+    f = BristolFolder.open(plain)
+    assert (f.columns.roll, f.columns.pitch, f.columns.depth) == ("pose_4", "pitch_deg_Ry",
+                                                                  "depth_mm")
+    assert np.all(f.angles_deg[:, 0] == 99)  # pose_4 is present: the default stays
+    f = BristolFolder.open(plain, columns=ColumnMap(roll="roll_deg_Rx"))
+    np.testing.assert_array_equal(f.angles_deg, ref.angles_deg)
+    assert f.rest.name == ref.rest.name and [p.name for p in f.images] == \
+        [p.name for p in ref.images]
+    (plain / "labels.csv").write_text("\n".join(o.rsplit(",", 1)[0] for o in out) + "\n")
+    f = BristolFolder.open(plain)  # no pose_4 now: roll_deg_Rx is taken
+    assert f.columns.roll == "roll_deg_Rx"
+    np.testing.assert_array_equal(f.angles_deg, ref.angles_deg)
+
+
 def test_growth_cop_follows_the_known_contact_points(folder):
     root, contacts = folder
     frames = folder_features(BristolFolder.open(root))
