@@ -22,9 +22,19 @@ the file lacks is looked for under its descriptive names (:data:`COLUMN_ALIASES`
 ``roll_deg_Rx``, ``pitch_deg_Ry``, ``depth_mm``).
 
 Reference (rest) frame: ``--rest IMAGE`` if given; else the folder's ``images/rest.png`` (this
-project's datasets); else the *least-deformed* frame, taken as the frame of the shallowest
-press (smallest depth column) when the folder has a depth column that varies, and the first
-frame otherwise. The choice is recorded in every output.
+project's datasets); else, when the folder has a depth column that varies, the *least
+deformed* frame: a row of depth <= 0 (a frame without contact) if there is one, else the
+pixel-wise median of the ``round(sqrt(N))`` shallowest presses (:func:`median_reference`; only
+presses within :data:`MEDIAN_DEPTH_SPAN` of the depth range of the shallowest, and at least
+:data:`MEDIAN_MIN_FRAMES` of them, else the shallowest press alone); without a depth column,
+the first frame. The choice is recorded in every output.
+
+Why a median: a data set of taps without a rest frame has no frame without contact, and its
+shallowest tap is tilted like any other (the real 128x128 set's, ``image_501``, is 2.0 mm deep
+at Rx 11.0 deg, Ry 8.1 deg). Every CoP is measured against the reference, so its tilt biases
+every feature the same way. Taps at random angles tilt each way alike: the pixel-wise median
+of the shallowest ones keeps each marker near its middle position, a reference with the
+tilts averaged out and the depth of the shallowest taps. docs/real_data.md measures it.
 
 Each frame is perceived on its own against the reference (tracking from the reference's markers,
 as for a tap), so the order of the rows does not matter. Tracking straight from the reference to
@@ -97,8 +107,10 @@ class BristolFolder:
     images : one path per row
     angles_deg : (n, 2) roll, pitch (degrees, signs applied)
     depth_mm : (n,) the depth column (NaN when the folder has none)
-    rest : the reference frame's path, and ``rest_choice`` how it was chosen
+    rest : the reference frame's path, and ``rest_choice`` how it was chosen; for a median
+        reference, the shallowest of the frames it was made from
     ours : True for this project's own datasets (their perceived features are in the table)
+    rest_frame : the reference image when it is not a file (a median reference), else None
     """
 
     root: Path
@@ -110,6 +122,7 @@ class BristolFolder:
     rest_choice: str
     ours: bool
     table: dict[str, list[str]] = field(repr=False)
+    rest_frame: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def open(cls, root: str | Path, *, columns: ColumnMap | None = None,
@@ -173,7 +186,7 @@ class BristolFolder:
                                f"{s0[1]}x{s0[0]}, {p1.name} is {s1[1]}x{s1[0]}); one folder "
                                "must hold one camera format")
         ours = _is_ours(root)
-        rest_path, choice = _choose_rest(root, rest, images, depth, ours)
+        rest_path, choice, frame = _choose_rest(root, rest, images, depth, ours)
         ref = cv2.imread(str(rest_path), cv2.IMREAD_UNCHANGED)
         if ref is None:
             raise DatasetError(f"{rest_path}: the rest frame is not a readable image")
@@ -182,7 +195,20 @@ class BristolFolder:
             raise DatasetError(f"{rest_path}: the rest frame is {ref.shape[1]}x{ref.shape[0]} "
                                f"but the folder's frames are {size[1]}x{size[0]}: a rest frame "
                                "of another sensor or format")
-        return cls(root, columns, images, angles, depth, rest_path, choice, ours, table)
+        return cls(root, columns, images, angles, depth, rest_path, choice, ours, table, frame)
+
+    @property
+    def reference(self) -> np.ndarray | str:
+        """The reference frame as perception takes it: the median image, or the file's path."""
+        return self.rest_frame if self.rest_frame is not None else str(self.rest)
+
+    def with_single_rest(self, why: str) -> BristolFolder:
+        """This folder with its shallowest press alone as the reference (a median reference
+        that perception cannot use: ``why``)."""
+        from dataclasses import replace
+
+        return replace(self, rest_frame=None, rest_choice=(
+            f"least deformed: the shallowest press ({self.rest.name}); {why}"))
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -236,20 +262,57 @@ def _is_ours(root: Path) -> bool:
         return False
 
 
+MEDIAN_MIN_FRAMES = 5
+"""A median reference needs at least this many presses (``round(sqrt(N)) >= 5``, N >= 21
+frames, all within :data:`MEDIAN_DEPTH_SPAN`); with fewer, the shallowest press alone is the
+reference."""
+MEDIAN_DEPTH_SPAN = 0.1
+"""A median reference takes only presses within this fraction of the folder's depth range of
+the shallowest one: it averages the tilts of the least deformed frames, not deeper ones."""
+
+
+def median_reference(paths: Sequence[Path]) -> np.ndarray:
+    """The pixel-wise median of the frames ``paths`` (one format), in their dtype and channels.
+    Frames that all hold the same two levels (binarised) give a two-level median: a pixel
+    takes the level most of the frames give it (ties, possible for an even count, go to the
+    bright level)."""
+    import cv2
+
+    stack = np.stack([cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in paths])
+    levels = np.unique(stack[: min(len(stack), 3)])
+    if len(levels) == 2 and np.isin(stack, levels).all():
+        lo, hi = levels
+        bright = 2 * np.count_nonzero(stack == hi, axis=0) >= len(stack)
+        return np.where(bright, hi, lo).astype(stack.dtype)
+    return np.rint(np.median(stack, axis=0)).astype(stack.dtype)
+
+
 def _choose_rest(root: Path, rest: str | Path | None, images: list[Path], depth: np.ndarray,
-                 ours: bool) -> tuple[Path, str]:
+                 ours: bool) -> tuple[Path, str, np.ndarray | None]:
     if rest is not None:
         p = Path(rest)
         if not p.is_file():
             raise DatasetError(f"--rest {rest}: no such image")
-        return p, "given (--rest)"
+        return p, "given (--rest)", None
     own = root / "images" / "rest.png"
     if own.is_file():
-        return own, "the folder's images/rest.png"
+        return own, "the folder's images/rest.png", None
     if np.all(np.isfinite(depth)) and np.ptp(depth) > 0:
-        k = int(np.argmin(depth))
-        return images[k], f"least deformed: the shallowest press ({images[k].name})"
-    return images[0], f"the first frame ({images[0].name}; no depth column varies)"
+        order = np.argsort(depth, kind="stable")
+        k = int(order[0])
+        shallow = int(np.count_nonzero(depth <= depth[k] + MEDIAN_DEPTH_SPAN * np.ptp(depth)))
+        n = min(int(round(np.sqrt(len(images)))), shallow)
+        if depth[k] <= 0.0:
+            return images[k], (f"a frame without contact (depth {depth[k]:g}: "
+                               f"{images[k].name})"), None
+        if n < MEDIAN_MIN_FRAMES:
+            return images[k], f"least deformed: the shallowest press ({images[k].name})", None
+        picked = [images[int(i)] for i in order[:n]]
+        return images[k], (
+            f"least deformed: the pixel-wise median of the {n} shallowest presses (depth "
+            f"{depth[order[0]]:.4g}-{depth[order[n - 1]]:.4g}; {images[k].name} the "
+            "shallowest)"), median_reference(picked)
+    return images[0], f"the first frame ({images[0].name}; no depth column varies)", None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -384,13 +447,22 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
     # spacing, an oversized blob a merged pair only if a marker is missing next to it
     tracking = pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False,
                                  merge_needs_lost_neighbour=True)
-    try:
-        pipe = pc.FeaturePipeline(str(folder.rest), expected_count=expected_count,
-                                  tracking=tracking)
+    def pipeline(ref):
+        pipe = pc.FeaturePipeline(ref, expected_count=expected_count, tracking=tracking)
         if TAP_SEARCH_FRACTION > 0:  # the spacing is known once the rest frame is detected
             pipe = pc.FeaturePipeline(
-                str(folder.rest), expected_count=expected_count, tracking=tracking,
+                ref, expected_count=expected_count, tracking=tracking,
                 search_margin_px=TAP_SEARCH_FRACTION * pipe.spacing_px)
+        return pipe
+
+    try:
+        try:
+            pipe = pipeline(folder.reference)
+        except pc.PerceptionError as exc:
+            if folder.rest_frame is None:
+                raise
+            folder = folder.with_single_rest(f"their median was not usable ({exc})")
+            pipe = pipeline(folder.reference)
     except pc.PerceptionError as exc:
         raise DatasetError(f"{folder.rest}: the reference frame cannot be used ({exc})") from None
     _check_same_sensor(folder, len(pipe.rest_points))

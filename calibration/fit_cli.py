@@ -261,7 +261,9 @@ def _cmd_features(args: argparse.Namespace) -> int:
     out = Path(args.out)
     frames.write_csv(out)
     s = frames.summary()
-    print(f"{s['frames']} frames perceived against {s['rest']} ({s['rest_choice']}); "
+    against = (s["rest_choice"] if frames.folder.rest_frame is not None
+               else f"{s['rest']} ({s['rest_choice']})")
+    print(f"{s['frames']} frames perceived against {against}; "
           f"{s['flagged']} flagged unreliable; features in {out}")
     return 0
 

@@ -291,6 +291,8 @@ def perceived(folder: Path, cache: Path, *, expected_count: int, rest: Path | No
     """(FrameTable, cop arrays) of a Bristol folder, the perceived CoPs cached in ``cache``
     (npz, valid for the same reference, frame count and ``key``) so a rerun does not perceive
     again."""
+    from dataclasses import replace
+
     from .bristol import BristolFolder, FrameTable, perceive_folder
     from .fit import FEATURES
 
@@ -298,13 +300,18 @@ def perceived(folder: Path, cache: Path, *, expected_count: int, rest: Path | No
     if cache.is_file():
         z = np.load(cache, allow_pickle=False)
         if (str(z["rest"]) == str(f.rest) and len(z["reliable"]) == len(f)
-                and "key" in z.files and str(z["key"]) == key):
+                and "key" in z.files and str(z["key"]) == key
+                and "choice" in z.files and str(z["choice"]) == f.rest_choice):
             cop = {name: z[f"cop_{name}"] for name in FEATURES}
+            if str(z["used_choice"]) != f.rest_choice:  # the median fell back to one frame
+                f = replace(f, rest_frame=None, rest_choice=str(z["used_choice"]))
             return FrameTable(f, cop, z["n_detected"], z["reliable"], list(z["reason"]),
                               int(z["rest_markers"]), z["detection_reliable"])
     table = perceive_folder(f, expected_count=expected_count, progress=progress)
     tmp = cache.with_name(cache.stem + ".tmp.npz")
-    np.savez(tmp, rest=str(f.rest), key=key, n_detected=table.n_detected,
+    np.savez(tmp, rest=str(f.rest), choice=f.rest_choice,
+             used_choice=table.folder.rest_choice, key=key,
+             n_detected=table.n_detected,
              reliable=table.reliable,
              reason=np.array(table.reason), rest_markers=table.rest_markers,
              detection_reliable=table.detection_reliable,
@@ -389,10 +396,10 @@ def run(scene: ts.Scene, out: str | Path, cfg: Sim2RealConfig, *, real: str | Pa
             raise ValueError(f"--real {real}: frames are {real_folder.image_size[0]}x"
                              f"{real_folder.image_size[1]}, expected the processed 128x128 "
                              "format (raw labelled taps go to --real-raw)")
-        c, r = field_of(pc.detect_markers(str(real_folder.rest), expected_count=count))
+        c, r = field_of(pc.detect_markers(real_folder.reference, expected_count=count))
         field = {"centre_px": [round(float(c[0]), 3), round(float(c[1]), 3)],
                  "rms_radius_px": round(r, 3)}
-        field_source = f"measured on {real_folder.rest}"
+        field_source = f"measured on the reference of {real}: {real_folder.rest_choice}"
     sim = simulate(scene, out, cfg, workers=workers, progress=progress)
     sim128 = write_128(sim, out / "sim128", field, count, reference=cfg.reference,
                        pad=ts.build_pad(scene) if cfg.tap_depth == "tip" else None)

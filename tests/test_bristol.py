@@ -9,6 +9,7 @@ import json
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 import perception as pc
 from calibration.bristol import BristolFolder, ColumnMap, cross_validate, folder_features
@@ -61,14 +62,66 @@ def folder(tmp_path_factory):
     return _write_folder(tmp_path_factory.mktemp("bristol") / "taps", contacts), contacts
 
 
-def test_folder_reads_columns_images_and_picks_the_shallowest_press_as_rest(folder):
+def test_folder_reads_columns_images_and_picks_the_frame_without_contact_as_rest(folder):
     root, contacts = folder
     f = BristolFolder.open(root)
     assert len(f) == len(contacts) + 1 and f.image_size == (640, 480)
-    assert f.rest.name == "image_1.png" and "shallowest" in f.rest_choice
+    assert f.rest.name == "image_1.png" and "without contact" in f.rest_choice  # depth 0
     np.testing.assert_allclose(f.angles_deg[1:, 0], ROLL_PER_PX * (contacts[:, 0] - C[0]))
     flipped = BristolFolder.open(root, columns=ColumnMap(roll_sign=-1.0))
     np.testing.assert_array_equal(flipped.angles_deg[:, 0], -f.angles_deg[:, 0])
+
+
+def test_median_of_binarised_frames_keeps_the_majority_level():
+    """Five binarised frames of one bar shifted by -2 ... +2 px: each pixel takes the level
+    at least half of the frames give it, so the median is the middle frame's bar."""
+    from calibration.bristol import median_reference
+
+    frames = []
+    for dx in (-2, -1, 0, 1, 2):
+        f = np.zeros((40, 60), np.uint8)
+        f[14:27, 24 + dx:37 + dx] = 255
+        frames.append(f)
+    paths = []
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, f in enumerate(frames):
+            paths.append(Path(tmp) / f"f{i}.png")
+            cv2.imwrite(str(paths[i]), f)
+        med = median_reference(paths)
+    assert med.dtype == np.uint8 and set(np.unique(med)) == {0, 255}
+    np.testing.assert_array_equal(med, frames[2])
+
+
+def test_without_a_rest_frame_the_median_of_the_shallowest_taps_is_nearer_rest(tmp_path):
+    """Taps at random contact points and no frame without contact: the median of the
+    shallowest taps puts the markers nearer their rest lattice than any of those taps does
+    (each tap pushes the markers around its contact point). Deeper taps stay out of it."""
+    rng = np.random.default_rng(11)
+    (tmp_path / "images").mkdir()
+    rows = ["sensor_image,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6"]
+    n = 40
+    for i in range(n):
+        contact = C + rng.uniform(-70, 70, 2)
+        cv2.imwrite(str(tmp_path / "images" / f"t{i}.png"), _frame(contact, rng))
+        depth = 1.0 + 0.001 * i if i < 10 else 2.0 + rng.random()  # 10 shallow, 30 deeper
+        rows.append(f"t{i}.png,0,0,{depth},{rng.normal()},{rng.normal()},0")
+    (tmp_path / "targets.csv").write_text("\n".join(rows) + "\n")
+    f = BristolFolder.open(tmp_path)
+    assert f.rest.name == "t0.png" and "median of the 6 shallowest" in f.rest_choice
+    lattice = pc.hex_lattice(97, SPACING, C)
+
+    def error(ref):
+        det = pc.detect_markers_detailed(ref, expected_count=97)
+        d, _ = cKDTree(det.points).query(lattice)
+        return float(np.mean(d))
+
+    singles = [error(str(tmp_path / "images" / f"t{i}.png")) for i in range(6)]
+    assert error(f.reference) < min(singles)  # nearer rest than any tap it was made from
+    frames = folder_features(f, perceive=True)
+    assert frames.summary()["rest_choice"] == f.rest_choice and frames.reliable.all()
 
 
 def test_a_plain_labels_csv_with_descriptive_columns_is_read(folder, tmp_path):
