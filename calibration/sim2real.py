@@ -42,11 +42,13 @@ import tactip_sim as ts
 from .dataset import atomic_write_text
 
 FRAME_128 = (128, 128)
-FIELD_128 = {"centre_px": (63.45, 63.23), "rms_radius_px": 36.27}
-"""Marker field of the processed 128x128 format: centroid and RMS radius (px) of the 334
-markers detected on the shallowest tap of ``../shared/real/tactip331_tap128`` (image_501.png,
-measured 2026-11-25 with :func:`field_of`; over its first 40 taps: centre (63.27, 63.29) ±0.36,
-radius 36.98 ± 0.62 px). ``tactip sim2real --real`` re-measures it on the folder's reference."""
+FIELD_128 = {"centre_px": (63.479, 63.302), "rms_radius_px": 36.14}
+"""Marker field of the processed 128x128 format: centroid and RMS radius (px) of the markers
+detected on the reference of ``../shared/real/tactip331_tap128``, the pixel-wise median of its
+32 shallowest taps (:mod:`calibration.bristol`; measured 2026-11-26 with :func:`field_of`). On
+its shallowest tap alone (image_501.png, the reference before) it was centre (63.45, 63.23),
+radius 36.27 px; over its first 40 taps centre (63.27, 63.29) ±0.36, radius 36.98 ± 0.62 px.
+``tactip sim2real --real`` re-measures it on the folder's reference."""
 
 REFERENCE_NOTE = """Reference of the simulated 128x128 taps: ``rest`` (default), the
 simulated rest frame; ``shallow``, a simulated tap at the shallowest depth of the range, square
