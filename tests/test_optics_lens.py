@@ -8,7 +8,7 @@ import pytest
 import tactip_sim as ts
 from tactip_sim.optics import Lens
 
-MODELS = ["equidistant", "equisolid", "stereographic", "kannala_brandt"]
+MODELS = ["equidistant", "equisolid", "stereographic", "rectilinear", "kannala_brandt"]
 
 
 def _lens(model: str, **kw) -> Lens:
@@ -23,6 +23,10 @@ def test_known_radii():
     # equisolid at 90 deg: 2 f sin(45 deg) = sqrt(2) f; stereographic at 90 deg: 2 f tan(45) = 2 f
     assert _lens("equisolid").radius_mm(np.array(np.pi / 2)) == pytest.approx(np.sqrt(2) * f)
     assert _lens("stereographic").radius_mm(np.array(np.pi / 2)) == pytest.approx(2 * f)
+    # rectilinear (a pinhole): f tan(theta); at 45 deg the radius is f, at 60 deg sqrt(3) f
+    rect = _lens("rectilinear", fov_deg=170.0)
+    assert rect.radius_mm(np.array(np.pi / 4)) == pytest.approx(f)
+    assert rect.radius_mm(np.array(np.pi / 3)) == pytest.approx(np.sqrt(3) * f)
     # Kannala-Brandt: f theta (1 + k1 theta^2 + ...), evaluated by hand at theta = 1
     kb = _lens("kannala_brandt")
     assert kb.radius_mm(np.array(1.0)) == pytest.approx(f * (1 + 0.02 - 0.01 + 0.004 - 0.001))
@@ -73,6 +77,17 @@ def test_kb_equivalent():
     fit = Lens(model="kannala_brandt", kb_coeffs=tuple(eq.kb_equivalent()), fov_deg=150)
     t = np.linspace(0, eq.theta_max_rad, 200)
     assert np.max(np.abs(fit.radius_mm(t) - eq.radius_mm(t))) < 1e-3 * eq.focal_length_mm
+
+
+def test_a_rectilinear_lens_sees_less_than_a_half_space():
+    with pytest.raises(ts.SceneError, match=r"fov_deg=180 is out of range for an rectilinear"):
+        Lens(model="rectilinear", fov_deg=180.0)
+    # a pinhole maps straight lines to straight lines: three collinear points stay collinear
+    lens = _lens("rectilinear", fov_deg=120.0, resolution=(640, 480))
+    pts = np.array([[-3.0, 1.0, 5.0], [0.5, 1.0, 5.0], [4.0, 1.0, 5.0]])  # a line at y=1, z=5
+    px = lens.project_directions(pts)
+    cross = np.cross(np.append(px[1] - px[0], 0), np.append(px[2] - px[0], 0))[2]
+    assert abs(cross) < 1e-9
 
 
 def test_bad_lenses_name_the_fix(scene):

@@ -182,6 +182,7 @@ def test_missing_llvm_gives_a_clear_error(tmp_path, scene_path):
 @pytest.mark.parametrize(("model", "extra"), [
     ("equisolid", {}),
     ("stereographic", {}),
+    ("rectilinear", {"fov_deg": 150.0}),
     ("kannala_brandt", {"kb_coeffs": [0.03, -0.01, 0.002, 0.0]}),
 ])
 def test_every_lens_model_renders_where_it_projects(scene, model, extra):

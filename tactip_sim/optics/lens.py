@@ -1,6 +1,6 @@
-"""Fisheye lens models with one interface: angle off the optical axis <-> image radius.
+"""Lens models with one interface: angle off the optical axis <-> image radius.
 
-Four radial models (``f`` = focal length, ``theta`` = angle between a ray and the optical
+Five radial models (``f`` = focal length, ``theta`` = angle between a ray and the optical
 axis, in radians; ``r`` = distance of its image point from the principal point):
 
 ===============  =============================================  ==============================
@@ -9,6 +9,8 @@ model            forward ``r(theta)``                           inverse ``theta(
 equidistant      ``f theta``                                    ``r / f``
 equisolid        ``2 f sin(theta / 2)``                         ``2 asin(r / 2f)``
 stereographic    ``2 f tan(theta / 2)``                         ``2 atan(r / 2f)``
+rectilinear      ``f tan(theta)`` (a pinhole: a webcam's        ``atan(r / f)``
+                 ordinary lens; field below 180 deg)
 kannala_brandt   ``f theta (1 + k1 t2 + k2 t2^2 + k3 t2^3       Newton iterations from
                  + k4 t2^4)``, ``t2 = theta^2``                 ``theta = r / f``
 ===============  =============================================  ==============================
@@ -31,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..scene import Scene, SceneError
+from ..scene.schema import LENS_MODELS
 
 NUMPY = SimpleNamespace(
     sqrt=np.sqrt, sin=np.sin, cos=np.cos, tan=np.tan, asin=np.arcsin, atan=np.arctan,
@@ -48,7 +51,7 @@ class Lens:
 
     Parameters
     ----------
-    model : {"equidistant", "equisolid", "stereographic", "kannala_brandt"}
+    model : {"equidistant", "equisolid", "stereographic", "rectilinear", "kannala_brandt"}
     focal_length_mm : float, mm
     fov_deg : float, full field of view (degrees); rays beyond ``fov_deg / 2`` are not imaged
     kb_coeffs : (4,) float, Kannala-Brandt ``k1..k4`` (used by ``kannala_brandt`` only)
@@ -96,12 +99,13 @@ class Lens:
         directions share a pixel and the inverse is ambiguous), and the image circle must be
         at least a few pixels across.
         """
-        if self.model not in ("equidistant", "equisolid", "stereographic", "kannala_brandt"):
+        if self.model not in LENS_MODELS:
             raise SceneError(f"lens.model={self.model!r} is not allowed: expected one of "
-                             "'equidistant', 'equisolid', 'stereographic', 'kannala_brandt'")
+                             + ", ".join(repr(m) for m in LENS_MODELS))
         if not 0.0 < self.fov_deg <= 360.0:
             raise SceneError(f"lens.fov_deg={self.fov_deg:g} is out of range: allowed (0, 360]")
-        limit = {"equisolid": 360.0, "stereographic": 360.0}.get(self.model, np.inf)
+        limit = {"equisolid": 360.0, "stereographic": 360.0,
+                 "rectilinear": 180.0}.get(self.model, np.inf)
         if self.fov_deg >= limit:
             raise SceneError(f"lens.fov_deg={self.fov_deg:g} is out of range for an "
                              f"{self.model} lens: allowed (0, {limit:g})")
@@ -183,6 +187,8 @@ class Lens:
             return 2.0 * f * xp.sin(0.5 * theta_rad)
         if self.model == "stereographic":
             return 2.0 * f * xp.tan(0.5 * theta_rad)
+        if self.model == "rectilinear":
+            return f * xp.tan(theta_rad)
         k1, k2, k3, k4 = self.kb_coeffs
         t2 = theta_rad * theta_rad
         return f * theta_rad * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
@@ -208,6 +214,8 @@ class Lens:
             return 2.0 * xp.asin(xp.minimum(radius_mm / (2.0 * f), 1.0))
         if self.model == "stereographic":
             return 2.0 * xp.atan(radius_mm / (2.0 * f))
+        if self.model == "rectilinear":
+            return xp.atan(radius_mm / f)
         k1, k2, k3, k4 = self.kb_coeffs
         target = radius_mm / f
         theta = target

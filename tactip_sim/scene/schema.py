@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from ._spec import nonneg, poisson, positive, spec
 
 PAD_SHAPES = ("dome", "block")
-LENS_MODELS = ("equidistant", "equisolid", "stereographic", "kannala_brandt")
+LENS_MODELS = ("equidistant", "equisolid", "stereographic", "rectilinear", "kannala_brandt")
 INDENTERS = ("plate", "sphere", "cylinder", "edge", "mesh")
 PIN_MODELS = ("embedded", "rod")
 PIN_LAYOUTS = ("lattice", "hex_rings", "circle_rings")
