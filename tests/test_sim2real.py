@@ -162,11 +162,12 @@ def test_sim2real_bad_input(tmp_path):
 
 
 @pytest.mark.slow
-def test_sim2real_full_run_meets_the_issue_targets_on_taps_of_3_mm_and_more(tmp_path):
-    """The documented run (300 simulated taps) on the 1 000 real taps: the issue's zero-shot
-    target (R² >= 0.8) for roll on all taps, and R² >= 0.9 for both angles on the taps of
-    3 mm and deeper, where the real frames' markers move by more than their quantisation
-    (docs/sim2real.md); the saved model scores the same through ``tactip evaluate``."""
+def test_sim2real_full_run_meets_the_issue_targets(tmp_path):
+    """The documented run (300 simulated taps) on the 1 000 real taps, against the real
+    folder's reference (the median of its shallowest taps, docs/sim2real.md): the issue's
+    zero-shot target (R² >= 0.8) and few-shot target (k = 20, R² >= 0.9) for both angles, and
+    roll >= 0.9 on the taps of 3 mm and deeper; the saved model scores the same through
+    ``tactip evaluate``."""
     real = SHARED / "real" / "tactip331_tap128"
     if not real.is_dir():
         pytest.skip("../shared/real is absent")
@@ -175,13 +176,16 @@ def test_sim2real_full_run_meets_the_issue_targets_on_taps_of_3_mm_and_more(tmp_
                     str(SCENES / "tactip_331_identified.toml"), "--out", str(out), "--real",
                     str(real), "--no-progress"], cwd=ROOT, check=True, capture_output=True)
     s = json.loads((out / "summary.json").read_text())["real_128"]["scores"]
-    assert s["growth/2"]["zero_shot"]["r2_roll"] >= 0.8
+    g = s["growth/2"]
+    assert g["zero_shot"]["r2_roll"] >= 0.8 and g["zero_shot"]["r2_pitch"] >= 0.8
+    assert g["few_shot"]["r2_roll"] >= 0.9 and g["few_shot"]["r2_pitch"] >= 0.9
+    assert g["few_shot"]["k"] <= 20
     z = np.load(out / "real_predictions.npz")
     d = z["depth_mm"]
     deep = d >= 3.0
     from calibration.sim2real import r2
 
-    assert np.all(r2(z["truth_deg"][deep], z["zero_shot_deg"][deep]) >= 0.9)
+    assert r2(z["truth_deg"][deep], z["zero_shot_deg"][deep])[0] >= 0.9
     ev = tmp_path / "eval.json"
     subprocess.run([sys.executable, "-m", "tactip_sim.commands", "evaluate",
                     str(out / "model.json"), str(real), "--json", str(ev), "--no-progress"],
