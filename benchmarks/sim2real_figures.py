@@ -3,7 +3,7 @@
     PYTHONPATH=$PWD python benchmarks/sim2real_figures.py SIM2REAL_OUT [--docs docs/img/sim2real]
 
 Writes rest_331.png (rendered vs real raw rest frame, then both in the 128x128 format, the
-detected markers counted), identify_331.png / identify_127.png (the real markers and the
+detected markers counted), rest_127.png (the same for the 127-pin scene), identify_331.png / identify_127.png (the real markers and the
 scene's projected markers before and after `tactip identify`) and copies the
 predicted-vs-true chart.
 """
@@ -59,6 +59,29 @@ def rest_figure(s2r: Path, dest: Path) -> None:
     plt.close(fig)
 
 
+def rest_figure_127(dest: Path) -> None:
+    """The identified 127-pin scene's rendered rest frame (Mitsuba) beside the real one, both
+    through the same detector, with the layout measures of ``tactip identify --render-check``."""
+    from calibration.identify import compare_rest, render_rest
+
+    scene = ts.load_scene(ROOT / "scenes" / "tactip_127_identified.toml")
+    rendered = render_rest(scene)
+    real = cv2.imread(str(REAL / "tactip127_bw" / "frame_0_0.png"), cv2.IMREAD_GRAYSCALE)
+    cmp = compare_rest(rendered, real, 127)
+    fig, axs = plt.subplots(1, 2, figsize=(9, 4.9))
+    for k, (ax, img, title) in enumerate(zip(axs, (rendered, real), (
+            "rendered rest, tactip_127_identified", "real (tactip127_bw)"), strict=True)):
+        pts = pc.detect_markers(img, expected_count=127)
+        ax.imshow(img, cmap="gray")
+        ax.plot(pts[:, 0], pts[:, 1], "r.", ms=3)
+        ax.set_title(f"{title}\n{cmp.count[k]} markers, spacing {cmp.spacing_px[k]:.2f} px, "
+                     f"field radius {cmp.radius_px[k]:.1f} px", fontsize=9)
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(dest / "rest_127.png", dpi=80)
+    plt.close(fig)
+
+
 def identify_figure(scene_file: str, fitted_file: str, image: Path, name: str,
                     dest: Path) -> None:
     img = cv2.imread(str(image), cv2.IMREAD_GRAYSCALE)
@@ -91,6 +114,7 @@ def main() -> None:
                     REAL / "tactip331_raw" / "raw_tactile_image.png", "331", a.docs)
     identify_figure("tactip_127.toml", "tactip_127_identified.toml",
                     REAL / "tactip127_bw" / "frame_0_0.png", "127", a.docs)
+    rest_figure_127(a.docs)
     shutil.copy(a.s2r / "predicted_vs_true.png", a.docs / "predicted_vs_true.png")
     shutil.copy(a.s2r / "table.md", a.docs / "table.md")
     print(f"figures in {a.docs}")

@@ -32,7 +32,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     scene = load_scene_args(args)
     image = rest_image(args.real)
     res = identify(scene, image, free=free, fit_marker_size=not args.keep_marker_size)
-    write_identified(res, out, source=args.scene)
+    source = " ".join([args.scene, *(f"--set {o}" for o in args.overrides)]
+                      + ([f"--fidelity {args.fidelity}"] if getattr(args, "fidelity", None)
+                         else []))
+    write_identified(res, out, source=source)
     b, a = res.before, res.after
     print(f"rest frame {image}: {a.real} markers detected")
     print(f"paired markers {b.paired} -> {a.paired}; RMS residual {b.rms_px:.2f} -> "
