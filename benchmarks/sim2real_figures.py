@@ -3,9 +3,9 @@
     PYTHONPATH=$PWD python benchmarks/sim2real_figures.py SIM2REAL_OUT [--docs docs/img/sim2real]
 
 Writes rest_331.png (rendered vs real raw rest frame, then both in the 128x128 format, the
-detected markers counted), rest_127.png (the same for the 127-pin scene), identify_331.png / identify_127.png (the real markers and the
-scene's projected markers before and after `tactip identify`) and copies the
-predicted-vs-true chart.
+detected markers counted), rest_127.png (the same for the 127-pin scene), identify_331.png /
+identify_127.png (the real markers and the scene's projected markers before and after
+`tactip identify`) and copies the predicted-vs-true chart.
 """
 
 from __future__ import annotations
