@@ -41,12 +41,15 @@ def rest_figure(s2r: Path, dest: Path) -> None:
     real = cv2.imread(str(REAL / "tactip331_raw" / "raw_tactile_image.png"),
                       cv2.IMREAD_GRAYSCALE)
     r128 = cv2.imread(str(s2r / "sim128" / "images" / "rest.png"), cv2.IMREAD_GRAYSCALE)
-    real128 = cv2.imread(str(REAL / "tactip331_tap128" / "images" / "image_501.png"),
-                         cv2.IMREAD_GRAYSCALE)
+    from calibration.bristol import BristolFolder
+
+    real128 = BristolFolder.open(REAL / "tactip331_tap128").reference  # the folder's reference
+    if isinstance(real128, str):
+        real128 = cv2.imread(real128, cv2.IMREAD_GRAYSCALE)
     fig, axs = plt.subplots(1, 4, figsize=(16, 4.9))
     for ax, img, title in zip(axs, (rendered, real, r128, real128), (
             "rendered rest, tactip_331_identified", "real rest (tactip331_raw)",
-            "rendered rest, 128x128 format", "real shallowest tap (image_501), 128x128"),
+            "rendered rest, 128x128 format", "real reference (median of shallowest taps)"),
             strict=True):
         pts = pc.detect_markers(img, expected_count=331)
         ax.imshow(img, cmap="gray")
