@@ -315,15 +315,60 @@ def identify(scene: ts.Scene, image: str | Path, *, free: tuple[str, ...] = DEFA
     after = residuals_of(fitted, real, gate_px=gate)
     sim, _ = simulated_markers(fitted)
     extra["spacing_sim_px"] = round(_marker_spacing(sim[np.all(np.isfinite(sim), 1)]), 3)
+    values = _changes(scene, fitted, (*free, "marker") if fit_marker_size else free)
+    return Identification(fitted, values, before, after, real, sim, float(det.marker_diameter_px),
+                          str(image), extra)
+
+
+def _changes(scene: ts.Scene, fitted: ts.Scene, names: tuple[str, ...]
+             ) -> dict[str, tuple[Any, Any]]:
+    """{scene key: (value in ``scene``, value in ``fitted``)} of the parameters ``names`` that
+    differ (``"marker"``: the marker diameter)."""
     values = {}
-    for name in (*free, "marker") if fit_marker_size else free:
+    for name in names:
         section, key = (("pins", "marker_diameter_mm") if name == "marker"
                         else PARAMETERS[name][:2])
         a, b = getattr(getattr(scene, section), key), getattr(getattr(fitted, section), key)
         if a != b:
             values[f"{section}.{key}"] = (_plain(a), _plain(b))
-    return Identification(fitted, values, before, after, real, sim, float(det.marker_diameter_px),
-                          str(image), extra)
+    return values
+
+
+MIRROR_MIN_TILT_DEG = 1.0
+"""Two identifications are distinct candidates when their camera tilts differ by more than
+this."""
+MIRROR_RESIDUAL_RATIO = 1.25
+"""... and the mirrored one's RMS residual is within this factor (+ 0.1 px) of the first's:
+the rest frame does not prefer either."""
+
+
+def tilt_candidates(scene: ts.Scene, image: str | Path, *,
+                    free: tuple[str, ...] = DEFAULT_FREE, fit_marker_size: bool = True
+                    ) -> list[Identification]:
+    """The identification of :func:`identify`, and a second one started from the mirror of
+    its camera tilt and forward shift, when that one is as good on the rest frame and differs.
+
+    One rest frame fixes a combination of the camera's tilt, its forward shift and the
+    principal point, not each (docs/sim2real.md: the 331-pin frame fits tilt -3.98 and +4.49
+    deg to the same 0.55 px); labelled taps tell the candidates apart
+    (:func:`calibration.sim2real.tap_errors`). Each candidate's ``values`` are against
+    ``scene``."""
+    first = identify(scene, image, free=free, fit_marker_size=fit_marker_size)
+    if not {"tilt", "shift"} <= set(free):
+        return [first]
+    cam = first.scene.camera
+    mirror = replace_in(scene, camera={"tilt_deg": -float(cam.tilt_deg),
+                                       "shift_mm": -float(cam.shift_mm)})
+    second = identify(mirror, image, free=free, fit_marker_size=fit_marker_size)
+    names = (*free, "marker") if fit_marker_size else free
+    second = Identification(second.scene, _changes(scene, second.scene, names), first.before,
+                            second.after, second.real_px, second.sim_px,
+                            second.marker_diameter_px, second.image, second.extra)
+    distinct = abs(float(second.scene.camera.tilt_deg) - float(cam.tilt_deg)) \
+        > MIRROR_MIN_TILT_DEG
+    as_good = second.after.rms_px <= MIRROR_RESIDUAL_RATIO * first.after.rms_px + 0.1 \
+        and second.after.paired >= first.after.paired
+    return [first, second] if distinct and as_good else [first]
 
 
 def _plain(v: Any) -> Any:
@@ -347,9 +392,10 @@ def identified_scene(result: Identification) -> ts.Scene:
     )
 
 
-def write_identified(result: Identification, path: str | Path, *, source: str = "") -> Path:
+def write_identified(result: Identification, path: str | Path, *, source: str = "",
+                     notes: tuple[str, ...] = ()) -> Path:
     """Write the identified scene as TOML, its header recording the identification (what
-    changed, residuals before and after). Atomic: a temporary file renamed."""
+    changed, residuals before and after, and ``notes``). Atomic: a temporary file renamed."""
     import os
 
     path = Path(path)
@@ -364,6 +410,7 @@ def write_identified(result: Identification, path: str | Path, *, source: str = 
         f"{after.max_px:.2f})",
         "# identified (before -> after):",
         *(f"#   {k}: {a} -> {b}" for k, (a, b) in result.values.items()),
+        *(f"# {n}" for n in notes),
         "# Everything else is the source scene's, as resolved.",
         "",
     ]

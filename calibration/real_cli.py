@@ -9,6 +9,42 @@ from pathlib import Path
 from tactip_sim.commands import add_scene_argument, load_scene_args
 
 
+def _choose_by_taps(scene, image, free, args):
+    """:func:`~calibration.identify.tilt_candidates`, each scored by the zero-shot error of
+    its simulated model on ``--k`` labelled taps of ``--taps``
+    (:func:`~calibration.sim2real.tap_errors`); the lowest mean RMS error is kept. Returns it,
+    the header lines that record the choice, and the report's entry."""
+    import numpy as np
+
+    from .identify import identified_scene, tilt_candidates
+    from .sim2real import Sim2RealConfig, tap_errors
+
+    cands = tilt_candidates(scene, image, free=free, fit_marker_size=not args.keep_marker_size)
+    if len(cands) == 1:
+        note = ("taps: one rest-frame solution only (no mirrored tilt fits as well); "
+                "the taps were not needed")
+        return cands[0], (note,), {"candidates": 1}
+    from tactip_sim.scene import apply_preset
+
+    cfg = Sim2RealConfig(k=args.k)  # as `tactip sim2real` runs by default: 300 taps, 'fast'
+    errors = [tap_errors(apply_preset(identified_scene(c), "fast"), args.taps, cfg,
+                         progress=not getattr(args, "no_progress", False)) for c in cands]
+    best = int(np.argmin([float(np.mean(e)) for e in errors]))
+    notes = [f"taps: {len(cands)} solutions fit the rest frame alike; the zero-shot RMS error "
+             f"(roll, pitch) on {args.k} labelled taps of {args.taps} chose one:"]
+    entries = []
+    for i, (c, e) in enumerate(zip(cands, errors, strict=True)):
+        cam = c.scene.camera
+        mark = "chosen" if i == best else "not chosen"
+        notes.append(f"  tilt {cam.tilt_deg:+.2f} deg, shift {cam.shift_mm:+.2f} mm, "
+                     f"residual {c.after.rms_px:.2f} px: {e[0]:.2f} / {e[1]:.2f} deg ({mark})")
+        entries.append({"tilt_deg": float(cam.tilt_deg), "shift_mm": float(cam.shift_mm),
+                        "rms_px": c.after.rms_px, "tap_rmse_deg": [float(v) for v in e],
+                        "chosen": i == best})
+    return cands[best], tuple(notes), {"folder": str(args.taps), "k": args.k,
+                                       "candidates": entries}
+
+
 def _cmd_identify(args: argparse.Namespace) -> int:
     from .identify import (
         DEFAULT_FREE,
@@ -29,13 +65,25 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         raise ValueError(f"--out {str(out)!r} must name a .toml scene file")
     if not out.parent.is_dir():
         raise ValueError(f"--out {str(out)!r}: the folder {str(out.parent)!r} does not exist")
+    if args.taps is not None and not Path(args.taps).is_dir():
+        raise ValueError(f"--taps {args.taps!r}: no such folder (a labelled 128x128 folder "
+                         "of taps, Bristol layout)")
+    if not 3 <= args.k <= 1000:
+        raise ValueError(f"--k={args.k} is out of range: allowed [3, 1000]")
     scene = load_scene_args(args)
     image = rest_image(args.real)
-    res = identify(scene, image, free=free, fit_marker_size=not args.keep_marker_size)
+    notes: tuple[str, ...] = ()
+    tap_report = None
+    if args.taps is None:
+        res = identify(scene, image, free=free, fit_marker_size=not args.keep_marker_size)
+    else:
+        res, notes, tap_report = _choose_by_taps(scene, image, free, args)
     source = " ".join([args.scene, *(f"--set {o}" for o in args.overrides)]
                       + ([f"--fidelity {args.fidelity}"] if getattr(args, "fidelity", None)
                          else []))
-    write_identified(res, out, source=source)
+    write_identified(res, out, source=source, notes=notes)
+    for n in notes:
+        print(n)
     b, a = res.before, res.after
     print(f"rest frame {image}: {a.real} markers detected")
     print(f"paired markers {b.paired} -> {a.paired}; RMS residual {b.rms_px:.2f} -> "
@@ -44,6 +92,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     for k, (x, y) in res.values.items():
         print(f"  {k}: {x} -> {y}")
     report = res.report()
+    if tap_report is not None:
+        report["taps"] = tap_report
     if args.render_check:
         import perception as pc
 
@@ -117,6 +167,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--render-check", action="store_true",
                    help="also render the identified rest frame (Mitsuba) and compare its "
                    "detected markers with the real ones (count, spacing, field radius)")
+    p.add_argument("--taps", metavar="DIR",
+                   help="a labelled folder of real taps in the processed 128x128 format "
+                   "(Bristol layout): when the camera's tilt and forward shift can be traded "
+                   "against each other on the rest frame, both solutions are simulated "
+                   "(tactip sim2real's default taps, 'fast' preset, in a temporary folder) "
+                   "and the one whose model "
+                   "predicts --k of these taps best is kept")
+    p.add_argument("--k", type=int, default=20,
+                   help="labelled taps used by --taps (the few-shot draw of tactip sim2real; "
+                   "default 20)")
     p.add_argument("--json", metavar="OUT.json", help="write the identification report")
     p.set_defaults(func=_cmd_identify)
 

@@ -363,8 +363,8 @@ def read_pose_columns(folder: Path) -> dict[str, list[str]]:
 
 
 __all__ = ["AXIS_MAPS", "FIELD_128", "TAP_DEPTHS", "Sim2RealConfig", "affine_correction",
-           "crop_box", "field_of", "map_axes", "perceived", "simulate", "tip_depth_offset",
-           "to_128", "transfer_scores", "write_128"]
+           "crop_box", "field_of", "map_axes", "perceived", "simulate", "tap_errors",
+           "tip_depth_offset", "to_128", "transfer_scores", "write_128"]
 
 
 def _fit(table, angles: np.ndarray, order: int, image_size: tuple[int, int]):
@@ -483,6 +483,24 @@ def run(scene: ts.Scene, out: str | Path, cfg: Sim2RealConfig, *, real: str | Pa
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     atomic_write_text(out / "table.md", table_markdown(summary))
     return summary
+
+
+def tap_errors(scene: ts.Scene, taps: str | Path, cfg: Sim2RealConfig, *,
+               progress: bool = False) -> np.ndarray:
+    """(2,) deg: the zero-shot RMS error (roll, pitch) on the ``cfg.k`` labelled taps of the
+    processed 128x128 folder ``taps`` that the few-shot correction would use (the same seeded
+    draw), of the model :func:`run` fits on ``scene``'s simulated taps. The run goes to a
+    temporary folder, removed after. Used to choose between identifications the rest frame
+    cannot tell apart (``tactip identify --taps``)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="tactip-taps-") as tmp:
+        run(scene, tmp, cfg, real=taps, progress=progress)
+        z = np.load(Path(tmp) / "real_predictions.npz")
+        used = np.ones(len(z["truth_deg"]), dtype=bool)
+        used[z["few_shot_rows"]] = False  # the rows scored after the correction: not the k
+        err = z["zero_shot_deg"][used] - z["truth_deg"][used]
+    return np.sqrt(np.mean(err ** 2, axis=0))
 
 
 def table_markdown(summary: dict[str, Any]) -> str:
