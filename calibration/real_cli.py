@@ -70,6 +70,18 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                          "of taps, Bristol layout)")
     if not 3 <= args.k <= 1000:
         raise ValueError(f"--k={args.k} is out of range: allowed [3, 1000]")
+    if args.taps is not None:
+        from .bristol import BristolFolder
+        from .sim2real import FRAME_128
+
+        taps = BristolFolder.open(args.taps)  # a Bristol folder's errors name the file
+        if taps.image_size != FRAME_128:
+            raise ValueError(f"--taps {args.taps}: frames are {taps.image_size[0]}x"
+                             f"{taps.image_size[1]}; the taps must be in the processed 128x128 "
+                             "format that tactip sim2real scores")
+        if len(taps) < args.k + 1:
+            raise ValueError(f"--taps {args.taps}: {len(taps)} taps, fewer than --k={args.k} "
+                             "+ 1")
     scene = load_scene_args(args)
     image = rest_image(args.real)
     notes: tuple[str, ...] = ()

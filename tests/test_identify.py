@@ -126,6 +126,11 @@ def test_identify_taps_option_is_checked_before_any_work(tmp_path, capsys):
     rc = main(["identify", str(SCENES / "tactip_331.toml"), "--real", str(tmp_path),
                "--out", str(tmp_path / "x.toml"), "--taps", str(tmp_path), "--k", "2"])
     assert rc != 0 and "--k=2 is out of range" in capsys.readouterr().err
+    raw = SHARED / "real" / "tactip331_tap"  # labelled, but raw 640x480 frames
+    if raw.is_dir():
+        rc = main(["identify", str(SCENES / "tactip_331.toml"), "--real", str(tmp_path),
+                   "--out", str(tmp_path / "x.toml"), "--taps", str(raw)])
+        assert rc != 0 and "processed 128x128 format" in capsys.readouterr().err
     assert not (tmp_path / "x.toml").exists()
 
 
