@@ -193,6 +193,7 @@ def run_chunk(spec: SweepSpec, indices: Sequence[int], out: str | None = None
     import cv2
 
     chain = chain_for(spec)
+    ds = Dataset(out) if out is not None else None
     results = []
     for i in indices:
         t0 = time.perf_counter()
@@ -210,15 +211,14 @@ def run_chunk(spec: SweepSpec, indices: Sequence[int], out: str | None = None
             raise RuntimeError(f"could not encode sample {i} as PNG")
         rec = record(int(i), pose, s, reached)
         npz, png = rec.to_npz_bytes(), png.tobytes()
-        if out is not None:
-            Dataset(out).write_encoded(rec.index, npz, png)
+        if ds is not None:
+            ds.write_encoded(rec.index, npz, png)
             npz = png = None
         results.append((rec, npz, png, time.perf_counter() - t0))
     if _REST_PNG.get("chain") is not chain:  # encoded once per chain, sent with each chunk
         _REST_PNG.update(chain=chain, png=cv2.imencode(".png", chain.rest_image)[1].tobytes())
-    if out is None:
+    if ds is None:
         return _REST_PNG["png"], results
-    ds = Dataset(out)
     if not ds.rest_image_path.is_file():  # workers may race here: same bytes, atomic writes
         ds.write_rest(_REST_PNG["png"])
     return None, results
