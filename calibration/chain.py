@@ -285,7 +285,9 @@ class Chain:
 
     def press(self, pose: Sequence[float] | ts.Pose) -> tuple[Any, float]:
         """FEM contact at ``pose`` ((roll°, pitch°, depth mm) or a Pose): the state and the
-        seconds the solve took (a press-cache hit reports the first solve's time)."""
+        seconds the solve took (a press-cache hit reports the first solve's time). The state
+        has no surface displacements (``Simulator.press(surface=False)``): a sample uses the
+        markers, forces and contact alone."""
         if not isinstance(pose, ts.Pose):
             roll, pitch, depth = (float(v) for v in pose)
             pose = ts.Pose(roll_deg=roll, pitch_deg=pitch, depth_mm=depth)
@@ -294,7 +296,7 @@ class Chain:
             return self._press_cache[key]
         sim = self.sim
         t0 = time.perf_counter()
-        state = sim.press(pose)
+        state = sim.press(pose, surface=False)  # (the sample uses the markers and forces)
         out = (state, time.perf_counter() - t0)
         if self._press_cache is not None:
             self._press_cache[key] = out

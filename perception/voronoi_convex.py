@@ -108,52 +108,68 @@ class _Topology:
     pair_nbr: np.ndarray
 
 
-def _delaunay(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple | None:
-    """Qhull's Delaunay triangulation of the seeds (centred on the box ``lo``..``hi``) and four
-    far ghosts: (n, centre, half diagonal, ghosts, triangulation), or None when Qhull fails."""
+def _delaunay(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, qhull: bool = False
+              ) -> tuple | None:
+    """The Delaunay triangulation of the seeds (centred on the box ``lo``..``hi``) and four
+    far ghosts: (n, centre, half diagonal, ghosts, simplices, neighbours, compiled), or None
+    when Qhull fails. The compiled incremental triangulation
+    (:func:`perception.delaunay_kernels.ghosted_delaunay`, ``compiled`` True) is tried first
+    unless ``qhull``; Qhull (``scipy.spatial.Delaunay``) when it declines."""
     n = len(seeds)
     centre = complex(*(0.5 * (lo + hi)))
     half_diag = 0.5 * float(np.hypot(*(hi - lo))) + 1.0
     ghosts = 4.0 * half_diag * _GHOSTS
     xy = np.concatenate([seeds - (centre.real, centre.imag),
                          np.stack([ghosts.real, ghosts.imag], axis=1)])
+    if not qhull:
+        from .delaunay_kernels import ghosted_delaunay  # compiled on first use (Numba)
+
+        ok, simp, nb = ghosted_delaunay(xy)
+        if ok:
+            return n, centre, half_diag, ghosts, simp, nb, True
     try:
-        return n, centre, half_diag, ghosts, Delaunay(xy)
+        tri = Delaunay(xy)
     except QhullError:
         return None
+    return (n, centre, half_diag, ghosts, np.ascontiguousarray(tri.simplices),
+            np.ascontiguousarray(tri.neighbors), False)
 
 
-def _triangulate(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> _Topology | None:
-    """Qhull's Delaunay triangulation of the seeds and four ghosts, and the cell edges it
-    implies (:func:`perception.voronoi_kernels.topology`: the bookkeeping in one compiled
-    pass, the arrays of :func:`_triangulate_numpy`'s NumPy passes); None when Qhull fails or
-    drops a seed."""
+def _triangulate(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, qhull: bool = False
+                 ) -> _Topology | None:
+    """The Delaunay triangulation of the seeds and four ghosts (:func:`_delaunay`), and the
+    cell edges it implies (:func:`perception.voronoi_kernels.topology`: the bookkeeping in one
+    compiled pass, the arrays of :func:`_triangulate_numpy`'s NumPy passes); None when Qhull
+    fails or drops a seed. A compiled triangulation is used only if it passes the check a
+    kept one passes (:func:`_still_delaunay`); else Qhull's is taken."""
     from .voronoi_kernels import topology  # compiled on first use (Numba)
 
-    framed = _delaunay(seeds, lo, hi)
+    framed = _delaunay(seeds, lo, hi, qhull=qhull)
     if framed is None:
         return None
-    n, centre, half_diag, ghosts, tri = framed
-    simp = np.ascontiguousarray(tri.simplices)
+    n, centre, half_diag, ghosts, simp, nb, compiled = framed
     ok, own, nbr, t_from, t_to, _, starts, far_t, far_v, pair_own, pair_nbr = topology(
-        simp, np.ascontiguousarray(tri.neighbors), n)
+        simp, nb, n)
     if not ok:
-        return None  # a seed Qhull dropped (too close to another) or left on the hull
-    return _Topology(n=n, centre=centre, half_diag=half_diag, lo=lo, hi=hi, ghosts=ghosts,
+        return None if not compiled else _triangulate(seeds, lo, hi, qhull=True)
+    topo = _Topology(n=n, centre=centre, half_diag=half_diag, lo=lo, hi=hi, ghosts=ghosts,
                      simplices=simp, far_t=far_t, far_v=far_v, own=own, nbr=nbr,
                      t_from=t_from, t_to=t_to, starts=starts, pair_own=pair_own,
                      pair_nbr=pair_nbr)
+    if compiled:
+        pts = np.concatenate([_complex(seeds) - centre, ghosts])
+        if not _still_delaunay(topo, pts, *_circumcentres(pts, simp)):
+            return _triangulate(seeds, lo, hi, qhull=True)
+    return topo
 
 
 def _triangulate_numpy(seeds: np.ndarray, lo: np.ndarray, hi: np.ndarray
                        ) -> _Topology | None:
     """:func:`_triangulate` with its bookkeeping in NumPy passes (the tests' reference)."""
-    framed = _delaunay(seeds, lo, hi)
+    framed = _delaunay(seeds, lo, hi, qhull=True)
     if framed is None:
         return None
-    n, centre, half_diag, ghosts, tri = framed
-    simp = np.ascontiguousarray(tri.simplices)
-    nb = tri.neighbors
+    n, centre, half_diag, ghosts, simp, nb, _ = framed
     own = simp.ravel()  # directed edge own -> nbr of triangle t: corners p, p + 1
     nbr = simp[:, [1, 2, 0]].ravel()
     t_from = nb[:, [2, 0, 1]].ravel()  # the triangle across own -> nbr (opposite corner p + 2)

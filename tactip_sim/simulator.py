@@ -132,7 +132,7 @@ class Simulator:
 
     # --- pressing --------------------------------------------------------------------------
     def press(self, pose: Pose, indenter: Indenter | None = None, *, solver: str | None = None,
-              full_field: bool = False) -> ContactState:
+              full_field: bool = False, surface: bool = True) -> ContactState:
         """Press the pad at ``pose`` and return the contact state.
 
         Parameters
@@ -142,6 +142,11 @@ class Simulator:
         solver : "reduced", "full" or "neo_hookean" (default: the simulator's)
         full_field : with the reduced solver, also form every vertex's displacement (one
             sparse solve; needs the factorisation)
+        surface : form the outer surface's displacements (``False``: the state's
+            ``surface_displacements_mm`` is ``None`` and :meth:`surface_mesh` refuses it; the
+            markers, forces and contact are the same numbers; a plate pressed with the reduced
+            solver then skips reading the compliance of every surface vertex, ~1.5 ms of a
+            ~6 ms press of the default pad, what a calibration sweep does not use)
 
         Raises
         ------
@@ -153,7 +158,9 @@ class Simulator:
         if not isinstance(pose, Pose):
             raise TypeError(f"pose must be a tactip_sim.Pose, got {type(pose).__name__}")
         with single_threaded_blas():
-            state = self._press(pose, indenter, solver, full_field)
+            state = self._press(pose, indenter, solver, full_field, surface)
+        if not surface and state.surface_displacements_mm is not None:  # (other solvers)
+            state = dataclasses.replace(state, surface_displacements_mm=None)
         tolerance = self.scene.fidelity.contact_tolerance
         if state.error_estimate > tolerance:
             self.under_resolved += 1
@@ -170,7 +177,7 @@ class Simulator:
         return state
 
     def _press(self, pose: Pose, indenter: Indenter | None, solver: str | None,
-               full_field: bool) -> ContactState:
+               full_field: bool, surface: bool = True) -> ContactState:
         t0 = time.perf_counter()
         indenter = self.indenter if indenter is None else indenter
         solver = self.solver if solver is None else _check_solver(solver)
@@ -193,7 +200,8 @@ class Simulator:
         window = None
         if solver == "reduced":
             op = self.reduced
-            sol = solve_contact(placement, self._cand_rest, op, label=str(pose), tol=self.tol)
+            sol = solve_contact(placement, self._cand_rest, op, label=str(pose), tol=self.tol,
+                                surface=surface)
             if getattr(placement.indenter, "flat", False):  # pins stop at the window
                 sol, window, values = stop_at_window(op, self.body.markers, placement,
                                                      self._cand_rest, sol, label=str(pose),
@@ -218,7 +226,7 @@ class Simulator:
             u = full.field(sol.active, sol.forces)
             markers, dirs = self.body.markers.from_field(u)
         return self._state(pose, indenter, solver, sol, markers, dirs, u, sol.iterations, t0,
-                           window)
+                           window, surface=surface)
 
     def _press_refined(self, pose: Pose, indenter: Indenter, placement, t0: float
                        ) -> ContactState | None:
@@ -387,6 +395,9 @@ class Simulator:
         faces = space.faces[:, :3]
         used, inverse = np.unique(faces, return_inverse=True)
         verts = space.nodes[used].copy()
+        if state is not None and state.surface_displacements_mm is None:
+            raise ValueError("surface_mesh: the state has no surface displacements (pressed "
+                             "with surface=False); press the pose again with surface=True")
         if state is not None:
             pos = np.searchsorted(used, state.surface_vertices)
             verts[pos] += state.surface_displacements_mm
@@ -424,7 +435,8 @@ class Simulator:
 
     def _state(self, pose: Pose, indenter: Indenter, solver: str, sol: ContactSolution,
                markers: np.ndarray, dirs: np.ndarray, u: np.ndarray | None, iterations: int,
-               t0: float, window: np.ndarray | None = None) -> ContactState:
+               t0: float, window: np.ndarray | None = None, *, surface: bool = True
+               ) -> ContactState:
         space = self.body.space
         nodes = space.candidates[sol.active]
         points = self._cand_rest[sol.active] + sol.u[sol.active]
@@ -440,7 +452,7 @@ class Simulator:
             pose=pose, indenter=indenter, solver=solver, markers_mm=markers,
             rest_markers_mm=self.body.markers.rest_mm, marker_directions=dirs,
             surface_vertices=self.surface_vertices,
-            surface_displacements_mm=sol.u[self._vertex_cands],
+            surface_displacements_mm=sol.u[self._vertex_cands] if surface else None,
             vertex_displacements_mm=None if u is None else u[: 3 * nv].reshape(nv, 3),
             contact_nodes=nodes, contact_points_mm=points,
             contact_forces_N=sol.forces / 1000.0, contact_pressures_kpa=sol.pressures / area,

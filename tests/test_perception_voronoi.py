@@ -277,7 +277,8 @@ def test_compiled_triangulation_bookkeeping_is_the_numpy_one(n):
     for jitter in (0.0, 1.0):
         seeds = pc.hex_lattice(n, 10.0, np.array([64.0, 64.0])) + rng.normal(0, jitter, (n, 2))
         lo, hi = seeds.min(axis=0) - 5.0, seeds.max(axis=0) + 5.0
-        got, want = _triangulate(seeds, lo, hi), _triangulate_numpy(seeds, lo, hi)
+        got = _triangulate(seeds, lo, hi, qhull=True)  # the same (Qhull's) triangulation
+        want = _triangulate_numpy(seeds, lo, hi)
         assert (got is None) == (want is None)
         if got is None:
             continue
@@ -285,3 +286,67 @@ def test_compiled_triangulation_bookkeeping_is_the_numpy_one(n):
                      "pair_own", "pair_nbr"):
             a, b = getattr(got, name), getattr(want, name)
             assert a.dtype == b.dtype and np.array_equal(a, b), name
+
+
+def _canonical(simplices: np.ndarray) -> list[tuple[int, ...]]:
+    """Triangles as sorted rotations (the same triangle set compares equal)."""
+    return sorted(tuple(np.roll(t, -int(np.argmin(t))).tolist()) for t in simplices)
+
+
+def test_compiled_delaunay_is_qhulls_on_random_seeds_and_valid_on_lattices():
+    """The incremental triangulation (perception.delaunay_kernels) against Qhull: the same
+    triangles on random seeds in general position; on lattices (co-circular: either split is
+    Delaunay) counter-clockwise triangles, consistent neighbours and no seed inside a
+    neighbour's circumcircle; a repeated seed is declined (the caller then takes Qhull)."""
+    from scipy.spatial import Delaunay
+
+    from perception.delaunay_kernels import ghosted_delaunay
+
+    rng = np.random.default_rng(2026)
+    ghosts = 4 * 300.0 * np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    cases = [rng.uniform(-200, 200, (n, 2)) for n in (1, 2, 3, 10, 97, 331)]
+    lattices = [pc.hex_lattice(n, 10.0, np.zeros(2)) for n in (7, 97, 331)]
+    grid = np.stack(np.meshgrid(np.arange(-5, 6), np.arange(-5, 6)), -1).reshape(-1, 2) * 12.0
+    for pts in cases + lattices + [grid]:
+        xy = np.concatenate([pts, ghosts])
+        ok, simp, nb = ghosted_delaunay(xy)
+        assert ok and len(simp) == 2 * len(xy) - 6
+        a, b, c = xy[simp[:, 0]], xy[simp[:, 1]], xy[simp[:, 2]]
+        cross = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]
+        assert (cross > 0).all()
+        for t, k in zip(*np.nonzero(nb >= 0), strict=True):
+            edge = {simp[t, (k + 1) % 3], simp[t, (k + 2) % 3]}
+            o = nb[t, k]
+            assert edge <= set(simp[o].tolist())
+            far = (set(simp[o].tolist()) - edge).pop()
+            # the far corner is not inside t's circumcircle (beyond rounding)
+            m = np.array([[*(xy[v] - xy[far]), np.sum((xy[v] - xy[far]) ** 2)]
+                          for v in simp[t]])
+            assert np.linalg.det(m) <= 1e-9 * np.abs(m).max() ** 2
+        if any(pts is q for q in cases):
+            assert _canonical(simp) == _canonical(Delaunay(xy).simplices)
+    twice = np.concatenate([cases[3], cases[3][:1], ghosts])
+    assert not ghosted_delaunay(twice)[0]
+
+
+def test_areas_do_not_depend_on_which_triangulation_was_taken():
+    """Clipped cell areas with the compiled triangulation equal those with Qhull's (to
+    rounding) on random seeds and on the 97-marker lattice, and sum to the region's area."""
+    from perception.region import convex_ring
+    from perception.voronoi_convex import ConvexVoronoi, _circumcentres, _delaunay, _triangulate
+
+    ring = convex_ring(Point(64.0, 64.0).buffer(60.0, 64))
+    rng = np.random.default_rng(7)
+    for seeds in (rng.uniform(10, 118, (97, 2)),
+                  pc.hex_lattice(97, 11.0, np.array([64.0, 64.0]))):
+        cv = ConvexVoronoi(ring, reuse=False)
+        lo = np.minimum(seeds.min(axis=0), cv._lo)
+        hi = np.maximum(seeds.max(axis=0), cv._hi)
+        compiled, qhull = _triangulate(seeds, lo, hi), _triangulate(seeds, lo, hi, qhull=True)
+        assert _delaunay(seeds, lo, hi)[-1]  # the compiled triangulation was taken
+        pts = np.concatenate([seeds[:, 0] + 1j * seeds[:, 1] - compiled.centre,
+                              compiled.ghosts])
+        a1 = cv._clip(compiled, pts, _circumcentres(pts, compiled.simplices)[0])
+        a2 = cv._clip(qhull, pts, _circumcentres(pts, qhull.simplices)[0])
+        assert np.allclose(a1, a2, rtol=0, atol=1e-9 * cv.area)
+        assert a1.sum() == pytest.approx(cv.area, rel=1e-12)

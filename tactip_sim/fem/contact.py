@@ -181,7 +181,7 @@ def spread_forces(operator: ComplianceOperator, cw: np.ndarray, work: np.ndarray
 
 def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: ComplianceOperator, *,
                   guess: np.ndarray | None = None, label: str = "",
-                  tol: Tolerances = TOL) -> ContactSolution:
+                  tol: Tolerances = TOL, surface: bool = True) -> ContactSolution:
     """Frictionless contact of the candidate nodes with a placed rigid indenter.
 
     The working set W starts as the nodes that penetrate the indenter; the LCP is solved on W;
@@ -200,6 +200,10 @@ def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: Complianc
         sweep): the first active-set guess; the answer does not depend on it
     label : named in error messages (the pose)
     tol : tolerances
+    surface : form the displacements of every surface vertex (``False``: a plate on an
+        operator with ``at_nodes`` forms them at the contact nodes only, ``u`` NaN elsewhere
+        and ``gap`` the exact linear gaps or their lower bounds there; the forces, the
+        active set and the contact points are the same numbers)
 
     Raises
     ------
@@ -208,7 +212,8 @@ def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: Complianc
     """
     if (getattr(placement.indenter, "flat", False) and hasattr(operator, "normal_block")
             and hasattr(operator, "plate_bound")):
-        return _solve_plate(placement, rest_mm, operator, guess=guess, tol=tol)
+        return _solve_plate(placement, rest_mm, operator, guess=guess, tol=tol,
+                            surface=surface or not hasattr(operator, "at_nodes"))
     s = len(rest_mm)
     everyone = np.arange(s)
     g_rest, _ = placement.gap(rest_mm)
@@ -285,7 +290,8 @@ def _start(g0: np.ndarray, previous: np.ndarray) -> np.ndarray:
 
 
 def _solve_plate(placement: Placement, rest_mm: np.ndarray, operator, *,
-                 guess: np.ndarray | None, tol: Tolerances) -> ContactSolution:
+                 guess: np.ndarray | None, tol: Tolerances, surface: bool = True
+                 ) -> ContactSolution:
     """:func:`solve_contact` for a flat indenter with an operator's normal-normal blocks.
 
     The plate's normal ``n`` is the same at every node and the gap is linear in the
@@ -295,8 +301,9 @@ def _solve_plate(placement: Placement, rest_mm: np.ndarray, operator, *,
     bound (``plate_bound``: how far a node can move towards the plate) does not clear get
     their exact gaps from ``G[check, A] p_A``; penetrating ones join ``W``.
     Only the final contact forces are turned into 3D displacements (the surface vertices and
-    the contact nodes, one read of the loaded rows of ``C``). Same answer as the general path
-    to round-off (tested).
+    the contact nodes, one read of the loaded rows of ``C``; with ``surface=False`` the
+    contact nodes alone, :meth:`ReducedModel.at_nodes`: the same sums). Same answer as the
+    general path to round-off (tested).
     """
     s = len(rest_mm)
     g_rest, nu = placement.gap(rest_mm)
@@ -338,7 +345,11 @@ def _solve_plate(placement: Placement, rest_mm: np.ndarray, operator, *,
     on = p_work > 0
     active, pressures = work[on], p_work[on]
     forces = pressures[:, None] * normal
-    u = operator.surface(active, forces, at=active)
+    if surface:
+        u = operator.surface(active, forces, at=active)
+    else:  # the contact points only: the other gaps are g_near's (exact) or bounds
+        u = np.full((s, 3), np.nan)
+        u[active] = operator.at_nodes(active, forces, active)
     known = ~np.isnan(u[:, 0])
     g = g_near.copy()
     g[known], _ = placement.gap(rest_mm[known] + u[known])

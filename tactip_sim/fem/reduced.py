@@ -257,6 +257,15 @@ class ReducedModel:
         out[extra] = mid.reshape(-1, 3)
         return out
 
+    def at_nodes(self, nodes: np.ndarray, forces: np.ndarray, at: np.ndarray) -> np.ndarray:
+        """(len(at), 3) mm: displacements of the candidates ``at`` alone under forces (w, 3)
+        mN on candidates ``nodes``: their own rows of ``C`` against the forces
+        (:func:`~.reduced_kernels.weighted_columns`), without the surface's rows (what a
+        caller that needs only the contact points reads; :meth:`surface` gives the same
+        numbers there to round-off)."""
+        at = np.asarray(at, dtype=np.int64)
+        return self._loaded(self.compliance, nodes, forces, 0, _node_dofs(at))[1].reshape(-1, 3)
+
     def marker_values(self, nodes: np.ndarray, forces: np.ndarray) -> np.ndarray:
         """(6 p,) marker operator output for forces (w, 3) mN on candidates ``nodes``."""
         resp = self.marker_response_t
@@ -280,7 +289,8 @@ class ReducedModel:
             np.ascontiguousarray(symmetric_cols, dtype=np.int64)
         out_cols = np.zeros(len(cols))
         if nodes.size:
-            weighted_rows(matrix, nodes, f, int(width), out)
+            if width:
+                weighted_rows(matrix, nodes, f, int(width), out)
             if cols.size:
                 weighted_columns(matrix, cols, nodes, f, out_cols)
         return out, out_cols

@@ -31,7 +31,8 @@ class ContactState:
     rest_markers_mm : (p, 3) rest marker positions
     marker_directions : (p, 3) unit deformed pin axes (root -> tip), for the renderer
     surface_vertices : (k,) int32, mesh vertex ids of the outer (non-window) surface
-    surface_displacements_mm : (k, 3) their displacements (deformed = rest + this)
+    surface_displacements_mm : (k, 3) their displacements (deformed = rest + this), or
+        ``None`` when pressed with ``surface=False`` (:meth:`Simulator.press`)
     vertex_displacements_mm : (n_vertices, 3) displacements of every mesh vertex, or ``None``
         when the solver did not form the full field (the reduced model unless
         ``full_field=True``)
@@ -69,7 +70,7 @@ class ContactState:
     rest_markers_mm: np.ndarray
     marker_directions: np.ndarray
     surface_vertices: np.ndarray
-    surface_displacements_mm: np.ndarray
+    surface_displacements_mm: np.ndarray | None
     vertex_displacements_mm: np.ndarray | None
     contact_nodes: np.ndarray
     contact_points_mm: np.ndarray
@@ -93,9 +94,10 @@ class ContactState:
         if self.window_forces_N is None:
             object.__setattr__(self, "window_forces_N",
                                np.full(len(np.asarray(self.markers_mm)), np.nan))
-        names = [*_FLOAT_ARRAYS]
-        if self.vertex_displacements_mm is not None:
-            names.append("vertex_displacements_mm")
+        names = [n for n in _FLOAT_ARRAYS if n != "surface_displacements_mm"]
+        for name in ("surface_displacements_mm", "vertex_displacements_mm"):
+            if getattr(self, name) is not None:
+                names.append(name)
         for name in names:
             arr = np.ascontiguousarray(getattr(self, name), dtype=np.float64)
             arr.setflags(write=False)
