@@ -1,4 +1,5 @@
-"""A compiled Delaunay triangulation of a few hundred seeds inside four ghost corners.
+"""Compiled planar geometry of a frame's markers: a Delaunay triangulation of a few hundred
+seeds inside four ghost corners, and the markers' convex hull.
 
 :mod:`perception.voronoi_convex` triangulates every frame's markers (and, for the lab's CoP,
 their border points) together with four far ghost seeds at the corners of a square. Qhull
@@ -26,7 +27,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["ghosted_delaunay"]
+__all__ = ["ghosted_delaunay", "hull_indices"]
 
 #: Relative margin of the orientation tests (of the product of the two edge lengths).
 _ORIENT_TOL = 1e-12
@@ -208,3 +209,30 @@ def ghosted_delaunay(xy):  # pragma: no cover - compiled
                 out_s[r, k] = simp[s, k]
                 out_n[r, k] = -1 if nb[s, k] < 0 else index[nb[s, k]]
     return True, out_s, out_n
+
+
+@numba.njit(cache=True, nogil=True)
+def hull_indices(xy, order):  # pragma: no cover - compiled
+    """Indices (h,) int64 of the convex hull's vertices of ``xy`` (m, 2), counter-clockwise
+    (in x, y), from ``order``: the rows sorted by x, then y (Andrew's monotone chain; points
+    on a hull edge, collinear within rounding, are not vertices, as with Qhull). Fewer than 3
+    when the points are collinear."""
+    m = len(order)
+    out = np.empty(2 * m + 1, np.int64)
+    k = 0
+    for q in range(m):  # the lower chain, left to right
+        i = order[q]
+        while k >= 2 and _orient(xy[out[k - 2], 0], xy[out[k - 2], 1], xy[out[k - 1], 0],
+                                 xy[out[k - 1], 1], xy[i, 0], xy[i, 1]) <= 0.0:
+            k -= 1
+        out[k] = i
+        k += 1
+    floor = k + 1
+    for q in range(m - 2, -1, -1):  # the upper chain, right to left
+        i = order[q]
+        while k >= floor and _orient(xy[out[k - 2], 0], xy[out[k - 2], 1], xy[out[k - 1], 0],
+                                     xy[out[k - 1], 1], xy[i, 0], xy[i, 1]) <= 0.0:
+            k -= 1
+        out[k] = i
+        k += 1
+    return out[: max(k - 1, 0)].copy()

@@ -33,7 +33,7 @@ the unclipped one (tested against SciPy's unclipped diagram)."""
 def hull_border(points: np.ndarray, scale: float = HULL_SCALE) -> np.ndarray:
     """(k, 2) px: the border points of ``points`` (finite rows): the convex hull's vertices
     scaled by ``scale`` about the median point (per axis)."""
-    from scipy.spatial import ConvexHull
+    from .delaunay_kernels import hull_indices  # compiled on first use (Numba)
 
     pts = as_points(points)
     pts = pts[np.all(np.isfinite(pts), axis=1)]
@@ -42,12 +42,11 @@ def hull_border(points: np.ndarray, scale: float = HULL_SCALE) -> np.ndarray:
     if len(pts) < 3:
         raise PerceptionError(f"{len(pts)} markers: a hull needs at least 3")
     centre = np.median(pts, axis=0)
-    try:
-        hull = ConvexHull(pts)
-    except Exception as exc:  # Qhull: collinear or degenerate points
-        raise PerceptionError(f"the markers have no 2-D hull ({exc.__class__.__name__})"
-                              ) from None
-    return centre + scale * (pts[hull.vertices] - centre)
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    vertices = hull_indices(pts, np.lexsort((pts[:, 1], pts[:, 0])))  # counter-clockwise
+    if len(vertices) < 3:
+        raise PerceptionError("the markers have no 2-D hull (they are collinear)")
+    return centre + scale * (pts[vertices] - centre)
 
 
 def hull_cell_areas(points: np.ndarray, scale: float = HULL_SCALE) -> np.ndarray:

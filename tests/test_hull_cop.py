@@ -95,3 +95,27 @@ def test_cell_areas_skip_the_shapely_region_to_the_bit(n):
     got = hull_cell_areas(pts)
     assert np.isnan(got[~ok]).all()
     assert np.array_equal(got[ok], want)
+
+
+def test_compiled_hull_has_qhulls_vertices():
+    """The markers' hull (a compiled monotone chain) against Qhull's: the same vertices,
+    counter-clockwise, on random points, on rounded points (duplicates, and points along the
+    hull's edges, which are not vertices) and on a hexagonal lattice; collinear markers have
+    no hull."""
+    from scipy.spatial import ConvexHull
+
+    from perception.delaunay_kernels import hull_indices
+    from perception.geometry import hex_lattice
+
+    rng = np.random.default_rng(12)
+    sets = [rng.normal(64, 30, (n, 2)) for n in (3, 4, 20, 97, 331)]
+    sets += [np.round(rng.normal(64, 30, (200, 2)) / 10) * 10, hex_lattice(97, 9.0, (64, 64))]
+    for xy in sets:
+        got = hull_indices(xy, np.lexsort((xy[:, 1], xy[:, 0])))
+        want = ConvexHull(xy).vertices
+        assert sorted(map(tuple, xy[got])) == sorted(map(tuple, xy[want]))
+        assert len(got) == len(want)
+        a, b = xy[got], np.roll(xy[got], -1, axis=0)
+        assert np.sum(a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]) > 0  # counter-clockwise
+    with pytest.raises(PerceptionError, match="collinear"):
+        hull_border(np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0], [3.0, 3.0]]))

@@ -153,6 +153,23 @@ def test_raster_is_deterministic_for_a_seed(both):
 
 
 
+def test_truth_of_a_drawn_frame_is_the_projected_caps(both):
+    """The ground truth of the frame the raster layer has just drawn takes its cap outlines
+    from the drawing (every third rim point of the 48-gon); it equals the 16-gon projected
+    afresh (Camera.cap_images) to 1e-9 px, and markers that were not drawn are projected."""
+    raster, mitsuba, m, d = both
+    raster.render_radiance(m, d)
+    mode = raster.optics.refraction_mode(None)
+    # the drawing is reused (for the markers and unit directions the renderer drew)
+    assert raster.raster(mode).last_outlines(*raster._markers(m, d)) is not None
+    got = raster.ground_truth(m, d)[2]
+    want = mitsuba.ground_truth(m, d)[2]  # (Mitsuba draws no outlines: always projected)
+    assert np.abs(got - want).max() <= 1e-9
+    moved = m + np.array([0.05, 0.0, 0.0])
+    np.testing.assert_array_equal(raster.ground_truth(moved, d)[2],
+                                  mitsuba.ground_truth(moved, d)[2])
+
+
 def test_caps_over_the_background_are_the_layer_composited(both):
     """The one-pass composite (CapRaster.over) is draw()'s layer composited over the
     background by Renderer._composite, to the bit."""

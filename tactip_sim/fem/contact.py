@@ -202,8 +202,8 @@ def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: Complianc
     tol : tolerances
     surface : form the displacements of every surface vertex (``False``: a plate on an
         operator with ``at_nodes`` forms them at the contact nodes only, ``u`` NaN elsewhere
-        and ``gap`` the exact linear gaps or their lower bounds there; the forces, the
-        active set and the contact points are the same numbers)
+        and ``gap`` the exact linear gaps or their lower bounds there; the forces and the
+        active set are the same numbers, the contact points the same to round-off)
 
     Raises
     ------
@@ -302,7 +302,7 @@ def _solve_plate(placement: Placement, rest_mm: np.ndarray, operator, *,
     their exact gaps from ``G[check, A] p_A``; penetrating ones join ``W``.
     Only the final contact forces are turned into 3D displacements (the surface vertices and
     the contact nodes, one read of the loaded rows of ``C``; with ``surface=False`` the
-    contact nodes alone, :meth:`ReducedModel.at_nodes`: the same sums). Same answer as the
+    contact nodes alone, :meth:`ReducedModel.at_nodes`, to round-off). Same answer as the
     general path to round-off (tested).
     """
     s = len(rest_mm)
@@ -349,7 +349,7 @@ def _solve_plate(placement: Placement, rest_mm: np.ndarray, operator, *,
         u = operator.surface(active, forces, at=active)
     else:  # the contact points only: the other gaps are g_near's (exact) or bounds
         u = np.full((s, 3), np.nan)
-        u[active] = operator.at_nodes(active, forces, active)
+        u[active] = operator.at_nodes(active, forces)
     known = ~np.isnan(u[:, 0])
     g = g_near.copy()
     g[known], _ = placement.gap(rest_mm[known] + u[known])

@@ -257,14 +257,23 @@ class ReducedModel:
         out[extra] = mid.reshape(-1, 3)
         return out
 
-    def at_nodes(self, nodes: np.ndarray, forces: np.ndarray, at: np.ndarray) -> np.ndarray:
-        """(len(at), 3) mm: displacements of the candidates ``at`` alone under forces (w, 3)
-        mN on candidates ``nodes``: their own rows of ``C`` against the forces
-        (:func:`~.reduced_kernels.weighted_columns`), without the surface's rows (what a
+    def at_nodes(self, nodes: np.ndarray, forces: np.ndarray) -> np.ndarray:
+        """(w, 3) mm: displacements of the loaded candidates ``nodes`` themselves under their
+        forces (w, 3) mN: ``C[dofs(nodes), dofs(nodes)] f``, each 3x3 block of ``C`` read once
+        (:func:`~.reduced_kernels.loaded_block_product`), without the surface's rows (what a
         caller that needs only the contact points reads; :meth:`surface` gives the same
         numbers there to round-off)."""
-        at = np.asarray(at, dtype=np.int64)
-        return self._loaded(self.compliance, nodes, forces, 0, _node_dofs(at))[1].reshape(-1, 3)
+        from .reduced_kernels import loaded_block_product  # compiled on first use
+
+        nodes = np.asarray(nodes, dtype=np.int64)
+        order = np.argsort(nodes, kind="stable")
+        f = np.ascontiguousarray(np.asarray(forces, dtype=np.float64).reshape(-1, 3)[order])
+        out = np.zeros((len(nodes), 3))
+        if nodes.size:
+            loaded_block_product(self.compliance, nodes[order], f, out)
+        back = np.empty_like(out)
+        back[order] = out
+        return back
 
     def marker_values(self, nodes: np.ndarray, forces: np.ndarray) -> np.ndarray:
         """(6 p,) marker operator output for forces (w, 3) mN on candidates ``nodes``."""
@@ -289,8 +298,7 @@ class ReducedModel:
             np.ascontiguousarray(symmetric_cols, dtype=np.int64)
         out_cols = np.zeros(len(cols))
         if nodes.size:
-            if width:
-                weighted_rows(matrix, nodes, f, int(width), out)
+            weighted_rows(matrix, nodes, f, int(width), out)
             if cols.size:
                 weighted_columns(matrix, cols, nodes, f, out_cols)
         return out, out_cols

@@ -239,14 +239,20 @@ class Camera:
                            n_edge)
         n = len(ring)
         px = self.project(ring.reshape(-1, 3), refraction=refraction).reshape(n, n_edge, 2)
-        x, y = px[..., 0], px[..., 1]
-        xn, yn = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
-        cross = x * yn - xn * y
-        area = 0.5 * cross.sum(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cx = ((x + xn) * cross).sum(axis=1) / (6 * area)
-            cy = ((y + yn) * cross).sum(axis=1) / (6 * area)
-        return np.column_stack([cx, cy]), 2 * np.sqrt(np.abs(area) / np.pi), px
+        return (*outline_centroids(px), px)
+
+
+def outline_centroids(px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Area centroids (n, 2) and equal-area diameters (n,) of closed outlines ``px``
+    (n, k, 2) px (shoelace; NaN where a point is NaN)."""
+    x, y = px[..., 0], px[..., 1]
+    xn, yn = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
+    cross = x * yn - xn * y
+    area = 0.5 * cross.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cx = ((x + xn) * cross).sum(axis=1) / (6 * area)
+        cy = ((y + yn) * cross).sum(axis=1) / (6 * area)
+    return np.column_stack([cx, cy]), 2 * np.sqrt(np.abs(area) / np.pi)
 
 
 def cap_outline(centres: np.ndarray, normals: np.ndarray, radius_mm: float,

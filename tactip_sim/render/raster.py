@@ -93,6 +93,7 @@ class CapRaster:
             raise ValueError(f"maps: expected two ({self.height}, {self.width}) arrays, got "
                              f"{[np.shape(a) for a in maps]}")
         self.weight, self.visible = (np.asarray(a, np.float32) for a in maps)
+        self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def _static_maps(self, box: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The pixel-mean sensor weight and the fraction of each pixel that sees the cavity."""
@@ -132,11 +133,29 @@ class CapRaster:
     def outlines(self, markers_mm: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """(n, N_EDGE, 2) OpenCV px: each cap's rim projected through the camera model (NaN
         where a rim point has no sightline)."""
-        ring = cap_outline(markers_mm, directions, self.radius_mm, N_EDGE)
+        m = np.array(markers_mm, dtype=float)
+        d = np.array(directions, dtype=float)
+        ring = cap_outline(m, d, self.radius_mm, N_EDGE)
         n = len(ring)
         with np.errstate(invalid="ignore"):
             px = self.camera.project(ring.reshape(-1, 3), refraction=self.mode)
-        return px.reshape(n, N_EDGE, 2)
+        px = px.reshape(n, N_EDGE, 2)
+        self._last = (m, d, px)
+        return px
+
+    def last_outlines(self, markers_mm: np.ndarray, directions: np.ndarray
+                      ) -> np.ndarray | None:
+        """The outlines (n, N_EDGE, 2) of the last :meth:`outlines` call if it was for these
+        markers and directions (the same values), else None: the renderer's ground truth of
+        the frame it has just drawn takes its cap outlines from here instead of projecting
+        them again."""
+        last = self._last
+        if last is None:
+            return None
+        m, d, px = last
+        if not (np.array_equal(m, markers_mm) and np.array_equal(d, directions)):
+            return None
+        return px
 
     def _caps(self, markers_mm: np.ndarray, directions: np.ndarray, radiance: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray]:

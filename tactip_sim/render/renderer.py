@@ -23,7 +23,7 @@ import numpy as np
 from ..fem.state import WINDOW_SLACK_MM
 from ..geometry import Pad, build_pad
 from ..llvm import import_mitsuba
-from ..optics.camera import Camera
+from ..optics.camera import Camera, outline_centroids
 from ..optics.visibility import check_view, visibility
 from ..scene import Scene, scene_hash
 from ..scene.load import key_spec
@@ -401,8 +401,15 @@ class Renderer:
         m, d = self._markers(markers_mm, directions)
         lines = cam.sightlines(m, refraction=mode)
         vis = visibility(cam, self.pad, m, d, lines=lines)
-        blobs = cam.cap_images(m, d, self.scene.pins.marker_diameter_mm / 2, refraction=mode,
-                               n_edge=TRUTH_EDGES)[0]
+        drawn = self._raster[mode].last_outlines(m, d) if mode in self._raster else None
+        step = drawn.shape[1] // TRUTH_EDGES if drawn is not None else 0
+        if step and drawn.shape[1] == step * TRUTH_EDGES:
+            # the frame just drawn by the raster cap layer: every step-th rim point of its
+            # outlines is a TRUTH_EDGES-gon's (the same angles, to the last bit or two)
+            blobs = outline_centroids(drawn[:, ::step])[0]
+        else:
+            blobs = cam.cap_images(m, d, self.scene.pins.marker_diameter_mm / 2,
+                                   refraction=mode, n_edge=TRUTH_EDGES)[0]
         return lines.px, vis.visible, blobs
 
     def render(self, markers_mm: np.ndarray | None = None, directions: np.ndarray | None = None,
