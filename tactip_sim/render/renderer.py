@@ -402,11 +402,10 @@ class Renderer:
         lines = cam.sightlines(m, refraction=mode)
         vis = visibility(cam, self.pad, m, d, lines=lines)
         drawn = self._raster[mode].last_outlines(m, d) if mode in self._raster else None
-        step = drawn.shape[1] // TRUTH_EDGES if drawn is not None else 0
-        if step and drawn.shape[1] == step * TRUTH_EDGES:
-            # the frame just drawn by the raster cap layer: every step-th rim point of its
-            # outlines is a TRUTH_EDGES-gon's (the same angles, to the last bit or two)
-            blobs = outline_centroids(drawn[:, ::step])[0]
+        if drawn is not None and drawn.shape[1] == TRUTH_EDGES:
+            # the frame the raster cap layer has just drawn: its projected rim points are
+            # this TRUTH_EDGES-gon's (the same points, the same projection: the same bits)
+            blobs = outline_centroids(drawn)[0]
         else:
             blobs = cam.cap_images(m, d, self.scene.pins.marker_diameter_mm / 2,
                                    refraction=mode, n_edge=TRUTH_EDGES)[0]
