@@ -60,7 +60,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import Delaunay, QhullError
 
-from .region import ring_area
+from .region import ring_area, shifted_rows
 
 __all__ = ["COLLINEAR_TOL", "ConvexVoronoi", "convex_clipped_areas"]
 
@@ -212,11 +212,11 @@ class ConvexVoronoi:
         self._inner = complex(z.mean())
         phi = np.angle(z - self._inner)
         start = int(np.argmin(phi))
-        self._z = np.roll(z, -start)
-        self._phi = np.roll(phi, -start)
-        self._edge = np.roll(self._z, -1) - self._z
+        self._z = shifted_rows(z, start)
+        self._phi = shifted_rows(phi, start)
+        self._edge = shifted_rows(self._z, 1) - self._z
         self._edge_len = np.abs(self._edge)
-        self._next = np.roll(np.arange(len(z)), -1)
+        self._next = shifted_rows(np.arange(len(z)), 1)
         self.ring = np.stack([self._z.real, self._z.imag], axis=1)
         self._lo = ring.min(axis=0)
         self._hi = ring.max(axis=0)

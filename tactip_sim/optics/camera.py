@@ -246,7 +246,8 @@ def outline_centroids(px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Area centroids (n, 2) and equal-area diameters (n,) of closed outlines ``px``
     (n, k, 2) px (shoelace; NaN where a point is NaN)."""
     x, y = px[..., 0], px[..., 1]
-    xn, yn = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
+    xn = np.concatenate([x[:, 1:], x[:, :1]], axis=1)  # np.roll(x, -1, axis=1), faster
+    yn = np.concatenate([y[:, 1:], y[:, :1]], axis=1)
     cross = x * yn - xn * y
     area = 0.5 * cross.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
