@@ -5,8 +5,7 @@
 The identified scene's projected rest markers are paired one to one with the markers detected
 on the real rest frame (`calibration.identify.pair`, a gate of one spacing). Their residual is
 then taken again after mapping the projected markers onto the real ones by ever more flexible
-smooth maps, fitted by least squares: a similarity, an affine map, a homography (a camera
-pose the search did not reach), a homography with a 3-term radial polynomial about a free
+smooth maps, fitted by least squares: a similarity, an affine map, a homography, a homography with a 3-term radial polynomial about a free
 centre (a lens profile), and 2-D polynomials of degree 2-6 (any smooth warp), these with the
 leave-one-out residual too. If a smooth map takes the residual to the detection's noise, the
 mismatch is a smooth warp (geometry or optics); what no smooth map removes is marker-by-marker
@@ -110,7 +109,7 @@ def main() -> None:
             ("similarity (rotation, scale, shift)", 4, _rms(_similarity(src, dst), dst), None)]
     aff = np.c_[src, np.ones(len(src))]
     rows.append(("affine", 6, _rms(aff @ np.linalg.lstsq(aff, dst, rcond=None)[0], dst), None))
-    rows.append(("homography (a camera pose)", 8,
+    rows.append(("homography (a projective map)", 8,
                  _rms(_homography(_fit_homography(src, dst), src), dst), None))
     rows.append(("homography + radial r^2, r^4, r^6 about a free centre", 13,
                  _rms(_radial_homography(src, dst, scale), dst), None))
