@@ -7,9 +7,9 @@ on the real rest frame (`calibration.identify.pair`, a gate of one spacing). The
 then taken again after mapping the projected markers onto the real ones by ever more flexible
 smooth maps, fitted by least squares: a similarity, an affine map, a homography, a
 homography with a 3-term radial polynomial about a free centre (a lens profile), and 2-D
-polynomials of degree 2-6 (any smooth warp), these with the leave-one-out residual too. If a smooth map takes the residual to the detection's noise, the
-mismatch is a smooth warp (geometry or optics); what no smooth map removes is marker-by-marker
-placement.
+polynomials of degree 2-6 (any smooth warp), these with the leave-one-out residual too. If a
+smooth map takes the residual to the detection's noise, the mismatch is a smooth warp
+(geometry or optics); what no smooth map removes is marker-by-marker placement.
 """
 
 from __future__ import annotations
