@@ -9,8 +9,9 @@ in a few vectorised passes:
    seeds and the region (D its half-diagonal) make every real cell bounded. A point of the
    region is at most 2 D from its nearest real seed and more than 4.6 D from any ghost, so no
    ghost's cell reaches the region and the clipped cells are unchanged.
-2. **Cells from the triangulation.** ``scipy.spatial.Delaunay`` (Qhull) triangulates seeds and
-   ghosts. Each directed edge i -> j of a counter-clockwise triangle t is dual to the edge of
+2. **Cells from the triangulation.** A compiled incremental triangulation
+   (:mod:`perception.delaunay_kernels`, checked Delaunay; ``scipy.spatial.Delaunay``, Qhull,
+   where it declines) triangulates seeds and ghosts. Each directed edge i -> j of a counter-clockwise triangle t is dual to the edge of
    cell i that runs from the circumcentre of the triangle across i-j to the circumcentre of
    t: every cell boundary, counter-clockwise, with no sorting by angle (co-circular seeds,
    whose triangles share a circumcentre, give zero-length edges and need no care).
@@ -42,8 +43,8 @@ failures, return ``None`` and the caller takes the GEOS path.
 For sequences (:class:`ConvexVoronoi`), the last triangulation is kept and reused when it is
 still the Delaunay triangulation of the new seeds - every triangle counter-clockwise and every
 edge locally Delaunay (the far vertex of each neighbouring triangle not inside the
-circumcircle), which characterises the Delaunay triangulation - so Qhull only runs when the
-markers have moved enough to flip an edge.
+circumcircle), which characterises the Delaunay triangulation - so a new triangulation is
+only computed when the markers have moved enough to flip an edge.
 
 Points are handled as complex numbers x + iy (a × b = Im(conj(a) b)). The triangulation
 bookkeeping is vectorised; the circumcentres, the Delaunay check and steps 3 and 4 are compiled
@@ -222,7 +223,7 @@ class ConvexVoronoi:
         self._hi = ring.max(axis=0)
         self.reuse = reuse
         self._topo: _Topology | None = None
-        #: triangulations computed by Qhull so far (the other calls reused the previous one)
+        #: triangulations computed afresh so far (the other calls reused the previous one)
         self.n_triangulations = 0
 
     @property
