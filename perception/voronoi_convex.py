@@ -11,10 +11,11 @@ in a few vectorised passes:
    ghost's cell reaches the region and the clipped cells are unchanged.
 2. **Cells from the triangulation.** A compiled incremental triangulation
    (:mod:`perception.delaunay_kernels`, checked Delaunay; ``scipy.spatial.Delaunay``, Qhull,
-   where it declines) triangulates seeds and ghosts. Each directed edge i -> j of a counter-clockwise triangle t is dual to the edge of
-   cell i that runs from the circumcentre of the triangle across i-j to the circumcentre of
-   t: every cell boundary, counter-clockwise, with no sorting by angle (co-circular seeds,
-   whose triangles share a circumcentre, give zero-length edges and need no care).
+   where it declines) triangulates seeds and ghosts. Each directed edge i -> j of a
+   counter-clockwise triangle t is dual to the edge of cell i that runs from the circumcentre
+   of the triangle across i-j to the circumcentre of t: every cell boundary,
+   counter-clockwise, with no sorting by angle (co-circular seeds, whose triangles share a
+   circumcentre, give zero-length edges and need no care).
 3. **Cells inside the region** have the shoelace area of their boundary. A Voronoi vertex is
    inside the region if it is inside the edge whose angular wedge (seen from an interior point
    of the region) contains it, so the test costs one binary search per vertex.
