@@ -67,6 +67,12 @@ VECTORS = ("true_cop_mm", "cop_area_px", "cop_growth_px", "cop_hull_px", "reache
 ARRAYS = ("markers_mm", "markers_px", "visible")
 
 
+STALE_TMP_S = 600.0
+"""A half-written sample file (``atomic_write_bytes``'s ``.NAME.XXXX.tmp``) older than this is
+an orphan (a write takes milliseconds; a worker killed mid-write leaves one) and a resume
+removes it; younger ones may belong to a writer still at work and are left."""
+
+
 class DatasetError(ValueError):
     """A dataset folder cannot be used as asked (e.g. it holds a different scene)."""
 
@@ -257,10 +263,12 @@ class Dataset:
     def done(self) -> set[int]:
         """Indices of the complete samples: a readable record and a non-empty image. A sample
         damaged after it was written (a torn record, a missing or empty image) is removed, so
-        a resume computes it again."""
+        a resume computes it again, and so are orphaned half-written files
+        (:data:`STALE_TMP_S`)."""
         d = self.root / "records"
         if not d.is_dir():
             return set()
+        self._remove_stale_tmp()
         out = set()
         for p in d.glob("[0-9]*.npz"):
             i = int(p.stem)
@@ -271,6 +279,21 @@ class Dataset:
                 p.unlink(missing_ok=True)
                 image.unlink(missing_ok=True)
         return out
+
+    def _remove_stale_tmp(self) -> None:
+        """Remove this dataset's own half-written sample files older than
+        :data:`STALE_TMP_S` (``.NNNNN.npz.*.tmp``, ``.NNNNN.png.*.tmp``, ``.rest.png.*.tmp``)."""
+        import time
+
+        now = time.time()
+        for sub, pattern in (("records", ".[0-9]*.npz.*.tmp"), ("images", ".[0-9]*.png.*.tmp"),
+                             ("images", ".rest.png.*.tmp")):
+            for p in (self.root / sub).glob(pattern):
+                try:
+                    if now - p.stat().st_mtime > STALE_TMP_S:
+                        p.unlink(missing_ok=True)
+                except FileNotFoundError:  # (another process removed it meanwhile)
+                    pass
 
     def write_sample(self, record: SampleRecord, image_png: bytes) -> None:
         """Image first, record last: a record's presence means the sample is complete."""

@@ -351,6 +351,34 @@ def test_format_1_datasets_still_read_and_refuse_a_resume(tmp_path, spec):
         features(root, feature="area_change")
 
 
+def test_a_resume_removes_orphaned_half_written_files_only(spec, tmp_path):
+    """A worker killed mid-write leaves ``.NNNNN.npz.XXXX.tmp``: a resume removes such files
+    older than STALE_TMP_S and leaves younger ones (a writer may still be at work) and every
+    other file."""
+    import os
+    import time
+
+    from calibration.dataset import STALE_TMP_S
+
+    out = tmp_path / "ds"
+    run_sweep(spec, out, progress=False)
+    old_time = time.time() - 2 * STALE_TMP_S
+    stale = [out / "records" / ".00003.npz.abc123.tmp", out / "images" / ".00004.png.x1.tmp",
+             out / "images" / ".rest.png.q9.tmp"]
+    fresh = out / "records" / ".00005.npz.def456.tmp"
+    mine = out / "records" / "notes.tmp"  # not a name the tool gives its files
+    for p in [*stale, fresh, mine]:
+        p.write_bytes(b"PK")
+    for p in [*stale, mine]:
+        os.utime(p, (old_time, old_time))
+    good = _files(out)
+    assert Dataset(out).done() == set(range(6))
+    assert not any(p.exists() for p in stale)
+    assert fresh.exists() and mine.exists()
+    assert run_sweep(spec, out, progress=False).computed == 0
+    assert _files(out) == good
+
+
 def test_damaged_samples_are_recomputed_and_damaged_tables_refused(spec, tmp_path):
     """A resume recomputes a sample whose record is torn or whose image is missing or
     empty; a truncated or duplicated targets.csv is refused, not used."""
