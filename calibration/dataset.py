@@ -12,9 +12,9 @@ Layout of a dataset folder::
 Every file is written atomically (temporary file + ``os.replace``). A sample is done when its
 record exists; rerunning a sweep on the same folder computes only the missing samples, so a
 killed sweep resumes without losing or duplicating frames (and removes the half-written
-temporary files a killed writer left, once they are :data:`STALE_TMP_S` old). ``targets.csv`` and ``truth.npz`` are
-rebuilt from the records, in index order, whenever the sweep completes. A folder made from a
-different scene, tip or pose set is refused.
+temporary files a killed writer left, once they are :data:`STALE_TMP_S` old).
+``targets.csv`` and ``truth.npz`` are rebuilt from the records, in index order, whenever the
+sweep completes. A folder made from a different scene, tip or pose set is refused.
 """
 
 from __future__ import annotations
