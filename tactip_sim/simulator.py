@@ -145,7 +145,7 @@ class Simulator:
         surface : form the outer surface's displacements (``False``: the state's
             ``surface_displacements_mm`` is ``None`` and :meth:`surface_mesh` refuses it; the
             markers, forces and contact are the same numbers; a plate pressed with the reduced
-            solver then skips reading the compliance of every surface vertex, ~1.5 ms of a
+            solver then skips reading the compliance of every surface vertex, ~0.6-1 ms of a
             ~6 ms press of the default pad, what a calibration sweep does not use)
 
         Raises
