@@ -401,14 +401,16 @@ class Renderer:
         m, d = self._markers(markers_mm, directions)
         lines = cam.sightlines(m, refraction=mode)
         vis = visibility(cam, self.pad, m, d, lines=lines)
-        drawn = self._raster[mode].last_outlines(m, d) if mode in self._raster else None
+        radius = self.scene.pins.marker_diameter_mm / 2
+        layer = self._raster.get(mode)
+        drawn = None if layer is None or layer.radius_mm != radius else \
+            layer.last_outlines(m, d)
         if drawn is not None and drawn.shape[1] == TRUTH_EDGES:
             # the frame the raster cap layer has just drawn: its projected rim points are
             # this TRUTH_EDGES-gon's (the same points, the same projection: the same bits)
             blobs = outline_centroids(drawn)[0]
         else:
-            blobs = cam.cap_images(m, d, self.scene.pins.marker_diameter_mm / 2,
-                                   refraction=mode, n_edge=TRUTH_EDGES)[0]
+            blobs = cam.cap_images(m, d, radius, refraction=mode, n_edge=TRUTH_EDGES)[0]
         return lines.px, vis.visible, blobs
 
     def render(self, markers_mm: np.ndarray | None = None, directions: np.ndarray | None = None,
