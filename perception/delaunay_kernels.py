@@ -135,15 +135,8 @@ def ghosted_delaunay(xy):  # pragma: no cover - compiled
                 e_b[n_edge] = simp[c, (k + 2) % 3]
                 e_out[n_edge] = o_t
                 n_edge += 1
-        # a triangle added to the cavity after a neighbour took it as boundary: that edge
-        # is inside the cavity, not on its boundary
-        k_edge = 0
-        for e in range(n_edge):
-            if e_out[e] >= 0 and bad[e_out[e]]:
-                continue
-            e_a[k_edge], e_b[k_edge], e_out[k_edge] = e_a[e], e_b[e], e_out[e]
-            k_edge += 1
-        n_edge = k_edge
+        # (a neighbour found outside stays outside: the in-circle test of one triangle and p
+        # gives the same answer from whichever side it is asked, so the edges are the boundary)
         # 3. the fan: one new triangle a, b, p per boundary edge, in the freed slots first
         for i in range(n_cav):
             bad[cavity[i]] = False
