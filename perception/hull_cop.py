@@ -33,9 +33,13 @@ the unclipped one (tested against SciPy's unclipped diagram)."""
 def hull_border(points: np.ndarray, scale: float = HULL_SCALE) -> np.ndarray:
     """(k, 2) px: the border points of ``points`` (finite rows): the convex hull's vertices
     scaled by ``scale`` about the median point (per axis)."""
+    return _border(as_points(points), scale)[0]
+
+
+def _border(pts: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`hull_border` of validated points (m, 2) and the median it scales about."""
     from .delaunay_kernels import hull_indices  # compiled on first use (Numba)
 
-    pts = as_points(points)
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     if not scale > 1.0:
         raise PerceptionError(f"scale={scale!r} is out of range: allowed (1, inf)")
@@ -46,7 +50,7 @@ def hull_border(points: np.ndarray, scale: float = HULL_SCALE) -> np.ndarray:
     vertices = hull_indices(pts, np.lexsort((pts[:, 1], pts[:, 0])))  # counter-clockwise
     if len(vertices) < 3:
         raise PerceptionError("the markers have no 2-D hull (they are collinear)")
-    return centre + scale * (pts[vertices] - centre)
+    return centre + scale * (pts[vertices] - centre), centre
 
 
 def hull_cell_areas(points: np.ndarray, scale: float = HULL_SCALE) -> np.ndarray:
@@ -67,8 +71,7 @@ def hull_cell_areas(points: np.ndarray, scale: float = HULL_SCALE) -> np.ndarray
 
     pts = as_points(points)
     ok = np.all(np.isfinite(pts), axis=1)
-    border = hull_border(pts, scale)
-    centre = np.median(pts[ok], axis=0)
+    border, centre = _border(pts, scale)
     region = centre + _REGION_SCALE * (border - centre)
     seeds = np.concatenate([pts[ok], border])
     areas = np.full(len(pts), np.nan)
