@@ -34,7 +34,7 @@ from .fem.reduced import ReducedModel
 from .fem.resolution import contact_resolution
 from .fem.state import ContactState
 from .fem.tolerances import TOL, Tolerances, single_threaded_blas
-from .fem.window import stop_at_window, window_generalised_forces
+from .fem.window import pin_forces, stop_at_window, window_generalised_forces
 from .geometry import Pad, build_pad
 from .mesh import TetMesh, tetrahedralise
 from .scene import Scene
@@ -203,16 +203,17 @@ class Simulator:
             sol = solve_contact(placement, self._cand_rest, op, label=str(pose), tol=self.tol,
                                 surface=surface)
             if getattr(placement.indenter, "flat", False):  # pins stop at the window
-                sol, window, values = stop_at_window(op, self.body.markers, placement,
+                sol, points, values = stop_at_window(op, self.body.markers, placement,
                                                      self._cand_rest, sol, label=str(pose),
                                                      tol=self.tol)
+                window = pin_forces(self.body.markers, points)
             else:
                 values = op.marker_values(sol.active, sol.forces)
             markers, dirs = self.body.markers.from_values(values)
             u = None
             if full_field:
                 gen = None if window is None or not window.any() else \
-                    window_generalised_forces(self.body.markers, values, window)
+                    window_generalised_forces(self.body.markers, values, points)
                 u = self.body.displacement(self.body.space.candidates[sol.active], sol.forces,
                                            gen)
         else:

@@ -246,10 +246,10 @@ def test_neo_hookean_answer_does_not_depend_on_the_load_path(sim, indenter):
 
 def test_neo_hookean_pins_stop_at_the_window(sim):
     """A flat press deep enough for the pins to reach the window (3.7 mm on the P1 pad): with
-    the pins in the solve no tip ends below the window, the held tips rest on it, the pad
-    pushes back harder, and the window's forces balance the body (virtual work along a random
-    direction, the tips' heights differentiated by finite differences of the finite-rotation
-    marker kinematics, not the solver's own derivative)."""
+    the pins in the solve no pin's end ends below the window, the held ends rest on it, the
+    pad pushes back harder, and the window's forces balance the body (virtual work along a
+    random direction, the end points' heights differentiated by finite differences of the
+    finite-rotation kinematics written out here, not the solver's own derivative)."""
     from tactip_sim.fem.indenters import place
     from tactip_sim.fem.neohookean import NeoHookeanBody, solve_neo_hookean
 
@@ -262,11 +262,23 @@ def test_neo_hookean_pins_stop_at_the_window(sim):
     assert tips_free[:, 2].min() < -0.05  # without the window the pins pass through it
     held = solve_neo_hookean(body, pl, pose.depth_mm, markers=body.markers)
     q = held.window_forces
-    tips = body.markers.from_field(held.u, finite=True)[0]
+    m = body.markers
+    tips, dirs = m.from_field(held.u, finite=True)
     assert (q > 0).sum() > 10 and q.min() >= 0
     assert tips[:, 2].min() >= -1e-6
-    np.testing.assert_allclose(tips[q > 0, 2], 0.0, atol=1e-6)
+    lowest = m.lowest_heights(tips, dirs)  # of the true circle, below the 64-gon's vertices
+    sag = m.end_radius_mm * np.hypot(dirs[:, 0], dirs[:, 1]) * (1 - np.cos(np.pi / 64))
+    assert np.all(lowest >= -sag - 1e-6) and np.all(lowest[q > 0] <= 1e-6)
+    np.testing.assert_allclose(held.end_forces.sum(axis=1), q)
     assert held.contact.pressures.sum() > 1.05 * free.contact.pressures.sum()
+
+    def end_heights(u):  # root + R m_k: R the polar rotation of the base's mean F
+        f = np.eye(3) + (m.gradient @ u).reshape(-1, 3, 3)
+        left, _, right = np.linalg.svd(f)
+        root = m.roots_mm + (m.operator @ u).reshape(-1, 2, 3)[:, 0]
+        return root[:, None, 2] + np.einsum("pij,pkj->pki", left @ right, m.end_offsets)[..., 2]
+
+    assert end_heights(held.u).min() >= -1e-6
 
     f_int, _ = NeoHookeanBody(body).residual(held.u)
     ext = np.zeros_like(f_int).reshape(-1, 3)
@@ -274,10 +286,9 @@ def test_neo_hookean_pins_stop_at_the_window(sim):
     v = np.zeros_like(f_int)
     v[body.free] = np.random.default_rng(5).standard_normal(len(body.free))
     h = 1e-6
-    dz = (body.markers.from_field(held.u + h * v, finite=True)[0][:, 2]
-          - body.markers.from_field(held.u - h * v, finite=True)[0][:, 2]) / (2 * h)
+    dz = (end_heights(held.u + h * v) - end_heights(held.u - h * v)) / (2 * h)
     work = (f_int - ext.ravel()) @ v
-    assert work == pytest.approx(q @ dz, rel=1e-5)
+    assert work == pytest.approx(np.sum(held.end_forces * dz), rel=1e-5)
 
     state = sim.press(pose, solver="neo_hookean")
     assert state.window_modelled and state.pins_on_window == int((q > 0).sum())

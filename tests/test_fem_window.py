@@ -57,6 +57,72 @@ def test_two_springs_known_answer(depth):
         assert window[0] == pytest.approx(k1 * (depth - h0) - k2 * h0, rel=1e-12)
 
 
+def _tilted_rod(k: float, k_w: float, tilt_deg: float, h0: float, length: float, radius: float):
+    """One rigid rod with a flat end of ``radius``, tilted ``tilt_deg`` from straight down in
+    the x-z plane, whose root is a surface node S hung on a spring ``k`` (mN/mm, each axis);
+    the rod turns on its own rotational spring ``k_w`` (mN mm/rad, each axis). At rest its
+    rim's lowest point is ``h0`` above the window."""
+    t = np.radians(tilt_deg)
+    d = np.array([np.sin(t), 0.0, -np.cos(t)])
+    root = np.array([[0.0, 0.0, h0 + length * np.cos(t) + radius * np.sin(t)]])
+    eye = np.eye(3)
+    resp = np.vstack([eye / k, np.zeros((3, 3))])  # marker values [u(root), w] per force on S
+    model = ReducedModel.from_arrays(eye / k, resp, root.copy())
+    model.marker_compliance = np.block([[eye / k, np.zeros((3, 3))],
+                                        [np.zeros((3, 3)), eye / k_w]])
+    rod = Markers("rod", root + length * d, root.copy(), d[None], length,
+                  sp.csr_matrix((6, 3)), sp.csr_matrix((9, 3)), radius)
+    return model, rod, root, d
+
+
+@pytest.mark.parametrize("depth", [0.35, 0.6, 1.1])
+def test_tilted_rod_lands_on_its_rim(depth):
+    """A tilted rod meets the window with its rim, at the depth where the rim's lowest point
+    (not the cap's centre, r sin(tilt) higher) reaches it; pressed further, the window's force
+    on the rim turns it. Against an independent solve of the rod's equilibrium: the root at
+    the plate's depth, the rim point on the window, the rotation the window's moment about the
+    root gives through the rotational spring (scipy's fsolve on the exact Rodrigues map)."""
+    from scipy.optimize import fsolve
+
+    from tactip_sim.fem.markers import rodrigues
+
+    k, k_w, tilt, h0, length, radius = 20.0, 30.0, 35.0, 0.5, 3.0, 1.0
+    model, rod, root, d = _tilted_rod(k, k_w, tilt, h0, length, radius)
+    placement = place(ts.Plate(), ts.Pose(0.0, 0.0, depth), root)
+    sol = solve_contact(placement, root, model)
+    out, window, values = stop_at_window(model, rod, placement, root, sol)
+    tip = rod.from_values(values)[0][0]
+    if depth <= h0:  # the rim clear of the window: the rod moves down with its root
+        assert not window.any() and out is sol
+        np.testing.assert_allclose(tip, root[0] + length * d - [0, 0, depth], atol=1e-12)
+        return
+    t = np.radians(tilt)
+    rim = length * d - radius * np.array([np.cos(t), 0.0, np.sin(t)])  # lowest rim point
+
+    def equations(x):
+        q, w = x[0], x[1:]
+        point = rodrigues(w[None])[0] @ rim
+        z = root[0, 2] - depth + point[2]  # the root follows the plate (S in contact)
+        # the window's moment about the root, q e_z at the rim point, by virtual work
+        # through the exact Rodrigues map (central differences)
+        h = 1e-7
+        grad = np.array([(rodrigues((w + h * e)[None])[0] @ rim
+                          - rodrigues((w - h * e)[None])[0] @ rim)[2] / (2 * h)
+                         for e in np.eye(3)])
+        return np.concatenate([[z], w - q * grad / k_w])
+
+    x = fsolve(equations, np.zeros(4), xtol=1e-14)
+    q, w = x[0], x[1:]
+    expected_tip = root[0] - [0, 0, depth] + rodrigues(w[None])[0] @ (length * d)
+    assert q > 0 and window.sum() == pytest.approx(q, rel=1e-6)
+    np.testing.assert_allclose(tip, expected_tip, atol=1e-6)
+    assert tip[2] > radius * np.sin(t) * 0.5  # the centre stays well above the window
+    assert out.pressures[0] == pytest.approx(k * depth + q, rel=1e-6)
+    # the rim's lowest point (the circle's, not only the polygon's) on the window
+    tips, dirs = rod.from_values(values)
+    assert rod.lowest_heights(tips, dirs)[0] == pytest.approx(0.0, abs=1e-6)
+
+
 @pytest.fixture(scope="module")
 def sim():
     return ts.Simulator(ts.load_scene(SCENES / "shadow_fingertip.toml"))
@@ -86,8 +152,18 @@ def test_deep_presses_keep_every_tip_above_the_window(sim, pose):
     state = sim.press(pose)
     assert state.window_modelled and state.pins_on_window > 0
     assert state.markers_mm[:, 2].min() >= -1e-6
+    # the lowest point of each pin's flat end (a circle of the pin's radius normal to the
+    # rod): none below the window beyond the 64-gon's sag, the held ones resting on it
+    m = sim.body.markers
+    radius = 0.5 * max(sim.scene.pins.diameter_mm, sim.scene.pins.marker_diameter_mm)
+    dirs = state.marker_directions
+    tilt = np.hypot(dirs[:, 0], dirs[:, 1])
+    lowest = state.markers_mm[:, 2] - radius * tilt
+    sag = radius * tilt * (1.0 - np.cos(np.pi / 64))
+    assert np.all(lowest >= -sag - 1e-6)
     held = state.window_forces_N > 0
-    np.testing.assert_allclose(state.markers_mm[held, 2], 0.0, atol=1e-6)
+    assert np.all(lowest[held] <= 1e-6)
+    assert m.end_radius_mm == radius
     assert state.force_N > float(np.abs(sol.pressures.sum())) / 1000.0  # the pins stiffen it
 
 

@@ -67,6 +67,12 @@ def solve_lcp(G: np.ndarray, g0: np.ndarray, *, active: np.ndarray | None = None
     G = np.ascontiguousarray(G, dtype=np.float64)
     act = (g0 < 0) if active is None else np.asarray(active, dtype=bool).copy()
     seen: set[bytes] = set()
+    # block principal pivoting (Judice and Pires; Kim and Park's backup rule): every
+    # infeasible index is exchanged while their number falls; after _BACKUP exchanges that did
+    # not lower it, only the last infeasible index is, which cannot cycle on a P-matrix (a
+    # positive-definite G; the pins' flat ends on the window make it nearly semi-definite,
+    # where the full exchange alone cycles)
+    fewest, backup = k + 1, _BACKUP
     for it in range(1, tol.pdas_max_iter + 1):
         p = np.zeros(k)
         idx = np.flatnonzero(act)
@@ -86,6 +92,14 @@ def solve_lcp(G: np.ndarray, g0: np.ndarray, *, active: np.ndarray | None = None
         new = (act & (p > 0.0)) | (~act & (g < -tol.gap_mm))
         if np.array_equal(new, act):
             return p, g, it
+        flips = np.flatnonzero(new != act)
+        if len(flips) < fewest:
+            fewest, backup = len(flips), _BACKUP
+        elif backup > 0:
+            backup -= 1
+        else:  # a single exchange: the last infeasible index
+            new = act.copy()
+            new[flips[-1]] = ~act[flips[-1]]
         key = new.tobytes()
         if key in seen:
             break
@@ -96,6 +110,11 @@ def solve_lcp(G: np.ndarray, g0: np.ndarray, *, active: np.ndarray | None = None
     b = sla.solve_triangular(low, -g0, lower=True)
     p, _ = nnls(low.T, b)
     return p, g0 + G @ p, tol.pdas_max_iter + 1
+
+
+_BACKUP = 3
+"""Full exchanges of :func:`solve_lcp` allowed without fewer infeasible indices before it
+exchanges one index at a time (Kim and Park's backup rule)."""
 
 
 class ComplianceOperator(Protocol):

@@ -24,6 +24,7 @@ model stores their response to contact forces (:attr:`Markers.operator`, 6 rows 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +33,11 @@ import scipy.sparse as sp
 from ..geometry import Pad, map_to_dome
 from ..mesh import REGION_SKIN
 from .space import Space, gradient_operator, interpolation_operator, locate
+
+END_ANGLES = 64
+"""Vertices of the polygon that stands for a rod's flat end where it meets the window: the true
+circle's rim lies at most ``r |a_xy| (1 - cos(pi / 64))``, 1.2e-3 r |a_xy|, below the polygon's
+lowest vertex."""
 
 # rows of the 9 gradient rows (3 c + k = d u_c / d x_k) giving the rotation vector 1/2 curl u
 _CURL = ((7, 5), (2, 6), (3, 1))
@@ -49,6 +55,9 @@ class Markers:
     operator : (6 p, n_dofs) sparse; rows ``6 i .. 6 i + 5`` of pin ``i`` are
         embedded: [u(tip), u(root)]; rod: [u(root), w] with ``w = 1/2 curl u`` in the skin
     gradient : (9 p, n_dofs) sparse displacement gradient at the skin point (rod model)
+    end_radius_mm : radius of the rod's flat end (rod model; 0 for embedded tips, material
+        points of the gel): the end is a disc normal to the rod, so a tilted rod's lowest point
+        is the rim, ``end_radius_mm |d_xy|`` below the tip (:meth:`lowest_heights`)
     """
 
     model: str
@@ -58,6 +67,43 @@ class Markers:
     length_mm: float
     operator: sp.csr_matrix
     gradient: sp.csr_matrix
+    end_radius_mm: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.end_radius_mm < 0.0 or (self.model == "embedded" and self.end_radius_mm):
+            raise ValueError(f"end_radius_mm={self.end_radius_mm:g}: >= 0 for rods, 0 for "
+                             "embedded tips")
+
+    def lowest_heights(self, tips: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+        """(p,) mm: the height ``z`` of each pin's lowest end point, the rim of its flat end
+        (a disc of radius :attr:`end_radius_mm` normal to the unit direction ``dirs``) below the
+        tip ``tips``; the tip itself for embedded markers."""
+        if not self.end_radius_mm:
+            return np.asarray(tips)[:, 2].copy()
+        return tips[:, 2] - self.end_radius_mm * np.hypot(dirs[:, 0], dirs[:, 1])
+
+    @functools.cached_property
+    def end_offsets(self) -> np.ndarray:
+        """(p, n, 3) mm: the points of each rod's end that meet the window, from its root at
+        rest: the tip (``n = 1``) or, with a flat end, the :data:`END_ANGLES` vertices of its
+        rim, ``L d + r (cos t b1 + sin t b2)`` (``b1, b2`` orthonormal, normal to ``d``). They
+        turn with the rod; embedded tips: the tip, relative to itself (zeros)."""
+        p = self.count
+        if self.model == "embedded":
+            return np.zeros((p, 1, 3))
+        tip = self.length_mm * self.directions[:, None, :]
+        if not self.end_radius_mm or p == 0:
+            return tip
+        d = self.directions
+        # b1: the unit normal to d closest to the axis least aligned with d
+        axis = np.eye(3)[np.argmin(np.abs(d), axis=1)]
+        b1 = axis - np.einsum("pi,pi->p", axis, d)[:, None] * d
+        b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+        b2 = np.cross(d, b1)
+        t = 2.0 * np.pi * np.arange(END_ANGLES) / END_ANGLES
+        rim = (np.cos(t)[None, :, None] * b1[:, None, :]
+               + np.sin(t)[None, :, None] * b2[:, None, :])
+        return tip + self.end_radius_mm * rim
 
     @property
     def count(self) -> int:
@@ -146,7 +192,7 @@ def _mean_gradient(space: Space, points: np.ndarray, weights: np.ndarray) -> sp.
 
 
 def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: float,
-                  footprint_radius_mm: float = 0.0) -> Markers:
+                  footprint_radius_mm: float = 0.0, end_radius_mm: float = 0.0) -> Markers:
     """Locate the pins of ``pad`` in ``space`` and build the marker operators.
 
     Parameters
@@ -158,6 +204,7 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
     footprint_radius_mm : the radius of the pin's base over which the skin's rotation is
         averaged for rods (0, and for embedded tips, whose direction is their chord: at the
         point under the root)
+    end_radius_mm : the radius of a rod's flat end, whose rim meets the window (rods only)
     """
     if model not in ("embedded", "rod"):
         raise ValueError(f"pins.model={model!r} is not allowed: 'embedded' or 'rod'")
@@ -190,4 +237,4 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
     order = np.concatenate([np.arange(3 * p).reshape(p, 3), 3 * p + np.arange(3 * p).reshape(p, 3)],
                            axis=1).ravel()
     return Markers(model, pins.tips.copy(), pins.roots.copy(), pins.directions.copy(), length,
-                   stacked[order], grad)
+                   stacked[order], grad, end_radius_mm if model == "rod" else 0.0)

@@ -62,7 +62,9 @@ class ElasticBody:
         self.markers: Markers = build_markers(
             self.space, pad, model=scene.pins.model,
             skin_thickness_mm=self.skin_thickness_mm or 1.0,
-            footprint_radius_mm=0.0 if scene.is_block else 0.5 * scene.pins.diameter_mm)
+            footprint_radius_mm=0.0 if scene.is_block else 0.5 * scene.pins.diameter_mm,
+            end_radius_mm=0.0 if scene.is_block else 0.5 * max(scene.pins.diameter_mm,
+                                                               scene.pins.marker_diameter_mm))
         self.key = _digest(FEM_VERSION, mesh.nodes, mesh.tets, mesh.regions, self.order,
                            self.lam, self.mu, tol.window_rel, self.space.candidates)
         m = self.markers

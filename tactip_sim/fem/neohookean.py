@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .contact import ContactError, ContactSolution
+from .contact import ContactError, ContactSolution, solve_lcp
 from .elasticity import element_dofs
 from .elements import quadrature, shape_gradients
 from .friction import indenter_motion
@@ -79,6 +79,9 @@ class NeoHookeanResult:
     """(k,) bool for each contact node: stuck (True) or slipping; None without friction."""
     history: NeoHookeanHistory | None = None
     """The state a next friction load step starts from (None without friction)."""
+    end_forces: np.ndarray | None = None
+    """(p, n) mN, the window's force on each end point of each pin (the rims' vertices,
+    :attr:`~.markers.Markers.end_offsets`), whose sums are ``window_forces``."""
 
 
 @dataclass(frozen=True)
@@ -92,7 +95,8 @@ class NeoHookeanHistory:
     active : (k,) int, candidates in contact
     pressures : (k,) mN, their normal forces
     tangential : (k, 3) mN, the tangential parts of their forces (sensor frame)
-    window : (p,) mN or None, the window's force on each pin tip
+    window : (p n,) mN or None, the window's force on each end point of the pins
+        (:class:`~.nh_tips.RodTips`)
     """
 
     placement: Placement
@@ -288,7 +292,8 @@ def _friction_step(nh: NeoHookeanBody, rest: np.ndarray, history: NeoHookeanHist
                                                      tips, history.window, tol, fr)
     nxt = NeoHookeanHistory(placement, pose, u, contact.active, contact.pressures, tang,
                             window)
-    return NeoHookeanResult(u, contact, its, 1, window, stick, nxt)
+    return NeoHookeanResult(u, contact, its, 1, _per_pin(tips, window), stick, nxt,
+                            _per_point(tips, window))
 
 
 def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label: str,
@@ -331,7 +336,18 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
         g, _ = placement.gap(body.space.nodes[cand])
         contact = ContactSolution(np.zeros((len(cand), 3)), np.zeros(0, dtype=np.int64),
                                   np.zeros((0, 3)), np.zeros(0), g, 0.0, 0, 0)
-    return NeoHookeanResult(u, contact, iterations, steps, window)
+    return NeoHookeanResult(u, contact, iterations, steps, _per_pin(tips, window),
+                            end_forces=_per_point(tips, window))
+
+
+def _per_pin(tips: RodTips | None, window: np.ndarray | None) -> np.ndarray | None:
+    """The window's forces on the end points summed per pin (None without pins)."""
+    return None if tips is None or window is None else tips.pin_forces(window)
+
+
+def _per_point(tips: RodTips | None, window: np.ndarray | None) -> np.ndarray | None:
+    """The window's forces on the end points, (p, n) (None without pins)."""
+    return None if tips is None or window is None else window.reshape(tips.pins, -1)
 
 
 class _NoConvergence(Exception):
@@ -389,8 +405,8 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     held = np.zeros(0, dtype=np.int64)
     last_q = None
     if tips is not None:
-        held = np.union1d(np.flatnonzero(window0 > 0) if window0 is not None else held,
-                          np.flatnonzero(tips.heights(u) < -tol.gap_mm))
+        held = np.flatnonzero(window0 > 0) if window0 is not None else held
+        held = np.union1d(held, tips.entering(tips.heights(u), held, tol.gap_mm))
         last_q = np.zeros(tips.count) if window0 is None else window0.copy()
     if friction is not None:
         # where each candidate's anchor is at the end of the step
@@ -454,8 +470,9 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             c_free = c_rot * ~fixed[None]
             w = np.asarray(solve(np.ascontiguousarray(c_free.reshape(len(held), -1).T)))
             w = w.reshape(3 * space.n_nodes, len(held))  # K^-1 C' (zero at the fixed dofs)
-            held_window = (c_rot, w, c_free.reshape(len(held), -1) @ w,
-                           tips.heights(u)[held])
+            schur = c_free.reshape(len(held), -1) @ w
+            schur[np.diag_indices_from(schur)] += tips.end_compliance(held)
+            held_window = (c_rot, w, schur, tips.heights(u)[held])
         linear = _Linearised(pattern, rot, basis, f_int, fixed, a_fixed, solve, nodes_a,
                              held_window)
         a, q, r, react = linear.step(f_ext)
@@ -520,8 +537,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
                 same = bool(np.all(moved <= allowed))
         if tips is not None:
             z_new = tips.heights(u)
-            new_held = np.union1d(held[q > 0.0],
-                                  np.setdiff1d(np.flatnonzero(z_new < -tol.gap_mm), held))
+            new_held = np.union1d(held[q > 0.0], tips.entering(z_new, held, tol.gap_mm))
             same = same and np.array_equal(new_held, held)
         if alpha == 1.0 and same and change <= max(tol.geometry_mm, 1e-9):
             forces = pressures[:, None] * nu_new[active] + tangential
@@ -569,7 +585,9 @@ class _Linearised:
         q = np.zeros(0)
         if self.window is not None:
             c_rot, w, schur, z = self.window
-            q = np.linalg.solve(schur, -z - c_rot.reshape(len(z), -1) @ a.ravel())
+            # unilateral within the linearisation: the held points that would pull leave
+            # (a flat end's points are many, and their rows dependent)
+            q = solve_lcp(schur, z + c_rot.reshape(len(z), -1) @ a.ravel())[0]
             a = a + (w @ q).reshape(-1, 3)
             window_rot = np.einsum("kni,k->ni", c_rot, q)
         react = (self.pattern.rows_matvec(self.rot, a, self.rows)

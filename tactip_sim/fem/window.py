@@ -1,26 +1,38 @@
-"""Pins that stop at the window: unilateral contact of the pin tips with the acrylic.
+"""Pins that stop at the window: unilateral contact of the pins' ends with the acrylic.
 
-The pins hang from the skin towards the window; a deep press brings their tips (the marker
+The pins hang from the skin towards the window; a deep press brings their ends (the marker
 caps) down to the window's inner face ``z = 0`` (the gel/acrylic interface, sensor frame),
-which they cannot pass. Each tip ``j`` then carries a force ``q_j >= 0`` from the window along
-+z, with the complementarity ``q_j >= 0, z_j >= 0, q_j z_j = 0``. The constraint is on the cap's
-centre (the caps are thin discs: their thickness is neglected; an assumption).
+which they cannot pass. A rigid rod ends in a flat disc normal to its axis (the pin's diameter,
+its cap no wider; the end's thickness is part of the rod's length), so a tilted rod meets the
+window with its rim, up to ``r |a_xy|`` below its tip (``a`` the rod's unit axis, ``r`` the
+end's radius), not with the cap's centre; a rod pushed on further turns until its end lies flat
+on the window, where the end can carry a moment. The end is the polygon of its rim's
+:data:`~.markers.END_ANGLES` vertices (:attr:`~.markers.Markers.end_offsets`; between vertices
+the circle is at most 1.2e-3 ``r |a_xy|`` lower): each vertex ``k`` of pin ``j`` is a point of
+the rod and carries a force ``q_jk >= 0`` from the window along +z, with the complementarity
+``q_jk >= 0, z_jk >= 0, q_jk z_jk = 0``. Embedded tips (material points of the gel) meet the
+window with the tip alone.
 
-The tip height is a function of the marker operator's values ``v`` (:class:`~.markers.Markers`:
-for a rigid rod ``z = z_root + v_z + L (R(w) d)_z``); around the current ``v`` it is linearised,
-``z ~ z(v_k) + J (v - v_k)``, and a force ``q`` at the tips is the generalised force ``J' q``
-on the marker values. With the reduced model's marker response ``R`` (``v`` per unit
-candidate force; by reciprocity ``R'`` is the candidates' displacement per unit generalised
-marker force) and marker compliance ``Q = M K^-1 M'``, the plate's contact pressures ``p`` on
-the working set W and the window forces ``q`` on the pins P solve one symmetric LCP::
+A point's height is a function of its pin's marker values ``v`` (:class:`~.markers.Markers`:
+for a rigid rod ``z = z_root + v_z + (R(w) m_k)_z``, ``m_k`` the point's rest offset from the
+root); around the current ``v`` it is linearised, ``z ~ z(v_k) + J (v - v_k)``, and a force
+``q`` at the points is the generalised force ``J' q`` on the marker values. With the reduced
+model's marker response ``R`` (``v`` per unit candidate force; by reciprocity ``R'`` is the
+candidates' displacement per unit generalised marker force) and marker compliance
+``Q = M K^-1 M'``, the plate's contact pressures ``p`` on the working set W and the window
+forces ``q`` on the points P solve one symmetric LCP::
 
     [g_W]   [g0_W]   [ G_WW    H   ] [p]        G = n' C n          (plate normal n)
     [z_P] = [z0_P] + [ H'   J Q J' ] [q],       H = n' R' J'
 
 which :func:`~.contact.solve_lcp` solves (the matrix is the compliance of the body for the
-two kinds of forces, so it is symmetric positive definite). Candidates that the pins' push
-brings into contact, and pins that come down, join the sets; the linearisation is renewed
-until every tip's exact height is at or above the window (to :data:`WINDOW_TOL_MM`).
+two kinds of force, so it is symmetric positive semi-definite; more than three points of one
+flat end make ``J Q J'`` singular, so their diagonal gets :data:`END_COMPLIANCE`, a contact
+compliance that moves a point by 1e-9 mm per newton). Candidates that the pins' push
+brings into contact join the working set; a pin whose end comes below the window adds its
+lowest vertex that is not yet held (one a round, so a flat end is carried by the few vertices
+it needs); the linearisation is renewed until every vertex's exact height is at or above the
+window (to :data:`WINDOW_TOL_MM`).
 """
 
 from __future__ import annotations
@@ -36,51 +48,95 @@ from .tolerances import TOL, Tolerances
 WINDOW_Z_MM = 0.0
 """The window's inner face (the gel/acrylic interface) in the sensor frame."""
 WINDOW_TOL_MM = 1e-9
-"""How far below the window a tip may end (round-off)."""
+"""How far below the window a point may end (round-off)."""
 HELD_TOL_MM = 1e-6
-"""How far above the window a tip it holds may end (the exact rod rotation is reached by a
+"""How far above the window a point it holds may end (the exact rod rotation is reached by a
 fixed-point iteration; its last rounds stall near 1e-6 mm on the deepest presses)."""
+VALUES_TOL = 1e-9
+"""The fixed point of the rods' re-linearisation stops when the marker values repeat to this
+(mm and radians): the window's forces act through the Jacobian at the values it ends with."""
+END_COMPLIANCE = 1e-12
+"""mm/mN added to the window block's diagonal at the points of pins with more than three in the
+set: a contact compliance that makes the LCP definite when four or more points of one flat end
+touch. It moves a point by 1e-9 mm per newton,
+a numerical device: the gel's compliance at a pin is 2-6e-3 mm/mN (default pad), and a cap of
+Vero White on acrylic, both ~1e5 times stiffer than the gel, is not modelled."""
 _MAX_ROUNDS = 50
-"""Rounds of adding candidates and pins that the last solve left penetrating."""
+"""Rounds of adding candidates and end points that the last solve left penetrating."""
+
+
+def point_heights(markers: Markers, values: np.ndarray) -> np.ndarray:
+    """(p, n) mm: the exact height above the window of every end point (a rod's rim vertices
+    or tip, an embedded tip) for marker values ``v``."""
+    p = markers.count
+    if markers.model == "embedded":
+        return markers.from_values(values)[0][:, 2:3] - WINDOW_Z_MM
+    v = np.asarray(values).reshape(p, 2, 3)
+    turned = np.einsum("pij,pkj->pki", rodrigues(v[:, 1]), markers.end_offsets)
+    return (markers.roots_mm[:, 2] + v[:, 0, 2])[:, None] + turned[..., 2] - WINDOW_Z_MM
 
 
 def tip_heights(markers: Markers, values: np.ndarray) -> np.ndarray:
-    """(p,) mm: the exact height of every tip above the window for marker values ``v``."""
-    return markers.from_values(values)[0][:, 2] - WINDOW_Z_MM
+    """(p,) mm: the height above the window of every pin's lowest end point."""
+    return point_heights(markers, values).min(axis=1)
 
 
-def tip_jacobian(markers: Markers, values: np.ndarray) -> np.ndarray:
-    """(p, 6) d z_j / d v_j at ``v`` (each tip depends on its own pin's six values)."""
-    p = markers.count
-    jac = np.zeros((p, 6))
-    if markers.model == "embedded":  # z = z_rest + v_z(tip)
-        jac[:, 2] = 1.0
+def point_jacobian(markers: Markers, values: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(k, 6) d z / d v_j of the end points ``points`` (flat indices ``j n + i`` into
+    :func:`point_heights`; each depends on its own pin's six values) at ``v``."""
+    points = np.asarray(points, dtype=np.int64)
+    jac = np.zeros((len(points), 6))
+    jac[:, 2] = 1.0  # the root's (rod) or the tip's (embedded) vertical displacement
+    if markers.model == "embedded" or len(points) == 0:
         return jac
-    v = np.asarray(values).reshape(p, 2, 3)
-    jac[:, 2] = 1.0  # the root's vertical displacement
+    n = markers.end_offsets.shape[1]
+    pin, k = np.divmod(points, n)
+    w = np.asarray(values).reshape(markers.count, 2, 3)[pin, 1]
+    offsets = markers.end_offsets[pin, k]
     h = 1e-7  # the rotation part by central differences of the exact Rodrigues map
     for a in range(3):
         dw = np.zeros(3)
         dw[a] = h
-        up = np.einsum("pij,pj->pi", rodrigues(v[:, 1] + dw), markers.directions)[:, 2]
-        down = np.einsum("pij,pj->pi", rodrigues(v[:, 1] - dw), markers.directions)[:, 2]
-        jac[:, 3 + a] = markers.length_mm * (up - down) / (2 * h)
+        up = np.einsum("pij,pj->pi", rodrigues(w + dw), offsets)[:, 2]
+        down = np.einsum("pij,pj->pi", rodrigues(w - dw), offsets)[:, 2]
+        jac[:, 3 + a] = (up - down) / (2 * h)
     return jac
+
+
+def entering_points(z: np.ndarray, held: np.ndarray, tol: float) -> np.ndarray:
+    """Flat indices of the end points to add to the set ``held``: for every pin with a point
+    below ``-tol`` not in ``held``, its lowest such point (one a pin; ``z`` (p, n))."""
+    below = z < -tol
+    below.ravel()[np.asarray(held, dtype=np.int64)] = False
+    pins = np.flatnonzero(below.any(axis=1))
+    if not len(pins):
+        return np.zeros(0, dtype=np.int64)
+    k = np.argmin(np.where(below[pins], z[pins], np.inf), axis=1)
+    return pins * z.shape[1] + k
+
+
+def pin_forces(markers: Markers, window: np.ndarray) -> np.ndarray:
+    """(p,) mN: the window's force on each pin, the sum over its end points ``window``."""
+    return np.asarray(window).reshape(markers.count, -1).sum(axis=1)
 
 
 def window_generalised_forces(markers: Markers, values: np.ndarray, window: np.ndarray
                               ) -> np.ndarray:
-    """(6 p,) the generalised forces on the marker values of window forces ``window`` (p,) mN
-    at the tips (``J' q`` at ``values``)."""
-    jac = tip_jacobian(markers, values)
-    return (jac * np.asarray(window)[:, None]).ravel()
+    """(6 p,) the generalised forces on the marker values of window forces ``window`` (p, n)
+    mN at the end points (``J' q`` at ``values``)."""
+    q = np.asarray(window, dtype=np.float64).ravel()
+    points = np.flatnonzero(q)
+    out = np.zeros((markers.count, 6))
+    n = max(len(q) // max(markers.count, 1), 1)
+    np.add.at(out, points // n, point_jacobian(markers, values, points) * q[points, None])
+    return out.ravel()
 
 
 def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
                    sol: ContactSolution, *, label: str = "", tol: Tolerances = TOL,
                    load: tuple[np.ndarray, np.ndarray] | None = None
                    ) -> tuple[ContactSolution, np.ndarray, np.ndarray]:
-    """Correct a flat indenter's contact solution for tips that reach the window.
+    """Correct a flat indenter's contact solution for pins that reach the window.
 
     Parameters
     ----------
@@ -96,7 +152,8 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
     Returns
     -------
     solution : the corrected contact solution (candidates)
-    window_forces : (p,) mN, force of the window on each tip (0 where clear)
+    window_forces : (p, n) mN, force of the window on each end point (0 where clear;
+        :func:`pin_forces` sums them per pin)
     values : (6 p,) the marker operator's values
 
     Raises
@@ -112,77 +169,94 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
         values = values + v_load
         u_load = (model.block(np.arange(s), load[0]) @ np.ravel(load[1])).reshape(s, 3)
     p = markers.count
+    n = 1 if p == 0 else markers.end_offsets.shape[1]
     if p == 0 or tip_heights(markers, values).min() >= -WINDOW_TOL_MM:
-        return sol, np.zeros(p), values  # every tip clear of the window: nothing to do
-    # (most presses end above: the rods' linearisation is built only when a tip reaches it)
-    jac = tip_jacobian(markers, np.zeros(6 * p))  # the rods' linearised kinematics
-    z_rest = markers.rest_mm[:, 2] - WINDOW_Z_MM
-
-    def heights(v: np.ndarray) -> np.ndarray:  # linearised tip heights above the window
-        return z_rest + np.einsum("kj,kj->k", jac, v.reshape(p, 6))
-
+        # every end clear of the window: nothing to do
+        return sol, np.zeros((p, n)), values
+    # (most presses end above: the rods' linearisation is built only when a pin reaches it)
+    zero = np.zeros(6 * p)
+    z_rest = point_heights(markers, zero).ravel()
     if getattr(model, "marker_compliance", None) is None:
         raise ContactError(f"{label or 'contact'}: pins reach the window but the model has no "
                            "marker compliance to stop them")
     g_rest, nu = placement.gap(rest_mm)
-    n = np.asarray(nu[0], dtype=np.float64)  # a flat indenter: one normal
-    g_rest = g_rest + u_load @ n  # the held load's part of the gaps
+    n_plate = np.asarray(nu[0], dtype=np.float64)  # a flat indenter: one normal
+    g_rest = g_rest + u_load @ n_plate  # the held load's part of the gaps
     resp_t = model.marker_response_t  # (3 s, 6 p)
     mq = model.marker_compliance  # (6 p, 6 p)
     all_nodes = np.arange(s)
     work = np.asarray(sol.active, dtype=np.int64)
-    pins = np.flatnonzero((heights(values) < 0.0) | (tip_heights(markers, values) < 0.0))
-    start_work, start_pins = work, pins
+    points = entering_points(point_heights(markers, values), np.zeros(0, dtype=np.int64),
+                             WINDOW_TOL_MM)
+    start_work, start_points = work, points
     iterations = sol.iterations
 
-    def solve(jac_k: np.ndarray, v_k: np.ndarray, work: np.ndarray, pins: np.ndarray):
-        """The LCP with the tip heights linearised at ``v_k`` (Jacobian ``jac_k``)."""
-        nonlocal start_work, start_pins, iterations
-        gen = np.zeros((6 * p, len(pins)))
-        for k, j in enumerate(pins):
-            gen[6 * j:6 * j + 6, k] = jac_k[j]
-        # candidate displacement along n per unit window force: (s, P)
-        h_all = np.einsum("a,iak->ik", n, (resp_t @ gen).reshape(s, 3, len(pins)))
-        big = np.block([[model.normal_block(work, work, n), h_all[work]],
-                        [h_all[work].T, gen.T @ mq @ gen]])
-        z_k = markers.from_values(v_k)[0][pins, 2] - WINDOW_Z_MM
+    jac_rest = point_jacobian(markers, zero, np.arange(p * n))
+
+    def linear_heights(v: np.ndarray) -> np.ndarray:
+        """(p, n) every point's height linearised at rest."""
+        return (z_rest + np.einsum("kj,kj->k", jac_rest, np.repeat(v.reshape(p, 6), n, axis=0))
+                ).reshape(p, n)
+
+    def solve(at_rest: bool, v_k: np.ndarray, work: np.ndarray, pts: np.ndarray):
+        """The LCP with the heights of ``pts`` linearised at rest or at ``v_k``."""
+        nonlocal start_work, start_points, iterations
+        lin_at = zero if at_rest else v_k
+        jac_k = jac_rest[pts] if at_rest else point_jacobian(markers, v_k, pts)
+        pin = pts // n
+        gen = np.zeros((6 * p, len(pts)))
+        for c, (j, row) in enumerate(zip(pin, jac_k, strict=True)):
+            gen[6 * j:6 * j + 6, c] = row
+        # candidate displacement along the plate normal per unit window force: (s, P)
+        h_all = np.einsum("a,iak->ik", n_plate, (resp_t @ gen).reshape(s, 3, len(pts)))
+        window_block = gen.T @ mq @ gen
+        crowded = np.bincount(pin, minlength=p)[pin] > 3  # a flat end's 4th point and on
+        window_block[np.flatnonzero(crowded), np.flatnonzero(crowded)] += END_COMPLIANCE
+        big = np.block([[model.normal_block(work, work, n_plate), h_all[work]],
+                        [h_all[work].T, window_block]])
+        z_k = point_heights(markers, lin_at).ravel()[pts]
         # (the held load's part of the values is a constant, not a column of the LCP)
-        z0 = z_k - np.einsum("kj,kj->k", jac_k[pins], (v_k - v_load).reshape(p, 6)[pins])
-        start = np.concatenate([np.isin(work, start_work), np.isin(pins, start_pins)])
+        z0 = z_k - np.einsum("kj,kj->k", jac_k, (v_k - v_load).reshape(p, 6)[pin]) \
+            if not at_rest else z_rest[pts] - np.einsum(
+                "kj,kj->k", jac_k, (-v_load).reshape(p, 6)[pin])
+        start = np.concatenate([np.isin(work, start_work), np.isin(pts, start_points)])
         x, _, it = solve_lcp(big, np.concatenate([g_rest[work], z0]), active=start, tol=tol)
         iterations += it
         pw, q = x[: len(work)], x[len(work):]
-        start_work, start_pins = work[pw > 0], pins[q > 0]
-        v = model.marker_values(work, pw[:, None] * n) + mq @ (gen @ q) + v_load
+        start_work, start_points = work[pw > 0], pts[q > 0]
+        v = model.marker_values(work, pw[:, None] * n_plate) + mq @ (gen @ q) + v_load
         act = work[pw > 0]
-        gap = g_rest + model.normal_block(all_nodes, act, n) @ pw[pw > 0] + h_all @ q
+        gap = g_rest + model.normal_block(all_nodes, act, n_plate) @ pw[pw > 0] + h_all @ q
         return v, pw, q, gap, gen
 
     # 1. the rods linearised at rest: one linear LCP, the contact sets settled
+    v = values
     for _ in range(_MAX_ROUNDS):
-        v, pw, q, gap, gen = solve(jac, values, work, pins)
+        v, pw, q, gap, gen = solve(True, v, work, points)
         new_work = np.union1d(work, np.flatnonzero(gap < -tol.gap_mm))
-        new_pins = np.union1d(pins, np.flatnonzero(heights(v) < -WINDOW_TOL_MM))
-        if np.array_equal(new_work, work) and np.array_equal(new_pins, pins):
+        new_points = np.union1d(points, entering_points(linear_heights(v), points,
+                                                        HELD_TOL_MM))
+        if np.array_equal(new_work, work) and np.array_equal(new_points, points):
             break
-        work, pins = new_work, new_pins
+        work, points = new_work, new_points
     # 2. the exact rod rotation: re-linearise at the current values (a fixed point, whose
     #    convergence Anderson mixing speeds up), growing the sets where the exact solve asks
     hist_v: list[np.ndarray] = []
     hist_r: list[np.ndarray] = []
     for _ in range(_MAX_ROUNDS):
-        t_v, pw, q, gap, gen = solve(tip_jacobian(markers, v), v, work, pins)
-        z = tip_heights(markers, t_v)
+        t_v, pw, q, gap, gen = solve(False, v, work, points)
+        z = point_heights(markers, t_v)
         new_work = np.union1d(work, np.flatnonzero(gap < -tol.gap_mm))
-        new_pins = np.union1d(pins, np.flatnonzero(z < -WINDOW_TOL_MM))
-        held = z[pins[q > 0]]
-        if (np.array_equal(new_work, work) and np.array_equal(new_pins, pins)
-                and np.abs(held).max(initial=0.0) <= HELD_TOL_MM
-                and z.min() >= -WINDOW_TOL_MM):
+        new_points = np.union1d(points, entering_points(z, points, HELD_TOL_MM))
+        held = z.ravel()[points[q > 0]]
+        settled = np.array_equal(new_work, work) and np.array_equal(new_points, points)
+        if settled and np.abs(held).max(initial=0.0) <= HELD_TOL_MM \
+                and z.min() >= -HELD_TOL_MM \
+                and np.abs(t_v - v).max(initial=0.0) <= VALUES_TOL:
             v = t_v
             break
-        if not (np.array_equal(new_work, work) and np.array_equal(new_pins, pins)):
-            work, pins = new_work, new_pins
+        if not settled:
+            work, points = new_work, new_points
             hist_v, hist_r = [], []
             v = t_v
             continue
@@ -192,21 +266,20 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
         del hist_v[:-_ANDERSON_DEPTH], hist_r[:-_ANDERSON_DEPTH]
     else:
         # the fixed point stalls on the deepest presses (every pin held, large rotations):
-        # accept its last iterate when no tip is below the window by more than 1e-6 mm
-        if z.min() < -1e-6 or not (np.array_equal(new_work, work)
-                                   and np.array_equal(new_pins, pins)):
+        # accept its last iterate when no point is below the window by more than 1e-6 mm
+        if z.min() < -HELD_TOL_MM or not settled:
             raise ContactError(f"{label or 'contact'}: the pin-window contact did not settle "
-                               f"in {_MAX_ROUNDS} rounds (lowest tip {z.min():.3g} mm)")
+                               f"in {_MAX_ROUNDS} rounds (lowest end point {z.min():.3g} mm)")
         v = t_v
     values = v
     on = pw > 0
     active, pressures = work[on], pw[on]
-    forces = pressures[:, None] * n
+    forces = pressures[:, None] * n_plate
+    window = np.zeros((p, n))
+    window.ravel()[points] = q
     u = model.surface(active, forces, at=active) + (resp_t @ (gen @ q)).reshape(s, 3) + u_load
-    window = np.zeros(p)
-    window[pins] = q
     comp = float(max(np.max(np.abs(pressures * gap[active]), initial=0.0),
-                     np.max(np.abs(q * z[pins]), initial=0.0)))
+                     np.max(np.abs(q * z.ravel()[points]), initial=0.0)))
     out = ContactSolution(u, active, forces, pressures, gap, comp, iterations,
                           sol.geometry_iterations)
     return out, window, values
@@ -242,7 +315,7 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
     pins against the window together with the plate's pressures (:func:`stop_at_window`:
     the strong coupling, through the skin, is solved at once), friction's tangential forces
     from (a) held. They stop when the window's forces repeat to :data:`WINDOW_RTOL` of the
-    largest (Anderson-mixed); (b) leaves no tip below the window by more than 1e-6 mm.
+    largest (Anderson-mixed); (b) leaves no end point below the window by more than 1e-6 mm.
 
     Returns
     -------
@@ -272,6 +345,7 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
         _, q_new, values = stop_at_window(model, markers, placement, rest_mm, normal,
                                           label=label, tol=tol,
                                           load=(sol.active, fs.tangential))
+        q_new = q_new.ravel()  # the end points' forces
         scale = max(float(np.abs(q_new).max(initial=0.0)), 1e-300)
         same = q is not None and np.abs(q_new - q).max(initial=0.0) <= WINDOW_RTOL * scale
         if (not q_new.any() and (gen is None or not gen.any())) or same:
@@ -279,9 +353,10 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
             held = FrictionHistory(h.placement, h.nodes, h.forces, extra,
                                    window_generalised_forces(markers, values, q_new)
                                    if q_new.any() else None)
-            return dataclasses.replace(fs, history=held, window=q_new, values=values)
+            return dataclasses.replace(fs, history=held, window=pin_forces(markers, q_new),
+                                       values=values)
         # the alternation converges linearly (through the tangential forces (b) holds):
-        # Anderson mixing of the window forces, restarted when the held pins change
+        # Anderson mixing of the window forces, restarted when the held points change
         q_old = np.zeros_like(q_new) if q is None else q
         if hist_q and not np.array_equal(q_new > 0, hist_q[-1] + hist_r[-1] > 0):
             hist_q, hist_r = [], []
