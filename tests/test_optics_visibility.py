@@ -112,3 +112,25 @@ def test_compiled_disc_blocking_is_the_numpy_pairs():
     want = _blocked_by_discs_numpy(start, centres, centres, normals, 0.6)
     assert 10 < got.sum() < 140
     assert np.array_equal(got, want)
+
+
+def test_caps_lying_on_the_window_do_not_break_the_blocking_test():
+    """Pins pressed flat on the window (their ends rest on it): caps at z = 0 with normals
+    straight down, seen along segments that start on the window's face, parallel to the
+    caps' plane. No segment crosses another cap's plane at one point, so none is blocked
+    (it raised ZeroDivisionError in the compiled loop)."""
+    from tactip_sim.optics.visibility import _blocked_by_discs, _blocked_by_discs_numpy
+
+    centres = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [1.5, 2.6, 0.0], [8.0, 0.0, 2.0]])
+    normals = np.tile([0.0, 0.0, -1.0], (4, 1))
+    start = centres + [[0.2, 0.1, 0.0], [-0.3, 0.0, 0.0], [0.0, 0.4, 0.0], [0.0, 0.0, -2.0]]
+    got = _blocked_by_discs(start, centres, centres, normals, 0.8)
+    assert np.array_equal(got, _blocked_by_discs_numpy(start, centres, centres, normals, 0.8))
+    assert not got.any()
+    # the last segment rises through the cap plane z = 0 at (8, 0): blocked only where a cap is
+    end = centres.copy()
+    end[3] = [8.0, 0.0, 2.0]
+    start[3] = [3.0, 0.0, -2.0]  # crosses z = 0 at (5.5, 0), 2.5 mm from the nearest cap
+    assert not _blocked_by_discs(start, end, centres, normals, 0.8)[3]
+    start[3] = [-2.0, 0.0, -2.0]  # crosses z = 0 at (3, 0): the second cap's centre
+    assert _blocked_by_discs(start, end, centres, normals, 0.8)[3]

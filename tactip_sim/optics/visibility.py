@@ -113,10 +113,10 @@ def _blocked_by_discs_numpy(start: np.ndarray, end: np.ndarray, centres: np.ndar
     d = end - start  # (n, 3)
     dn = d @ normals.T  # (n, m)
     num = np.einsum("jk,jk->j", centres, normals)[None, :] - start @ normals.T
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # dn = 0: parallel, t not finite
         t = num / dn
-    q = start[:, None, :] + t[..., None] * d[:, None, :]
-    close = np.linalg.norm(q - centres[None], axis=2) < radius
+        q = start[:, None, :] + t[..., None] * d[:, None, :]
+        close = np.linalg.norm(q - centres[None], axis=2) < radius
     hit = close & (t > 1e-9) & (t < 1.0 - 1e-9) & np.isfinite(t)
     np.fill_diagonal(hit, False)
     return hit.any(axis=1)

@@ -37,6 +37,8 @@ def blocked_by_discs(start, end, centres, normals, radius):  # pragma: no cover 
             n0, n1, n2 = normals[j, 0], normals[j, 1], normals[j, 2]
             c0, c1, c2 = centres[j, 0], centres[j, 1], centres[j, 2]
             dn = d0 * n0 + d1 * n1 + d2 * n2
+            if dn == 0.0:  # parallel to the disc's plane (a cap lying on the window)
+                continue
             t = ((c0 * n0 + c1 * n1 + c2 * n2) - (s0 * n0 + s1 * n1 + s2 * n2)) / dn
             if not (math.isfinite(t) and t > 1e-9 and t < 1.0 - 1e-9):
                 continue
