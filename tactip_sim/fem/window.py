@@ -72,8 +72,9 @@ def point_heights(markers: Markers, values: np.ndarray) -> np.ndarray:
     if markers.model == "embedded":
         return markers.from_values(values)[0][:, 2:3] - WINDOW_Z_MM
     v = np.asarray(values).reshape(p, 2, 3)
-    turned = np.einsum("pij,pkj->pki", rodrigues(v[:, 1]), markers.end_offsets)
-    return (markers.roots_mm[:, 2] + v[:, 0, 2])[:, None] + turned[..., 2] - WINDOW_Z_MM
+    # only the rotations' third rows: z of R m for every offset m
+    turned = np.matmul(markers.end_offsets, rodrigues(v[:, 1])[:, 2, :, None])[..., 0]
+    return (markers.roots_mm[:, 2] + v[:, 0, 2])[:, None] + turned - WINDOW_Z_MM
 
 
 def tip_heights(markers: Markers, values: np.ndarray) -> np.ndarray:
@@ -170,8 +171,14 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
         u_load = (model.block(np.arange(s), load[0]) @ np.ravel(load[1])).reshape(s, 3)
     p = markers.count
     n = 1 if p == 0 else markers.end_offsets.shape[1]
-    if p == 0 or tip_heights(markers, values).min() >= -WINDOW_TOL_MM:
-        # every end clear of the window: nothing to do
+    # every end clear of the window: nothing to do (the circle of a rod's end is nowhere
+    # above its polygon's vertices, so it decides without them)
+    if p == 0 or markers.lowest_heights(*markers.from_values(values)).min() \
+            >= WINDOW_Z_MM - WINDOW_TOL_MM:
+        return sol, np.zeros((p, n)), values
+    points = entering_points(point_heights(markers, values), np.zeros(0, dtype=np.int64),
+                             WINDOW_TOL_MM)
+    if not len(points):  # a circle dips below, within its polygon's sag: no vertex does
         return sol, np.zeros((p, n)), values
     # (most presses end above: the rods' linearisation is built only when a pin reaches it)
     zero = np.zeros(6 * p)
@@ -186,8 +193,6 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
     mq = model.marker_compliance  # (6 p, 6 p)
     all_nodes = np.arange(s)
     work = np.asarray(sol.active, dtype=np.int64)
-    points = entering_points(point_heights(markers, values), np.zeros(0, dtype=np.int64),
-                             WINDOW_TOL_MM)
     start_work, start_points = work, points
     iterations = sol.iterations
 
