@@ -50,8 +50,9 @@ class ContactState:
     in_contact : whether any node carries force
     iterations : active-set iterations (reduced/full) or Newton iterations (neo-Hookean)
     seconds : wall time of the solve
-    window_forces_N : (p,) force of the window on each pin tip (N, along +z); NaN where the
-        solver does not model the pins stopping at the window (the reduced solve with a flat
+    window_forces_N : (p,) force of the window on each pin's end (N, along +z; the sum over
+        its rim's points); NaN where the solver does not model the pins stopping at the
+        window (the reduced solve with a flat
         indenter does, :mod:`~tactip_sim.fem.window`, and the neo-Hookean solve with any
         indenter; the full solver and curved indenters in the reduced solve do not), so tips
         may then pass below it
@@ -119,7 +120,7 @@ class ContactState:
 
     @property
     def pins_on_window(self) -> int:
-        """Pin tips resting on the window (carrying its force)."""
+        """Pins whose ends rest on the window (carrying its force)."""
         return int(np.sum(np.nan_to_num(self.window_forces_N) > 0))
 
     @property

@@ -31,8 +31,9 @@ flat end make ``J Q J'`` singular, so their diagonal gets :data:`END_COMPLIANCE`
 compliance that moves a point by 1e-9 mm per newton). Candidates that the pins' push
 brings into contact join the working set; a pin whose end comes below the window adds its
 lowest vertex that is not yet held (one a round, so a flat end is carried by the few vertices
-it needs); the linearisation is renewed until every vertex's exact height is at or above the
-window (to :data:`WINDOW_TOL_MM`).
+it needs); the linearisation is renewed until the marker values repeat (to
+:data:`VALUES_TOL`) and every vertex's exact height is at or above the window (to
+:data:`HELD_TOL_MM`).
 """
 
 from __future__ import annotations
@@ -48,7 +49,8 @@ from .tolerances import TOL, Tolerances
 WINDOW_Z_MM = 0.0
 """The window's inner face (the gel/acrylic interface) in the sensor frame."""
 WINDOW_TOL_MM = 1e-9
-"""How far below the window a point may end (round-off)."""
+"""A press whose pins' ends all stay above ``-WINDOW_TOL_MM`` is the plate-only solution (the
+window is not solved for; round-off)."""
 HELD_TOL_MM = 1e-6
 """How far above the window a point it holds may end (the exact rod rotation is reached by a
 fixed-point iteration; its last rounds stall near 1e-6 mm on the deepest presses)."""
@@ -58,9 +60,9 @@ VALUES_TOL = 1e-9
 END_COMPLIANCE = 1e-12
 """mm/mN added to the window block's diagonal at the points of pins with more than three in the
 set: a contact compliance that makes the LCP definite when four or more points of one flat end
-touch. It moves a point by 1e-9 mm per newton,
-a numerical device: the gel's compliance at a pin is 2-6e-3 mm/mN (default pad), and a cap of
-Vero White on acrylic, both ~1e5 times stiffer than the gel, is not modelled."""
+touch. It moves a point by 1e-9 mm per newton, a numerical device: the gel's compliance at a
+pin is 2-6e-3 mm/mN (default pad); the compliance of a Vero White cap on acrylic, both ~1e5
+times stiffer than the gel, is not modelled."""
 _MAX_ROUNDS = 50
 """Rounds of adding candidates and end points that the last solve left penetrating."""
 
@@ -221,9 +223,7 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
                         [h_all[work].T, window_block]])
         z_k = point_heights(markers, lin_at).ravel()[pts]
         # (the held load's part of the values is a constant, not a column of the LCP)
-        z0 = z_k - np.einsum("kj,kj->k", jac_k, (v_k - v_load).reshape(p, 6)[pin]) \
-            if not at_rest else z_rest[pts] - np.einsum(
-                "kj,kj->k", jac_k, (-v_load).reshape(p, 6)[pin])
+        z0 = z_k - np.einsum("kj,kj->k", jac_k, (lin_at - v_load).reshape(p, 6)[pin])
         start = np.concatenate([np.isin(work, start_work), np.isin(pts, start_points)])
         x, _, it = solve_lcp(big, np.concatenate([g_rest[work], z0]), active=start, tol=tol)
         iterations += it
