@@ -186,3 +186,14 @@ def test_presses_clear_of_the_window_are_unchanged(sim):
     state = sim.press(pose)
     np.testing.assert_array_equal(state.markers_mm, tips)
     assert state.pins_on_window == 0 and state.window_modelled
+
+
+def test_an_end_radius_must_suit_the_pin_model():
+    empty = sp.csr_matrix((6, 3))
+    args = (np.zeros((1, 3)), np.ones((1, 3)), np.array([[0.0, 0.0, -1.0]]), 3.0, empty,
+            sp.csr_matrix((9, 3)))
+    with pytest.raises(ValueError, match=r"end_radius_mm=-0\.5: >= 0 for rods"):
+        Markers("rod", *args, -0.5)
+    with pytest.raises(ValueError, match=r"end_radius_mm=1: .* 0 for embedded tips"):
+        Markers("embedded", *args, 1.0)
+    assert Markers("rod", *args, 1.0).end_offsets.shape == (1, 64, 3)
