@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from tactip_sim.fem.state import WINDOW_SLACK_MM
+
 # ---------------------------------------------------------------------------------------------
 # Failure thresholds (one home; the summary and the report quote them)
 
@@ -49,9 +51,9 @@ discretisation then moves markers by more than the position error the detector i
 JACOBIAN_FAIL = 0.0
 """large_depth: a solution with any tet whose deformed volume ratio (straight-sided image of
 the tet under the vertex displacements) is <= 0 has an element turned inside out: not a
-physical state. Below ``WINDOW_Z_MM`` a pin tip has passed through the window (the model has no
-pin-window contact), also inadmissible. A neo-Hookean solve that raises ContactError (Newton
-did not converge within ``tol.max_load_steps``) fails."""
+physical state. Below ``WINDOW_Z_MM`` a pin tip has passed through the window (where the
+solver does not stop the pins there), also inadmissible. A neo-Hookean solve that raises
+ContactError (Newton did not converge within ``tol.max_load_steps``) fails."""
 
 NH_MAX_LOAD_STEPS = 20
 """large_depth: the neo-Hookean solve may use at most 20 load steps (the library default allows
@@ -59,8 +61,11 @@ NH_MAX_LOAD_STEPS = 20
 the step has already shrunk to a micrometre and the default budget crawls on for many minutes
 (measured: > 10 min at 5 mm, P1, this machine), which no sweep can afford."""
 
-WINDOW_Z_MM = 0.0
-"""The window's outer face (sensor frame z = 0); pin tips start ``pins.clearance_mm`` above it."""
+WINDOW_Z_MM = -WINDOW_SLACK_MM
+"""Below this a pin tip has passed the window's face at sensor z = 0 (pin tips start
+``pins.clearance_mm`` above it). A tip resting on the window, where a solver stops it, ends at
+z = 0 to round-off, so the line sits :data:`~tactip_sim.fem.state.WINDOW_SLACK_MM` (1e-6 mm)
+below the face, as ``ContactState.tips_below_window`` counts."""
 
 LINEAR_VS_NH_FAIL_PX = 0.5
 """large_depth: the linear model fails as a model of the large-deformation pad where its
