@@ -14,7 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .markers import Markers
-from .window import END_COMPLIANCE, WINDOW_Z_MM, entering_points
+from .window import END_COMPLIANCE, WINDOW_Z_MM, entering_points, pin_forces
 
 __all__ = ["RodTips", "point_height_gradient", "rod_pairs"]
 
@@ -55,7 +55,7 @@ class RodTips:
 
     def pin_forces(self, window: np.ndarray) -> np.ndarray:
         """(p,) mN, the window's force on each pin (the sum over its end points)."""
-        return np.asarray(window).reshape(self.pins, self.per_pin).sum(axis=1)
+        return pin_forces(self.markers, window)
 
     def end_compliance(self, rows: np.ndarray) -> np.ndarray:
         """(len(rows),) mm/mN for the Schur complement's diagonal: :data:`~.window.

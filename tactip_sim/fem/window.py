@@ -79,11 +79,6 @@ def point_heights(markers: Markers, values: np.ndarray) -> np.ndarray:
     return (markers.roots_mm[:, 2] + v[:, 0, 2])[:, None] + turned - WINDOW_Z_MM
 
 
-def tip_heights(markers: Markers, values: np.ndarray) -> np.ndarray:
-    """(p,) mm: the height above the window of every pin's lowest end point."""
-    return point_heights(markers, values).min(axis=1)
-
-
 def point_jacobian(markers: Markers, values: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(k, 6) d z / d v_j of the end points ``points`` (flat indices ``j n + i`` into
     :func:`point_heights`; each depends on its own pin's six values) at ``v``."""
@@ -130,8 +125,9 @@ def window_generalised_forces(markers: Markers, values: np.ndarray, window: np.n
     q = np.asarray(window, dtype=np.float64).ravel()
     points = np.flatnonzero(q)
     out = np.zeros((markers.count, 6))
-    n = max(len(q) // max(markers.count, 1), 1)
-    np.add.at(out, points // n, point_jacobian(markers, values, points) * q[points, None])
+    if len(points):
+        np.add.at(out, points // markers.end_offsets.shape[1],
+                  point_jacobian(markers, values, points) * q[points, None])
     return out.ravel()
 
 
@@ -221,7 +217,7 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
         window_block[np.flatnonzero(crowded), np.flatnonzero(crowded)] += END_COMPLIANCE
         big = np.block([[model.normal_block(work, work, n_plate), h_all[work]],
                         [h_all[work].T, window_block]])
-        z_k = point_heights(markers, lin_at).ravel()[pts]
+        z_k = z_rest[pts] if at_rest else point_heights(markers, v_k).ravel()[pts]
         # (the held load's part of the values is a constant, not a column of the LCP)
         z0 = z_k - np.einsum("kj,kj->k", jac_k, (lin_at - v_load).reshape(p, 6)[pin])
         start = np.concatenate([np.isin(work, start_work), np.isin(pts, start_points)])
