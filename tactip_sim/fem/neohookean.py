@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .contact import ContactError, ContactSolution, solve_lcp
+from .contact import ContactError, ContactSolution
 from .elasticity import element_dofs
 from .elements import quadrature, shape_gradients
 from .friction import indenter_motion
@@ -59,7 +59,7 @@ from .nh_friction import (
     normal_basis,
     tangential_part,
 )
-from .nh_tips import RodTips
+from .nh_tips import LinearisedWindow, RodTips
 from .pose import Pose
 from .tolerances import TOL, Tolerances, single_threaded_blas
 
@@ -350,6 +350,10 @@ def _per_point(tips: RodTips | None, window: np.ndarray | None) -> np.ndarray | 
     return None if tips is None or window is None else window.reshape(tips.pins, -1)
 
 
+# stabiliser weights tried (each 10x the last) before the curvature term is left out
+STABILISER_TRIES = 3
+
+
 class _NoConvergence(Exception):
     pass
 
@@ -372,10 +376,11 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     (``g + n·du = 0``, imposed by a change of basis to (normal, tangent, tangent) at those
     nodes and the elimination of the normal dof), the rest are free, and the tangent system
     is one sparse factorisation with a fixed pattern (CHOLMOD's symbolic analysis is reused).
-    The contact pressures are the normal reactions. Pin tips held by the window (``tips``)
-    add one linearised equation each, ``z + C du = 0``, with its force ``q`` as unknown: the
-    Schur complement ``C K^-1 C'`` (a few solves with the same factor) gives ``q``. The
-    active sets then keep the nodes and tips pushed (``p > 0``, ``q > 0``) and take in those
+    The contact pressures are the normal reactions. The pins' end points on the window
+    (``tips``) obey the linearised ``z + C du >= 0`` with forces ``q >= 0``, solved on the
+    Schur complement ``C K^-1 C'`` (:class:`~.nh_tips.LinearisedWindow`: 4 solves with the
+    same factor a pin, whose points enter and leave within the linearisation). The active
+    sets then keep the nodes and points pushed (``p > 0``, ``q > 0``) and take in those
     that penetrate; the iteration stops when the sets repeat and the increment is below
     ``tol.geometry_mm``.
 
@@ -415,6 +420,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         k_pen = np.full(len(cand), np.nan)  # each node's penalty, set when it first touches
         decided = None  # (active, stick mask, friction forces, their stiffness), last iterate
         f_last = np.zeros((len(cand), 3))  # the last iterate's force on each slipping node
+    first_try = 0  # where the tangent's variants start (below)
     for it in range(1, tol.newton_max_iter + 1):
         x = rest + u.reshape(-1, 3)[cand]
         g, nu = placement.gap(x)
@@ -436,10 +442,15 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             if decided is not None and np.array_equal(decided[0], active):
                 stick, f_fric, k_fric = decided[1:]
             else:
+                # the first iterate is the elastic predictor: every contact node sticks, so
+                # the step carries the skin with the indenter's material points. Judged at
+                # the step's start instead, every node of a turn slips (its anchor moved away)
+                # and the all-slip step drags the pad ~1.7 mm off (P1, 2 mm, a 1.5 deg turn),
+                # from where Newton often failed and split the step (docs/fem.md)
                 stick, f_fric, k_fric = coulomb_return_mapping(
                     friction.mu, p_now[active], friction.tangential[active], slip,
                     k_pen[active], nu[active],
-                    np.einsum("ki,ki->k", slip, f_last[active]) > 0)
+                    (np.einsum("ki,ki->k", slip, f_last[active]) > 0) | (it == 1))
             blocks = blocks.copy()
             blocks[pattern.diag[nodes_a]] += k_fric
             f_ext[nodes_a] = f_fric
@@ -451,30 +462,35 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         fixed[nodes_a, 0] = True
         a_fixed = np.zeros((space.n_nodes, 3))
         a_fixed[nodes_a, 0] = -g[active]
-        # with the window's curvature term; if that makes the tangent indefinite (many tips
-        # newly held with a rough iterate's forces), without it: a modified Newton step,
-        # towards the same solution
-        for curv in ((curvature, None) if curvature is not None else (None,)):
+        # with the window's curvature term. Pushed hard, a rod buckles on its own (the term
+        # makes the tangent indefinite) while the window holds its end: then rho C'C on the
+        # held points (RodTips.stabiliser), which changes the step only through their forces
+        # while they stay held, at growing rho; last, without the term (a modified Newton
+        # step, towards the same solution)
+        tries: list[tuple] = [(None, 0.0)]
+        if curvature is not None:
+            stab = tips.stabiliser(u, held)
+            rho = np.abs(curvature[2]).max(initial=0.0) / max(stab[2].max(initial=0.0), 1e-300)
+            tries = [(curvature, 0.0)] + [(curvature, rho * 10.0 ** k)
+                                          for k in range(STABILISER_TRIES)] + tries
+        for k in range(min(first_try, len(tries) - 1), len(tries)):
+            curv, weight = tries[k]
             full = blocks if curv is None else pattern.add_dofs(blocks, curv[0], curv[1],
                                                                 -curv[2])
+            if weight:
+                full = pattern.add_dofs(full, stab[0], stab[1], weight * stab[2])
             rot = pattern.rotate(full, basis, moved)
             try:
                 solve = pattern.factor(rot, fixed)
+                first_try = max(k - 1, 0) if curv is not None else first_try
                 break
             except (np.linalg.LinAlgError, RuntimeError):
                 if curv is None:
                     raise _NoConvergence from None
-        held_window = None
-        if len(held):
-            c_rot = np.einsum("knj,nji->kni", tips.jacobian(u, held), basis)  # (h, nodes, 3)
-            c_free = c_rot * ~fixed[None]
-            w = np.asarray(solve(np.ascontiguousarray(c_free.reshape(len(held), -1).T)))
-            w = w.reshape(3 * space.n_nodes, len(held))  # K^-1 C' (zero at the fixed dofs)
-            schur = c_free.reshape(len(held), -1) @ w
-            schur[np.diag_indices_from(schur)] += tips.end_compliance(held)
-            held_window = (c_rot, w, schur, tips.heights(u)[held])
+        window = None if not len(held) else LinearisedWindow(tips, u, held, basis, fixed,
+                                                              solve, tol.gap_mm)
         linear = _Linearised(pattern, rot, basis, f_int, fixed, a_fixed, solve, nodes_a,
-                             held_window)
+                             window)
         a, q, r, react = linear.step(f_ext)
         if friction is not None and friction.mu > 0 and np.any(~stick):
             # the slip forces' magnitudes mu p follow the pressures they produce: a fixed point
@@ -536,35 +552,37 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
                 allowed[flipped] += k_pen[active[flipped]] * max(tol.geometry_mm, 1e-9)
                 same = bool(np.all(moved <= allowed))
         if tips is not None:
-            z_new = tips.heights(u)
-            new_held = np.union1d(held[q > 0.0], tips.entering(z_new, held, tol.gap_mm))
+            pushed = np.zeros(0, dtype=np.int64) if window is None else window.points[q > 0]
+            new_held = np.union1d(pushed, tips.entering(tips.heights(u), pushed, tol.gap_mm))
             same = same and np.array_equal(new_held, held)
         if alpha == 1.0 and same and change <= max(tol.geometry_mm, 1e-9):
             forces = pressures[:, None] * nu_new[active] + tangential
             comp = float(np.max(np.abs(pressures * g_new[active]), initial=0.0))
             final = ContactSolution(u.reshape(-1, 3)[cand], active, forces, pressures, g_new,
                                     comp, it, it)
-            window = None
+            ends = None
             if tips is not None:
-                window = np.zeros(tips.count)
-                window[held] = q
-            return u, final, window, it, (None if friction is None else (stick, tangential))
+                ends = np.zeros(tips.count)
+                if window is not None:
+                    ends[window.points] = q
+            return u, final, ends, it, (None if friction is None else (stick, tangential))
         active = new_active
         if tips is not None:
             last_q = np.zeros(tips.count)
-            last_q[held] = q
+            if window is not None:
+                last_q[window.points] = q
             held = new_held
     raise _NoConvergence
 
 
 class _Linearised:
     """One Newton iteration's linear system (rotated tangent ``rot``, its factor ``solve``,
-    the dofs ``fixed`` to ``a_fixed``, the held tips' ``window`` = (C rotated, K^-1 C',
-    Schur complement, heights) or None), solved for any external forces."""
+    the dofs ``fixed`` to ``a_fixed``, the window against the pins' ends or None), solved
+    for any external forces."""
 
     def __init__(self, pattern: BlockPattern, rot: np.ndarray, basis: np.ndarray,
                  f_int: np.ndarray, fixed: np.ndarray, a_fixed: np.ndarray, solve,
-                 nodes_a: np.ndarray, window: tuple | None) -> None:
+                 nodes_a: np.ndarray, window: LinearisedWindow | None) -> None:
         self.pattern, self.rot, self.basis, self.f_int = pattern, rot, basis, f_int
         self.fixed, self.a_fixed, self.solve, self.nodes_a = fixed, a_fixed, solve, nodes_a
         self.window = window
@@ -573,7 +591,7 @@ class _Linearised:
 
     def step(self, f_ext: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The increment under the external forces ``f_ext`` (n_nodes, 3), rotated; the
-        window's forces on the held tips; the rotated out-of-balance force; the indenter's
+        window's forces on its candidate points; the rotated out-of-balance force; the indenter's
         reactions at the contact nodes (local frames)."""
         r = np.einsum("nai,na->ni", self.basis, f_ext - self.f_int)
         rhs = r - self.k_fixed
@@ -584,12 +602,8 @@ class _Linearised:
         window_rot = np.zeros_like(a)  # the window's force, rotated
         q = np.zeros(0)
         if self.window is not None:
-            c_rot, w, schur, z = self.window
-            # unilateral within the linearisation: the held points that would pull leave
-            # (a flat end's points are many, and their rows dependent)
-            q = solve_lcp(schur, z + c_rot.reshape(len(z), -1) @ a.ravel())[0]
-            a = a + (w @ q).reshape(-1, 3)
-            window_rot = np.einsum("kni,k->ni", c_rot, q)
+            da, q, window_rot = self.window.forces(a)
+            a = a + da
         react = (self.pattern.rows_matvec(self.rot, a, self.rows)
                  - (r + window_rot)[self.nodes_a])
         return a, q, r, react

@@ -68,7 +68,8 @@ def coulomb_return_mapping(mu: float, p: np.ndarray, q0: np.ndarray, slip: np.nd
     ``overshot`` (k,) — slipped in the last iterate and then moved along its friction force,
     past its anchor — takes the stick law for one iteration: along its slip the slip law has
     no stiffness, so from the wrong side of the anchor the iteration would jump across the
-    thin stick zone (``|slip| <= mu p/k_pen``) back and forth.
+    thin stick zone (``|slip| <= mu p/k_pen``) back and forth. (The Newton iteration also
+    passes every node as ``overshot`` on a step's first iterate: the elastic predictor.)
 
     Returns the stick mask (k,), the tangential forces (k, 3) and their stiffness
     ``-df/dslip`` (k, 3, 3) at ``p`` held: ``k_pen P_t`` when stuck, ``mu p k_pen/|t|

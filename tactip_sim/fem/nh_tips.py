@@ -13,10 +13,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .contact import solve_lcp
 from .markers import Markers
 from .window import END_COMPLIANCE, WINDOW_Z_MM, entering_points, pin_forces
 
-__all__ = ["RodTips", "point_height_gradient", "rod_pairs"]
+__all__ = ["LinearisedWindow", "RodTips", "point_height_gradient", "rod_pairs"]
 
 
 class RodTips:
@@ -34,6 +35,8 @@ class RodTips:
         op = markers.operator.tocsr()
         self.pin_z = op[6 * np.arange(self.pins) + 2]  # root z (rod) or tip z (embedded)
         self.gradient = markers.gradient.tocsr()
+        # rows a pin in pin_rows: its root's (tip's) z and, for rods, its 3 turn rows
+        self.rows_per_pin = 4 if markers.model == "rod" else 1
 
     def _rotations(self, u: np.ndarray) -> np.ndarray:
         """(p, 3, 3) the rods' polar rotations at ``u``."""
@@ -64,19 +67,62 @@ class RodTips:
         pin = np.asarray(rows, dtype=np.int64) // self.per_pin
         return np.where(np.bincount(pin, minlength=self.pins)[pin] > 3, END_COMPLIANCE, 0.0)
 
-    def jacobian(self, u: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """(len(rows), n_nodes, 3) dense derivative of the heights of the points ``rows``."""
-        rows = np.asarray(rows, dtype=np.int64)
-        pin, k = np.divmod(rows, self.per_pin)
-        jac = self.pin_z[pin]
+    def pin_rows(self, u: np.ndarray, pins: np.ndarray) -> sp.csr_matrix:
+        """(r len(pins), n_dofs): linear functionals of the displacement increment that the
+        heights of every end point of ``pins`` depend on at ``u``, ``r =``
+        :attr:`rows_per_pin` a pin: its root's z and, for a rod, the 3 functionals
+        ``<R [e_c]x, dH>`` of its mean gradient ``H`` (``R`` the polar rotation of
+        ``I + H``): a point's height changes by ``dz_root + b . (those 3)``
+        (:func:`point_height_gradient`), with its weights ``b`` in :meth:`mixing`. So however
+        many points of a rod's end touch the window, their derivatives span 4 rows."""
+        pins = np.asarray(pins, dtype=np.int64)
+        if self.markers.model != "rod":
+            return self.pin_z[pins]
+        grad = (self.gradient @ u).reshape(self.pins, 9)[pins]
+        rot = _turn_weights(grad, np.zeros((len(pins), 3)))[0]
+        turn = np.einsum("pij,cjk->pcik", rot, _skew(np.eye(3))).reshape(len(pins), 3, 9)
+        rows = (3 * np.arange(len(pins))[:, None, None] + np.arange(3)[None, :, None]
+                + np.zeros((1, 1, 9), dtype=np.int64))
+        cols = 9 * pins[:, None, None] + np.arange(9)[None, None, :] + rows * 0
+        mix = sp.csr_matrix((turn.ravel(), (rows.ravel(), cols.ravel())),
+                            shape=(3 * len(pins), 9 * self.pins))
+        turned = (mix @ self.gradient).tocsr()
+        order = np.column_stack([np.arange(len(pins)),
+                                 len(pins) + 3 * np.arange(len(pins))[:, None] + np.arange(3)])
+        return sp.vstack([self.pin_z[pins], turned]).tocsr()[order.ravel()]
+
+    def mixing(self, u: np.ndarray, pins: np.ndarray) -> sp.csr_matrix:
+        """(len(pins) n, r len(pins)): the derivative of the heights of every end point of
+        ``pins`` (numbered pin by pin) with respect to :meth:`pin_rows`' values at ``u``, so
+        that ``mixing(u, pins) @ pin_rows(u, pins)`` is their height jacobian: a rod's point
+        at rest offset ``m`` weighs its root's z by 1 and the turn rows by ``b``
+        (:func:`point_height_gradient`)."""
+        pins = np.asarray(pins, dtype=np.int64)
+        n, r = self.per_pin, self.rows_per_pin
+        k = len(pins) * n
         if self.markers.model == "rod":
-            grad = (self.gradient @ u).reshape(self.pins, 9)[pin]
-            dz = point_height_gradient(grad, self.markers.end_offsets[pin, k])
-            cols = (9 * pin[:, None] + np.arange(9)[None]).ravel()
-            mix = sp.csr_matrix((dz.ravel(), (np.repeat(np.arange(len(rows)), 9), cols)),
-                                shape=(len(rows), 9 * self.pins))
-            jac = jac + mix @ self.gradient
-        return np.asarray(jac.todense()).reshape(len(rows), -1, 3)
+            grad = np.repeat((self.gradient @ u).reshape(self.pins, 9)[pins], n, axis=0)
+            b = _turn_weights(grad, self.markers.end_offsets[pins].reshape(-1, 3))[1]
+            values = np.column_stack([np.ones(k), b])
+        else:
+            values = np.ones((k, 1))
+        cols = r * (np.arange(k) // n)[:, None] + np.arange(r)
+        return sp.csr_matrix((values.ravel(), (np.repeat(np.arange(k), r), cols.ravel())),
+                             shape=(k, r * len(pins)))
+
+    def stabiliser(self, u: np.ndarray, points: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Dof pairs and values of ``C' C``, ``C`` the height jacobian of the end points
+        ``points`` at ``u`` (rods; the pairs are in the tangent's pattern, :func:`rod_pairs`).
+        Added to the tangent times a stiffness, it leaves the Newton step unchanged as long
+        as the points stay on the window (``C du = -z`` there: it only shifts their forces),
+        and it holds the rods' tilt, which the window's curvature term can make unstable."""
+        points = np.asarray(points, dtype=np.int64)
+        pins, local = np.unique(points // self.per_pin, return_inverse=True)
+        rows = local * self.per_pin + points % self.per_pin
+        jac = (self.mixing(u, pins)[rows] @ self.pin_rows(u, pins)).tocsr()
+        ctc = (jac.T @ jac).tocoo()
+        return ctc.row.astype(np.int64), ctc.col.astype(np.int64), ctc.data
 
     def curvature(self, u: np.ndarray, rows: np.ndarray, forces: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -113,6 +159,71 @@ class RodTips:
         return np.concatenate(out_a), np.concatenate(out_b), np.concatenate(out_v)
 
 
+class LinearisedWindow:
+    """The window against the pins' end points on one Newton linearisation (``K a = r``,
+    ``K`` factorised as ``solve``, in the local bases ``basis`` (n_nodes, 3, 3) with the dofs
+    ``fixed`` (n_nodes, 3) prescribed).
+
+    Every end point of the pins that have a point in ``held`` is a candidate, and the
+    derivative of their heights factors through their pins' rows (:meth:`RodTips.pin_rows`,
+    4 a rod): ``C = M B``. So the Schur complement of any set of those points,
+    ``M_H (B K^-1 B') M_H'``, costs 4 solves a pin however many of its points lie on
+    the window (a flat end has 64), and the points can be taken in and let go within the
+    linearisation, as :func:`~.window.stop_at_window` does on the reduced model: the held
+    points' forces solve an LCP, and each pin's lowest point that the answer leaves below
+    ``-tol`` joins them, until none does. Points of other pins enter at the next iterate.
+    """
+
+    def __init__(self, tips: RodTips, u: np.ndarray, held: np.ndarray, basis: np.ndarray,
+                 fixed: np.ndarray, solve, tol: float) -> None:
+        self.tips, self.tol = tips, tol
+        n = tips.per_pin
+        self.pins = np.unique(np.asarray(held, dtype=np.int64) // n)
+        self.points = (self.pins[:, None] * n + np.arange(n)).ravel()
+        nodes = len(basis)
+        rotation = sp.csr_matrix((basis.ravel(), (
+            np.repeat(np.arange(3 * nodes), 3),
+            (3 * np.arange(nodes)[:, None, None] + np.zeros((1, 3, 1), dtype=np.int64)
+             + np.arange(3)[None, None, :]).ravel())), shape=(3 * nodes, 3 * nodes))
+        self.rows = (tips.pin_rows(u, self.pins) @ rotation).tocsr()  # B, in the local bases
+        free = self.rows @ sp.diags((~fixed).ravel().astype(np.float64))
+        self.w = np.asarray(solve(np.ascontiguousarray(free.T.toarray())))  # K^-1 B'
+        self.w = self.w.reshape(3 * nodes, -1)
+        self.mix = tips.mixing(u, self.pins)  # M
+        self.coupling = self.mix @ (free @ self.w)  # M (B K^-1 B')
+        self.z = tips.heights(u)[self.points]
+        self.held = np.searchsorted(self.points, held)
+        self.pushed = np.zeros(len(self.held), dtype=bool)
+
+    def forces(self, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The window's answer to the increment ``a`` (n_nodes, 3, local bases) that the
+        other forces give: the increment it adds (n_nodes, 3), its forces on the candidate
+        points (:attr:`points`) and those forces on the nodes (n_nodes, 3, local bases)."""
+        z_lin = self.z + self.mix @ (self.rows @ a.ravel())
+        held, n = self.held, self.tips.per_pin
+        q = np.zeros(0)
+        for _ in range(len(self.points) + 1):
+            m_h = self.mix[held]
+            schur = (m_h @ self.coupling[held].T).T
+            schur = 0.5 * (schur + schur.T)
+            schur[np.diag_indices_from(schur)] += self.tips.end_compliance(self.points[held])
+            q = solve_lcp(schur, z_lin[held],
+                          active=self.pushed if self.pushed.any() else None)[0]
+            after = z_lin + self.coupling @ (m_h.T @ q)
+            enter = entering_points(after.reshape(-1, n), held, self.tol)
+            if not len(enter):
+                break
+            order = np.argsort(np.concatenate([held, enter]))
+            held = np.concatenate([held, enter])[order]
+            self.pushed = np.concatenate([q > 0, np.zeros(len(enter), dtype=bool)])[order]
+        self.held, self.pushed = held, q > 0  # the next call (same linearisation) starts here
+        q_all = np.zeros(len(self.points))
+        q_all[held] = q
+        g = self.mix.T @ q_all
+        return ((self.w @ g).reshape(-1, 3), q_all,
+                np.asarray(self.rows.T @ g).reshape(-1, 3))
+
+
 def point_height_gradient(grad: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """(k, 9) derivative of the height ``(R m)_z`` of a rod's point at rest offset ``m`` (k, 3)
     from its root with respect to the displacement gradient ``H`` (k, 9; ``F = I + H``, ``R``
@@ -122,27 +233,41 @@ def point_height_gradient(grad: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     ``A = tr(U) I - U``; so ``d(R m)_z = b . axial(R' dF - dF' R)`` with
     ``b = A^-1 (m x R' e_z)``, i.e. ``d(R m)_z / dF = R [b]x``.
     """
+    rot, b = _turn_weights(grad, offsets)
+    return (rot @ _skew(b)).reshape(-1, 9)
+
+
+def _turn_weights(grad: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(k, 3, 3) polar rotations ``R`` of ``F = I + grad`` (k, 9) and (k, 3) the weights
+    ``b = A^-1 (m x R' e_z)`` of :func:`point_height_gradient` for the offsets ``m``."""
     f = np.eye(3) + grad.reshape(-1, 3, 3)
     w, sig, vt = np.linalg.svd(f)
     rot = w @ vt
     stretch = np.einsum("kji,kj,kjl->kil", vt, sig, vt)  # V diag(s) V'
     a = np.trace(stretch, axis1=1, axis2=2)[:, None, None] * np.eye(3) - stretch
-    b = np.linalg.solve(a, np.cross(offsets, rot[:, 2, :])[..., None])[..., 0]
+    return rot, np.linalg.solve(a, np.cross(offsets, rot[:, 2, :])[..., None])[..., 0]
+
+
+def _skew(b: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) the cross-product matrices ``[b]x`` of ``b`` (k, 3)."""
     cross = np.zeros((len(b), 3, 3))
     cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -b[:, 2], b[:, 1], -b[:, 0]
     cross[:, 1, 0], cross[:, 2, 0], cross[:, 2, 1] = b[:, 2], -b[:, 1], b[:, 0]
-    return (rot @ cross).reshape(-1, 9)
+    return cross
 
 
 def rod_pairs(markers: Markers, n_nodes: int) -> np.ndarray:
-    """Node-pair keys (``a n + b``) of every pair of nodes one rod's rotation reads (its
-    gradient rows' columns): a rod pressed on the window couples them in the tangent."""
+    """Node-pair keys (``a n + b``) of every pair of nodes one rod's end heights read (its
+    root's and its gradient rows' columns): a rod pressed on the window couples them in the
+    tangent (the curvature term, :meth:`RodTips.curvature`, and the stabiliser,
+    :meth:`RodTips.stabiliser`)."""
     if markers.model != "rod" or markers.count == 0:
         return np.zeros(0, dtype=np.int64)
     grad = markers.gradient.tocsr()
+    root = markers.operator.tocsr()
     out = []
     for tip in range(markers.count):
-        rows = grad[9 * tip:9 * tip + 9]
-        nodes = np.unique(rows.indices // 3).astype(np.int64)
+        cols = np.concatenate([grad[9 * tip:9 * tip + 9].indices, root[6 * tip + 2].indices])
+        nodes = np.unique(cols // 3).astype(np.int64)
         out.append((nodes[:, None] * n_nodes + nodes[None, :]).ravel())
     return np.concatenate(out)
