@@ -46,3 +46,38 @@ def sigint_as_at_a_terminal() -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def rod_end_heights(markers, u):
+    """(p, n) heights of the rods' end points at the nodal displacements ``u``, written out
+    here from the definition (root + R m_k, R the polar rotation of the base's mean
+    F = I + grad u), not with the solver's own kinematics: a second method for its
+    derivatives and forces."""
+    import numpy as np
+
+    f = np.eye(3) + (markers.gradient @ u).reshape(-1, 3, 3)
+    left, _, right = np.linalg.svd(f)
+    root = markers.roots_mm + (markers.operator @ u).reshape(-1, 2, 3)[:, 0]
+    return root[:, None, 2] + np.einsum("pij,pkj->pki", left @ right,
+                                        markers.end_offsets)[..., 2]
+
+
+def virtual_work_error(body, u, contact, end_forces, seed=5):
+    """Relative difference between the virtual work of the out-of-balance force (internal
+    minus the indenter's contact forces) and the window's forces ``end_forces`` (p, n) along
+    a random direction of the free dofs (heights by central differences of
+    :func:`rod_end_heights`): 0 when the pad balances the window."""
+    import numpy as np
+
+    from tactip_sim.fem.neohookean import NeoHookeanBody
+
+    f_int, _ = NeoHookeanBody(body).residual(u)
+    ext = np.zeros_like(f_int).reshape(-1, 3)
+    ext[body.space.candidates[contact.active]] = contact.forces
+    v = np.zeros_like(f_int)
+    v[body.free] = np.random.default_rng(seed).standard_normal(len(body.free))
+    h = 1e-6
+    dz = (rod_end_heights(body.markers, u + h * v)
+          - rod_end_heights(body.markers, u - h * v)) / (2 * h)
+    window = np.sum(end_forces * dz)
+    return abs((f_int - ext.ravel()) @ v - window) / abs(window)

@@ -18,6 +18,8 @@ from tactip_sim.fem import ContactError, PoseError
 from tactip_sim.fem.indenters import place
 from tactip_sim.mesh import TetMesh
 
+from .conftest import rod_end_heights, virtual_work_error
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
 OBJECTS = ROOT / "scenes" / "objects"
@@ -250,8 +252,7 @@ def test_neo_hookean_pins_stop_at_the_window(sim):
     pad pushes back harder, and the window's forces balance the body (virtual work along a
     random direction, the end points' heights differentiated by finite differences of the
     finite-rotation kinematics written out here, not the solver's own derivative)."""
-    from tactip_sim.fem.indenters import place
-    from tactip_sim.fem.neohookean import NeoHookeanBody, solve_neo_hookean
+    from tactip_sim.fem.neohookean import solve_neo_hookean
 
     body = sim.body
     pose = ts.Pose(0, 0, 3.7)
@@ -272,27 +273,36 @@ def test_neo_hookean_pins_stop_at_the_window(sim):
     np.testing.assert_allclose(held.end_forces.sum(axis=1), q)
     assert held.contact.pressures.sum() > 1.05 * free.contact.pressures.sum()
 
-    def end_heights(u):  # root + R m_k: R the polar rotation of the base's mean F
-        f = np.eye(3) + (m.gradient @ u).reshape(-1, 3, 3)
-        left, _, right = np.linalg.svd(f)
-        root = m.roots_mm + (m.operator @ u).reshape(-1, 2, 3)[:, 0]
-        return root[:, None, 2] + np.einsum("pij,pkj->pki", left @ right, m.end_offsets)[..., 2]
-
-    assert end_heights(held.u).min() >= -1e-6
-
-    f_int, _ = NeoHookeanBody(body).residual(held.u)
-    ext = np.zeros_like(f_int).reshape(-1, 3)
-    ext[body.space.candidates[held.contact.active]] = held.contact.forces
-    v = np.zeros_like(f_int)
-    v[body.free] = np.random.default_rng(5).standard_normal(len(body.free))
-    h = 1e-6
-    dz = (end_heights(held.u + h * v) - end_heights(held.u - h * v)) / (2 * h)
-    work = (f_int - ext.ravel()) @ v
-    assert work == pytest.approx(np.sum(held.end_forces * dz), rel=1e-5)
+    assert rod_end_heights(m, held.u).min() >= -1e-6
+    assert virtual_work_error(body, held.u, held.contact, held.end_forces) < 1e-5
 
     state = sim.press(pose, solver="neo_hookean")
     assert state.window_modelled and state.pins_on_window == int((q > 0).sum())
     assert state.tips_below_window == 0
+
+
+def test_neo_hookean_end_heights_derivative(sim):
+    """The Newton iteration's derivative of the rods' end heights, factored through 4 rows a
+    pin (``mixing @ pin_rows``), against central differences of the kinematics written out
+    in the test, at a finite deformation with rods turned by ~10 degrees."""
+    from tactip_sim.fem.nh_tips import RodTips
+
+    body = sim.body
+    m = body.markers
+    tips = RodTips(m)
+    rng = np.random.default_rng(11)
+    x = body.space.nodes
+    # a homogeneous finite deformation (gradient entries up to ~0.2) plus noise
+    grad = rng.uniform(-0.2, 0.2, (3, 3))
+    u = ((x - x.mean(axis=0)) @ grad.T).ravel() + 0.02 * rng.standard_normal(x.size)
+    pins = np.array([0, 7, 40, 96])
+    jac = (tips.mixing(u, pins) @ tips.pin_rows(u, pins)).toarray()
+    assert jac.shape == (len(pins) * m.end_offsets.shape[1], x.size)
+    for seed in range(3):
+        v = np.random.default_rng(seed).standard_normal(x.size)
+        h = 1e-6
+        fd = (rod_end_heights(m, u + h * v)[pins] - rod_end_heights(m, u - h * v)[pins]) / (2 * h)
+        np.testing.assert_allclose(jac @ v, fd.ravel(), atol=1e-6 * np.abs(fd).max())
 
 
 def test_bad_depth_and_non_convergence_are_reported(scene, sim):
