@@ -166,6 +166,6 @@ def map_large_depth(st: _Study) -> MapResult:
     return MapResult("large_depth", "Large depth: Newton, inverted elements, pins through the "
                      "window",
                      "The production solver (linear P2, reduced), linear P1 and the neo-Hookean "
-                     "reference (P1: P2 Newton costs minutes per pose) pressed ever deeper; "
+                     "reference (P1, beside linear P1 on the same mesh) pressed ever deeper; "
                      "colour: smallest deformed/rest tet volume ratio; below: how far the "
                      "linear markers are from the neo-Hookean ones.", [panel, panel2])
