@@ -43,7 +43,7 @@ import dataclasses
 import numpy as np
 
 from .contact import ContactError, ContactSolution, solve_lcp
-from .markers import Markers, rodrigues
+from .markers import END_ANGLES, Markers, rodrigues
 from .tolerances import TOL, Tolerances
 
 WINDOW_Z_MM = 0.0
@@ -63,8 +63,11 @@ set: a contact compliance that makes the LCP definite when four or more points o
 touch. It moves a point by 1e-9 mm per newton, a numerical device: the gel's compliance at a
 pin is 2-6e-3 mm/mN (default pad); the compliance of a Vero White cap on acrylic, both ~1e5
 times stiffer than the gel, is not modelled."""
-_MAX_ROUNDS = 50
-"""Rounds of adding candidates and end points that the last solve left penetrating."""
+_MAX_ROUNDS = 3 * END_ANGLES
+"""Rounds of adding candidates and end points that the last solve left penetrating: a pin
+gains one point a round, so a flat end settling onto the window takes up to
+:data:`~.markers.END_ANGLES` rounds (50 stopped the realistic rig's walk at roll 8.3 deg,
+pitch -10.9 deg, 2.15 mm, docs/rig.md)."""
 
 
 def point_heights(markers: Markers, values: np.ndarray) -> np.ndarray:
@@ -301,8 +304,8 @@ def _anderson(values: list[np.ndarray], residuals: list[np.ndarray]) -> np.ndarr
 
 
 WINDOW_RTOL = 1e-6
-"""The alternation stops when the window's forces repeat to this fraction of the largest (the
-tips themselves are exact to 1e-6 mm in every round: :func:`stop_at_window`)."""
+"""The alternation stops when the window's generalised forces repeat to this fraction of the
+largest (the tips themselves are exact to 1e-6 mm in every round: :func:`stop_at_window`)."""
 _STAGGER_ROUNDS = 60
 """Rounds of the plate-with-friction / pins-on-the-window alternation (block Gauss-Seidel on
 the pad's symmetric compliance; a few rounds when a few pins touch)."""
@@ -315,8 +318,9 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
     window's push on the pins (an extra displacement of the candidates, ``R' J' q``); (b) the
     pins against the window together with the plate's pressures (:func:`stop_at_window`:
     the strong coupling, through the skin, is solved at once), friction's tangential forces
-    from (a) held. They stop when the window's forces repeat to :data:`WINDOW_RTOL` of the
-    largest (Anderson-mixed); (b) leaves no end point below the window by more than 1e-6 mm.
+    from (a) held. They stop when the window's generalised forces on the marker values (a
+    wrench a pin) repeat to :data:`WINDOW_RTOL` of the largest (Anderson-mixed); (b) leaves
+    no end point below the window by more than 1e-6 mm.
 
     Returns
     -------
@@ -331,9 +335,10 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
     guess = None
     gen = history.window_generalised
     plate_normal = np.asarray(placement.gap(rest_mm[:1])[1][0], dtype=np.float64)
-    q = None
-    hist_q: list[np.ndarray] = []
+    mixed = False
+    hist_g: list[np.ndarray] = []
     hist_r: list[np.ndarray] = []
+    pushed_last = None
     for _ in range(_STAGGER_ROUNDS):
         extra = None if gen is None or not gen.any() else (resp_t @ gen).reshape(s, 3)
         fs = solve_friction(placement, rest_mm, model, mu=mu, history=history, label=label,
@@ -347,24 +352,30 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
                                           label=label, tol=tol,
                                           load=(sol.active, fs.tangential))
         q_new = q_new.ravel()  # the end points' forces
-        scale = max(float(np.abs(q_new).max(initial=0.0)), 1e-300)
-        same = q is not None and np.abs(q_new - q).max(initial=0.0) <= WINDOW_RTOL * scale
-        if (not q_new.any() and (gen is None or not gen.any())) or same:
+        # the rounds meet through the window's generalised forces on the marker values (a
+        # wrench a pin): a flat end's point forces are not unique (its rows are dependent),
+        # so from round to round they may share the same wrench out differently
+        gen_new = window_generalised_forces(markers, values, q_new) if q_new.any() \
+            else np.zeros(6 * markers.count)
+        g_in = np.zeros_like(gen_new) if gen is None else gen
+        scale = max(float(np.abs(gen_new).max(initial=0.0)), 1e-300)
+        same = mixed and np.abs(gen_new - g_in).max(initial=0.0) <= WINDOW_RTOL * scale
+        if (not q_new.any() and not g_in.any()) or same:
             h = fs.history
             held = FrictionHistory(h.placement, h.nodes, h.forces, extra,
-                                   window_generalised_forces(markers, values, q_new)
-                                   if q_new.any() else None)
+                                   gen_new if q_new.any() else None)
             return dataclasses.replace(fs, history=held, window=pin_forces(markers, q_new),
                                        values=values)
         # the alternation converges linearly (through the tangential forces (b) holds):
-        # Anderson mixing of the window forces, restarted when the held points change
-        q_old = np.zeros_like(q_new) if q is None else q
-        if hist_q and not np.array_equal(q_new > 0, hist_q[-1] + hist_r[-1] > 0):
-            hist_q, hist_r = [], []
-        hist_q.append(q_old)
-        hist_r.append(q_new - q_old)
-        q = np.maximum(_anderson(hist_q, hist_r), 0.0)
-        del hist_q[:-_ANDERSON_DEPTH], hist_r[:-_ANDERSON_DEPTH]
-        gen = window_generalised_forces(markers, values, q)
+        # Anderson mixing of the generalised forces, restarted when the pins held change
+        pushed = pin_forces(markers, q_new) > 0
+        if pushed_last is not None and not np.array_equal(pushed, pushed_last):
+            hist_g, hist_r = [], []
+        pushed_last = pushed
+        hist_g.append(g_in)
+        hist_r.append(gen_new - g_in)
+        gen = _anderson(hist_g, hist_r)
+        del hist_g[:-_ANDERSON_DEPTH], hist_r[:-_ANDERSON_DEPTH]
+        mixed = True
     raise ContactError(f"{label or 'contact'}: friction and the pins' window contact did not "
                        f"settle in {_STAGGER_ROUNDS} rounds")
