@@ -471,15 +471,19 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         # step, towards the same solution)
         tries: list[tuple] = [(None, 0.0)]
         if curvature is not None:
-            stab = tips.stabiliser(u, held)
-            rho = np.abs(curvature[2]).max(initial=0.0) / max(stab[2].max(initial=0.0), 1e-300)
-            tries = [(curvature, 0.0)] + [(curvature, rho * 10.0 ** k)
+            tries = [(curvature, 0.0)] + [(curvature, 10.0 ** k)
                                           for k in range(STABILISER_TRIES)] + tries
+        stab = None  # built on first need: (pairs, values scaled to the curvature term)
         for k in range(min(first_try, len(tries) - 1), len(tries)):
             curv, weight = tries[k]
             full = blocks if curv is None else pattern.add_dofs(blocks, curv[0], curv[1],
                                                                 -curv[2])
             if weight:
+                if stab is None:
+                    a_s, b_s, v_s = tips.stabiliser(u, held)
+                    rho = (np.abs(curvature[2]).max(initial=0.0)
+                           / max(v_s.max(initial=0.0), 1e-300))
+                    stab = (a_s, b_s, rho * v_s)
                 full = pattern.add_dofs(full, stab[0], stab[1], weight * stab[2])
             rot = pattern.rotate(full, basis, moved)
             try:

@@ -81,9 +81,10 @@ class RodTips:
         grad = (self.gradient @ u).reshape(self.pins, 9)[pins]
         rot = _turn_weights(grad, np.zeros((len(pins), 3)))[0]
         turn = np.einsum("pij,cjk->pcik", rot, _skew(np.eye(3))).reshape(len(pins), 3, 9)
-        rows = (3 * np.arange(len(pins))[:, None, None] + np.arange(3)[None, :, None]
-                + np.zeros((1, 1, 9), dtype=np.int64))
-        cols = 9 * pins[:, None, None] + np.arange(9)[None, None, :] + rows * 0
+        shape = (len(pins), 3, 9)  # (pin, turn row c, gradient row)
+        rows = np.broadcast_to(3 * np.arange(len(pins))[:, None, None]
+                               + np.arange(3)[None, :, None], shape)
+        cols = np.broadcast_to(9 * pins[:, None, None] + np.arange(9)[None, None, :], shape)
         mix = sp.csr_matrix((turn.ravel(), (rows.ravel(), cols.ravel())),
                             shape=(3 * len(pins), 9 * self.pins))
         turned = (mix @ self.gradient).tocsr()
