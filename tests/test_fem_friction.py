@@ -18,9 +18,10 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.fem.friction import FrictionHistory, solve_friction
+from tactip_sim.fem.friction import FrictionHistory, indenter_motion, solve_friction
 from tactip_sim.fem.indenters import place
 from tactip_sim.fem.loadpath import LoadPathError, path_poses
+from tactip_sim.fem.window import point_heights, window_generalised_forces
 from tactip_sim.scene import SceneError, scene_hash, scene_to_dict
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -188,9 +189,59 @@ def test_pins_stop_at_the_window_along_a_path(fingertip):
     assert np.abs(free.markers_mm - pressed.markers_mm).max() < 1e-3
     assert free.pins_on_window == pressed.pins_on_window
     assert free.force_N == pytest.approx(pressed.force_N, rel=1e-4)
-    rough = fingertip.press_path(pose, start=start, steps=2, tap_steps=2, friction=0.5)[-1]
+    poses = path_poses(pose, start=start, steps=2, tap_steps=2)
+    _, before = fingertip.continue_path(poses[:-1], friction=0.5)
+    (rough,), after = fingertip.continue_path(poses[-1:], before, friction=0.5)
     assert rough.markers_mm[:, 2].min() > -1e-6 and rough.tips_below_window == 0
     assert rough.pins_on_window > 0 and np.isfinite(rough.window_forces_N).all()
+    check_the_laws(fingertip, before, after, mu=0.5)  # a turn of 8 deg: every node slips
+    _, deeper = fingertip.continue_path([ts.Pose(16, -11, 2.15)], after, friction=0.5)
+    check_the_laws(fingertip, after, deeper, mu=0.5, both=True)  # the centre sticks
+
+
+def check_the_laws(sim: ts.Simulator, before: FrictionHistory, after: FrictionHistory, *,
+                   mu: float, both: bool = False) -> None:
+    """The contact, Coulomb and window laws at the end of a step from ``before`` to ``after``,
+    checked from the reduced model's compliance and the pins' exact kinematics (not the
+    solver's linearisations): the candidates move by the plate's and the window's forces;
+    no candidate is inside the plate, and those carrying force are on it; a node that does
+    not slip relative to the plate carries at most ``mu p``, one that slips exactly ``mu p``
+    against its slip; no end point is below the window, the held ones are on it, and the
+    marker values are those the forces make. ``both``: some nodes stick and some slip."""
+    op, markers, rest = sim.reduced, sim.body.markers, sim._cand_rest
+    p, n = markers.count, markers.end_offsets.shape[1]
+    held = np.zeros((p, n))
+    held.ravel()[after.window_points] = after.window_forces
+    values = after.window_values
+    wrench = window_generalised_forces(markers, values, held)
+    assert np.abs(op.marker_values(after.nodes, after.forces)
+                  + op.marker_compliance @ wrench - values).max() < 1e-8
+    z = point_heights(markers, values)
+    assert z.min() > -1e-6 and np.abs(z.ravel()[after.window_points]).max() < 1e-6
+    assert (after.window_forces > 0).all()
+    # every candidate: the plate's forces and the window's (through the pins) move it
+    pushed = (op.marker_response_t @ wrench).reshape(-1, 3)  # by the window, through the pins
+    assert np.abs(after.extra_mm - pushed).max() < 1e-8  # what the next step starts from
+    u = (op.block(np.arange(len(rest)), after.nodes) @ after.forces.ravel()).reshape(-1, 3) \
+        + pushed
+    gap, normal = after.placement.gap(rest + u)
+    assert gap.min() > -1e-6 and np.abs(gap[after.nodes]).max() < 1e-6
+    pressure = np.einsum("ij,ij->i", after.forces, normal[after.nodes])
+    assert pressure.min() > 0
+    tangential = after.forces - pressure[:, None] * normal[after.nodes]
+    # slip: where each node ends, against the plate's material point it started the step on
+    start = rest[after.nodes] + before.displacements(op, after.nodes)
+    anchor = start + indenter_motion(before.placement, after.placement, start)
+    slip = rest[after.nodes] + u[after.nodes] - anchor
+    slip -= np.einsum("ij,ij->i", slip, normal[after.nodes])[:, None] * normal[after.nodes]
+    size, force = np.linalg.norm(slip, axis=1), np.linalg.norm(tangential, axis=1)
+    sliding = size > 1e-7
+    assert sliding.any() and (~sliding).any() or not both
+    assert (force[~sliding] <= mu * pressure[~sliding] * (1 + 1e-6)).all()
+    assert force[sliding] == pytest.approx(mu * pressure[sliding], rel=1e-6)
+    against = -np.einsum("ij,ij->i", tangential[sliding], slip[sliding]) \
+        / (force[sliding] * size[sliding])
+    assert against.min() > 1 - 1e-6
 
 
 def test_bad_input(fingertip):

@@ -71,15 +71,20 @@ class FrictionHistory:
     forces : (k, 3) mN, force of the indenter on the pad at each, sensor frame
     extra_mm : (s, 3) mm or None, the candidates' displacement from other forces at the end
         of the step (the window's push on the pins, :func:`~.window.friction_with_window`)
-    window_generalised : (6 p,) or None, those other forces as generalised forces on the
-        marker values (the next step starts its pin-window iteration from them)
+    window_points : (P,) int or None, the pins' end points the window held at the end of the
+        step (flat indices, :func:`~.window.point_heights`)
+    window_forces : (P,) mN or None, the window's force on each of them (along +z)
+    window_values : (6 p,) or None, the marker values then (the next step starts its
+        pin-window iteration from these three)
     """
 
     placement: Placement
     nodes: np.ndarray
     forces: np.ndarray
     extra_mm: np.ndarray | None = None
-    window_generalised: np.ndarray | None = None
+    window_points: np.ndarray | None = None
+    window_forces: np.ndarray | None = None
+    window_values: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         nodes = np.ascontiguousarray(self.nodes, dtype=np.int64)
@@ -112,6 +117,26 @@ class FrictionHistory:
 
 
 @dataclass(frozen=True)
+class UnilateralRows:
+    """Frictionless unilateral constraints solved together with the indenter's contact (the
+    pins' end points on the window, :func:`~.window.friction_with_window`): ``P`` points whose
+    heights, linearised, are ``z = z0 + A q + B' f`` for forces ``q >= 0`` on them (along
+    +z) and ``f`` on the candidates, with ``q >= 0, z >= 0, q z = 0``; the candidates move by
+    ``B q`` (the same compliance read the other way: the matrix of both is symmetric).
+
+    z0 : (P,) mm, heights with no force on the points or the candidates
+    compliance : (P, P) mm/mN, ``A``
+    coupling : (s, 3, P) mm/mN, ``B``: each candidate's displacement per unit point force
+    start : (P,) mN, forces to start the iteration from
+    """
+
+    z0: np.ndarray
+    compliance: np.ndarray
+    coupling: np.ndarray
+    start: np.ndarray
+
+
+@dataclass(frozen=True)
 class FrictionSolution:
     """One load step with friction.
 
@@ -124,6 +149,7 @@ class FrictionSolution:
     window : (p,) mN, the window's force on each pin tip, or None (the window not modelled:
         :func:`~.window.friction_with_window` sets it)
     values : (6 p,) the marker values with the window's forces, or None
+    row_forces : (P,) mN, the forces on the :class:`UnilateralRows` points, or None
     """
 
     contact: ContactSolution
@@ -133,6 +159,7 @@ class FrictionSolution:
     history: FrictionHistory
     window: np.ndarray | None = None
     values: np.ndarray | None = None
+    row_forces: np.ndarray | None = None
 
 
 def tangent_frames(normals: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -175,7 +202,7 @@ def coulomb_active_set(w_loc: np.ndarray, g0: np.ndarray, target: np.ndarray, mu
     w_loc : (3 w, 3 w) mm/mN, compliance in the nodes' frames (node-major, (n, t1, t2))
     g0 : (w,) mm, gaps at zero force
     target : (w, 2) mm, tangential displacement (t1, t2) each node has when it sticks
-    mu : friction coefficient
+    mu : friction coefficient, one for all nodes or (w,) each node's own (0: frictionless)
     forces : (w, 3) mN, local forces (p, q1, q2) to start from (default: none)
     tol : tolerances (``gap_mm``)
 
@@ -187,6 +214,7 @@ def coulomb_active_set(w_loc: np.ndarray, g0: np.ndarray, target: np.ndarray, mu
     iterations : int
     """
     w = len(g0)
+    mu = np.broadcast_to(np.asarray(mu, dtype=np.float64), (w,))  # a node's own coefficient
     w4 = w_loc.reshape(w, 3, w, 3)
     diag = np.einsum("iaia->ia", w4)
     c_n = 1.0 / diag[:, 0]
@@ -210,7 +238,7 @@ def coulomb_active_set(w_loc: np.ndarray, g0: np.ndarray, target: np.ndarray, mu
             return lam, disp, new, it - 1
         if it > 1 and np.array_equal(new, st):
             sl = st == SLIP
-            resid = np.linalg.norm(lam[sl, 1:] - mu * lam[sl, :1] * z[sl]
+            resid = np.linalg.norm(lam[sl, 1:] - mu[sl, None] * lam[sl, :1] * z[sl]
                                    / np.maximum(z_norm[sl], 1e-300)[:, None], axis=1)
             if np.max(resid, initial=0.0) <= DIRECTION_RTOL * pmax:
                 return lam, disp, st, it - 1
@@ -235,26 +263,28 @@ def coulomb_active_set(w_loc: np.ndarray, g0: np.ndarray, target: np.ndarray, mu
         ka = st[act] == STICK
         jac[ka, 1:] = wa[ka, 1:]  # no slip
         rhs[ka, 1:] = target[act[ka]]
-        sa = np.flatnonzero(st[act] == SLIP)
-        if sa.size and mu == 0:
+        slipping = st[act] == SLIP
+        sa = np.flatnonzero(slipping & (mu[act] == 0))  # frictionless: no tangential force
+        if sa.size:
             jac[sa, 1:] = 0.0
             jac[sa, 1, 3 * sa + 1] = 1.0
             jac[sa, 2, 3 * sa + 2] = 1.0
             rhs[sa, 1:] = 0.0
-        elif sa.size:
+        sa = np.flatnonzero(slipping & (mu[act] > 0))
+        if sa.size:
             i = act[sa]
-            q, p, zi, zn = lam[i, 1:], lam[i, 0], z[i], z_norm[i]
+            q, p, zi, zn, m = lam[i, 1:], lam[i, 0], z[i], z_norm[i], mu[i]
             zh = zi / zn[:, None]
-            q_bar = q * (mu * np.maximum(p, 0.0) / np.maximum(
-                np.maximum(mu * np.maximum(p, 0.0), np.linalg.norm(q, axis=1)), 1e-300)
+            q_bar = q * (m * np.maximum(p, 0.0) / np.maximum(
+                np.maximum(m * np.maximum(p, 0.0), np.linalg.norm(q, axis=1)), 1e-300)
             )[:, None]
             eye = np.eye(2)
-            m_q = (zn - mu * p)[:, None, None] * eye + q_bar[:, :, None] * zh[:, None, :]
-            m_s = c_t[i][:, None, None] * (mu * p[:, None, None] * eye
+            m_q = (zn - m * p)[:, None, None] * eye + q_bar[:, :, None] * zh[:, None, :]
+            m_s = c_t[i][:, None, None] * ((m * p)[:, None, None] * eye
                                             - q_bar[:, :, None] * zh[:, None, :])
-            m_p = -mu * zi
+            m_p = -m[:, None] * zi
             # M_q q + M_s s + m_p p = M_q q_k + M_s s_k + m_p p_k - C_k, s = (W lam)_t - target
-            c_k = zn[:, None] * q - mu * p[:, None] * zi
+            c_k = zn[:, None] * q - (m * p)[:, None] * zi
             rhs_s = (np.einsum("kab,kb->ka", m_q, q) + np.einsum("kab,kb->ka", m_s, slip[i])
                      + m_p * p[:, None] - c_k)
             jac[sa, 1:] = np.einsum("kab,kbj->kaj", m_s, wa[sa, 1:])
@@ -262,7 +292,11 @@ def coulomb_active_set(w_loc: np.ndarray, g0: np.ndarray, target: np.ndarray, mu
             for col in range(2):
                 jac[sa, 1:, 3 * sa + 1 + col] += m_q[:, :, col]
             jac[sa, 1:, 3 * sa] += m_p
-        x = sla.solve(jac.reshape(3 * a, 3 * a), rhs.ravel(), check_finite=False)
+        # rows equilibrated: gap rows are compliances (~1e-3 mm/mN), slip rows forces; a flat
+        # end's 4th point on the window is regular only through END_COMPLIANCE (~1e-12)
+        jac = jac.reshape(3 * a, 3 * a)
+        scale = 1.0 / np.abs(jac).max(axis=1)
+        x = sla.solve(jac * scale[:, None], rhs.ravel() * scale, check_finite=False)
         lam = np.zeros((w, 3))
         lam[act] = x.reshape(a, 3)
         disp = (w_cols @ x).reshape(w, 3)
@@ -285,7 +319,8 @@ def _natural_residual(lam: np.ndarray, p_t: np.ndarray, z: np.ndarray, z_norm: n
 def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: ComplianceOperator, *,
                    mu: float, history: FrictionHistory, label: str = "",
                    tol: Tolerances = TOL, extra: np.ndarray | None = None,
-                   guess: tuple[np.ndarray, np.ndarray] | None = None) -> FrictionSolution:
+                   guess: tuple[np.ndarray, np.ndarray] | None = None,
+                   rows: UnilateralRows | None = None) -> FrictionSolution:
     """One load step with Coulomb friction, from ``history`` to ``placement``.
 
     Parameters
@@ -301,6 +336,8 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
         window's on the pins), added to ``C f`` in every gap and slip
     guess : optional (nodes, forces (k, 3) mN): where the iteration starts (default: the last
         step's contact nodes and forces); the answer does not depend on it
+    rows : optional frictionless unilateral constraints solved at once with the contact (one
+        semi-smooth Newton iteration for both; a flat indenter only)
 
     Raises
     ------
@@ -318,6 +355,11 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     # the far-field test of spread_forces, made safe for the extra displacement
     g_reach = g_rest - np.linalg.norm(ext, axis=1)
     flat = bool(getattr(placement.indenter, "flat", False))
+    if rows is not None and not flat:
+        raise ValueError("unilateral rows are solved with a flat indenter only: the indenter "
+                         f"is {type(placement.indenter).__name__}")
+    q_rows = None if rows is None else np.asarray(rows.start, dtype=np.float64)
+    ext_q = np.zeros((s, 3))  # the candidates' displacement by the rows' forces
     reference = placement.rotation[:, 0]
     # the linearisation point: the last step's displacements near the contact
     near0 = np.union1d(history.nodes, np.flatnonzero(g_rest < 0))
@@ -372,23 +414,32 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
                 prev = dict(zip(np.asarray(start_nodes).tolist(), start_forces, strict=True))
                 f0 = np.array([prev.get(i, (0.0, 0.0, 0.0)) for i in work.tolist()])
                 lam0 = np.einsum("iab,ia->ib", frames, f0)
-            lam, disp, status, it = coulomb_active_set(
-                w_loc, g0[work], target, mu, forces=lam0.reshape(-1, 3), tol=tol, label=label)
+            if rows is None:
+                lam, disp, status, it = coulomb_active_set(
+                    w_loc, g0[work], target, mu, forces=lam0.reshape(-1, 3), tol=tol,
+                    label=label)
+                g_far, g_lin = g_reach, g0
+            else:
+                lam, disp, status, it, q_rows = _with_rows(
+                    w_loc, frames, work, rows, g0[work], target, mu, lam0, q_rows, tol, label)
+                ext_q = np.einsum("iaj,j->ia", rows.coupling, q_rows)
+                g_far = g_reach - np.linalg.norm(ext_q, axis=1)
+                g_lin = g0 + np.einsum("ij,ij->i", nu, ext_q)
             iterations += it
             slip = disp[:, 1:] - target
             f_glob = np.einsum("iab,ib->ia", frames, lam)
             on = status != OPEN
             f_act = f_glob[on].ravel()
             near, more = spread_forces(operator, cw, work, on, f_act,
-                                       np.linalg.norm(f_glob[on], axis=1), everyone, g_reach,
-                                       g0, nu, u_new, tol)
+                                       np.linalg.norm(f_glob[on], axis=1), everyone, g_far,
+                                       g_lin, nu, u_new, tol)
             if more.size == 0:
                 break
             old = dict(zip(work.tolist(), lam, strict=True))
             cross = operator.block(work, more)
             cw = np.block([[cw, cross], [cross.T, operator.block(more, more)]])
             work = np.concatenate([work, more])
-        u_new[near] += ext[near]
+        u_new[near] += ext[near] + ext_q[near]
         change = float(np.abs(u_new[near] - u[near]).max(initial=0.0))
         u[:] = 0.0
         u[near] = u_new[near]
@@ -400,6 +451,7 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     active = work[on]
     forces = np.einsum("iab,ib->ia", frames[on], lam[on]) if work.size else np.zeros((0, 3))
     pressures = lam[on, 0] if work.size else np.zeros(0)
+    ext = ext + ext_q  # (the rows' forces at the end)
     surface = operator.surface(active, forces) + ext
     surface[near] = u[near]
     known = ~np.isnan(surface[:, 0])
@@ -414,8 +466,35 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     return FrictionSolution(
         contact=contact, stick=(status[on] == STICK) if work.size else np.zeros(0, bool),
         slip_mm=np.linalg.norm(slip[on], axis=1) if work.size else np.zeros(0),
-        tangential=tang, history=FrictionHistory(placement, active, forces,
-                                                  None if extra is None else ext))
+        tangential=tang, history=FrictionHistory(
+            placement, active, forces, None if extra is None and rows is None else ext),
+        row_forces=q_rows)
+
+
+def _with_rows(w_loc: np.ndarray, frames: np.ndarray, work: np.ndarray, rows: UnilateralRows,
+               g0: np.ndarray, target: np.ndarray, mu: float, lam0: np.ndarray,
+               q0: np.ndarray, tol: Tolerances, label: str):
+    """:func:`coulomb_active_set` on the working set's nodes and the rows' points together:
+    a point is a frictionless node whose normal is its height (its two tangential unknowns
+    carry no force; their compliance, the point's own, only keeps the system regular).
+    Returns the nodes' (lam, disp, status), the iterations and the points' forces."""
+    w, n_pts = len(work), len(rows.z0)
+    b_loc = np.einsum("iap,iaj->ipj", frames, rows.coupling[work]).reshape(3 * w, n_pts)
+    big = np.zeros((3 * (w + n_pts),) * 2)
+    big[: 3 * w, : 3 * w] = w_loc
+    big[: 3 * w, 3 * w::3] = b_loc
+    big[3 * w::3, : 3 * w] = b_loc.T
+    big[3 * w::3, 3 * w::3] = rows.compliance
+    dummy = 3 * w + np.arange(n_pts)[:, None] * 3 + np.array([1, 2])
+    big[dummy, dummy] = np.diag(rows.compliance)[:, None]
+    start = np.zeros((w + n_pts, 3))
+    start[:w] = lam0.reshape(w, 3)
+    start[w:, 0] = q0
+    lam, disp, status, it = coulomb_active_set(
+        big, np.concatenate([g0, rows.z0]), np.vstack([target, np.zeros((n_pts, 2))]),
+        np.concatenate([np.full(w, float(mu)), np.zeros(n_pts)]), forces=start, tol=tol,
+        label=label)
+    return lam[:w], disp[:w], status[:w], it, lam[w:, 0].copy()
 
 
 def _dofs(nodes: np.ndarray) -> np.ndarray:

@@ -34,6 +34,9 @@ lowest vertex that is not yet held (one a round, so a flat end is carried by the
 it needs); the linearisation is renewed until the marker values repeat (to
 :data:`VALUES_TOL`) and every vertex's exact height is at or above the window (to
 :data:`HELD_TOL_MM`).
+
+With friction (:func:`friction_with_window`) the same end points are unilateral rows of the
+friction solve, so the plate's stick and slip and the window's forces are settled at once.
 """
 
 from __future__ import annotations
@@ -135,8 +138,7 @@ def window_generalised_forces(markers: Markers, values: np.ndarray, window: np.n
 
 
 def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
-                   sol: ContactSolution, *, label: str = "", tol: Tolerances = TOL,
-                   load: tuple[np.ndarray, np.ndarray] | None = None
+                   sol: ContactSolution, *, label: str = "", tol: Tolerances = TOL
                    ) -> tuple[ContactSolution, np.ndarray, np.ndarray]:
     """Correct a flat indenter's contact solution for pins that reach the window.
 
@@ -147,9 +149,6 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
     placement : the placed flat indenter (:class:`~.indenters.Placement`)
     rest_mm : (s, 3) candidate rest positions
     sol : the indenter-only solution
-    load : optional (nodes (k,), forces (k, 3) mN) held on candidates besides the plate's
-        pressures and the window's forces (friction's tangential forces,
-        :func:`friction_with_window`)
 
     Returns
     -------
@@ -165,11 +164,6 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
     """
     values = model.marker_values(sol.active, sol.forces)
     s = len(rest_mm)
-    v_load, u_load = np.zeros_like(values), np.zeros((s, 3))
-    if load is not None and len(load[0]):
-        v_load = model.marker_values(load[0], load[1])
-        values = values + v_load
-        u_load = (model.block(np.arange(s), load[0]) @ np.ravel(load[1])).reshape(s, 3)
     p = markers.count
     n = 1 if p == 0 else markers.end_offsets.shape[1]
     # every end clear of the window: nothing to do (the circle of a rod's end is nowhere
@@ -189,7 +183,6 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
                            "marker compliance to stop them")
     g_rest, nu = placement.gap(rest_mm)
     n_plate = np.asarray(nu[0], dtype=np.float64)  # a flat indenter: one normal
-    g_rest = g_rest + u_load @ n_plate  # the held load's part of the gaps
     resp_t = model.marker_response_t  # (3 s, 6 p)
     mq = model.marker_compliance  # (6 p, 6 p)
     all_nodes = np.arange(s)
@@ -221,14 +214,13 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
         big = np.block([[model.normal_block(work, work, n_plate), h_all[work]],
                         [h_all[work].T, window_block]])
         z_k = z_rest[pts] if at_rest else point_heights(markers, v_k).ravel()[pts]
-        # (the held load's part of the values is a constant, not a column of the LCP)
-        z0 = z_k - np.einsum("kj,kj->k", jac_k, (lin_at - v_load).reshape(p, 6)[pin])
+        z0 = z_k - np.einsum("kj,kj->k", jac_k, lin_at.reshape(p, 6)[pin])
         start = np.concatenate([np.isin(work, start_work), np.isin(pts, start_points)])
         x, _, it = solve_lcp(big, np.concatenate([g_rest[work], z0]), active=start, tol=tol)
         iterations += it
         pw, q = x[: len(work)], x[len(work):]
         start_work, start_points = work[pw > 0], pts[q > 0]
-        v = model.marker_values(work, pw[:, None] * n_plate) + mq @ (gen @ q) + v_load
+        v = model.marker_values(work, pw[:, None] * n_plate) + mq @ (gen @ q)
         act = work[pw > 0]
         gap = g_rest + model.normal_block(all_nodes, act, n_plate) @ pw[pw > 0] + h_all @ q
         return v, pw, q, gap, gen
@@ -281,7 +273,7 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
     forces = pressures[:, None] * n_plate
     window = np.zeros((p, n))
     window.ravel()[points] = q
-    u = model.surface(active, forces, at=active) + (resp_t @ (gen @ q)).reshape(s, 3) + u_load
+    u = model.surface(active, forces, at=active) + (resp_t @ (gen @ q)).reshape(s, 3)
     comp = float(max(np.max(np.abs(pressures * gap[active]), initial=0.0),
                      np.max(np.abs(q * z.ravel()[points]), initial=0.0)))
     out = ContactSolution(u, active, forces, pressures, gap, comp, iterations,
@@ -303,79 +295,112 @@ def _anderson(values: list[np.ndarray], residuals: list[np.ndarray]) -> np.ndarr
     return values[-1] + residuals[-1] - (dv + dr) @ gamma
 
 
-WINDOW_RTOL = 1e-6
-"""The alternation stops when the window's generalised forces repeat to this fraction of the
-largest (the tips themselves are exact to 1e-6 mm in every round: :func:`stop_at_window`)."""
-_STAGGER_ROUNDS = 60
-"""Rounds of the plate-with-friction / pins-on-the-window alternation (block Gauss-Seidel on
-the pad's symmetric compliance; a few rounds when a few pins touch)."""
+def _rows(model, markers: Markers, values: np.ndarray, points: np.ndarray, s: int,
+          start: np.ndarray):
+    """The :class:`~.friction.UnilateralRows` of end points ``points`` with the rods
+    linearised at marker values ``values``, and the points' generalised-force columns
+    ``(6 p, P)`` (``J'``)."""
+    from .friction import UnilateralRows
+
+    p = markers.count
+    n = markers.end_offsets.shape[1]
+    pin = points // n
+    jac = point_jacobian(markers, values, points)
+    gen = np.zeros((6 * p, len(points)))
+    gen[6 * pin[:, None] + np.arange(6), np.arange(len(points))[:, None]] = jac
+    block = gen.T @ model.marker_compliance @ gen
+    crowded = np.flatnonzero(np.bincount(pin, minlength=p)[pin] > 3)
+    block[crowded, crowded] += END_COMPLIANCE  # a flat end's 4th point and on
+    z0 = point_heights(markers, values).ravel()[points] \
+        - np.einsum("kj,kj->k", jac, values.reshape(p, 6)[pin])
+    coupling = (model.marker_response_t @ gen).reshape(s, 3, len(points))
+    return UnilateralRows(z0, block, coupling, start), gen
 
 
 def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray, *,
                          mu: float, history, label: str = "", tol: Tolerances = TOL):
     """One load step with Coulomb friction (:func:`~.friction.solve_friction`) whose pins
-    stop at the window. Two solves alternate: (a) the plate's contact with friction under the
-    window's push on the pins (an extra displacement of the candidates, ``R' J' q``); (b) the
-    pins against the window together with the plate's pressures (:func:`stop_at_window`:
-    the strong coupling, through the skin, is solved at once), friction's tangential forces
-    from (a) held. They stop when the window's generalised forces on the marker values (a
-    wrench a pin) repeat to :data:`WINDOW_RTOL` of the largest (Anderson-mixed); (b) leaves
-    no end point below the window by more than 1e-6 mm.
+    stop at the window, solved at once: the rods' end points that reach the window are
+    frictionless unilateral rows of the friction solve (:class:`~.friction.UnilateralRows`:
+    their heights linearised in the marker values, which the plate's forces and theirs move
+    through the pad's compliance), so one semi-smooth Newton iteration settles the plate's
+    stick, slip and pressures and the window's forces together. Around it, as in
+    :func:`stop_at_window`: the rods are re-linearised at the values reached (Anderson-mixed)
+    and a pin whose end still dips below the window adds its lowest point not yet held (one a
+    pin a round), until the values repeat to :data:`VALUES_TOL` and every end point is at or
+    above the window, the held ones on it, to :data:`HELD_TOL_MM`. The step starts from the
+    last step's held points and values (its history).
 
     Returns
     -------
     solution : the :class:`~.friction.FrictionSolution` with ``window`` (p,) mN, the window's
         force on each tip, and ``values`` (6 p,), the marker values; its history carries the
-        window's displacement of the candidates and its generalised forces to the next step
+        window's displacement of the candidates, its points and the values to the next step
+
+    Raises
+    ------
+    ContactError
+        The model has no marker compliance while pins reach the window, or the sets did not
+        settle in :data:`_MAX_ROUNDS` rounds.
     """
     from .friction import FrictionHistory, solve_friction
 
-    resp_t = model.marker_response_t
+    p = markers.count
+    n = 1 if p == 0 else markers.end_offsets.shape[1]
     s = len(rest_mm)
+    points = np.zeros(0, dtype=np.int64) if history.window_points is None \
+        else np.asarray(history.window_points, dtype=np.int64)
+    v = history.window_values
+    q = np.zeros(len(points)) if history.window_forces is None \
+        else np.asarray(history.window_forces, dtype=np.float64)
     guess = None
-    gen = history.window_generalised
-    plate_normal = np.asarray(placement.gap(rest_mm[:1])[1][0], dtype=np.float64)
-    mixed = False
-    hist_g: list[np.ndarray] = []
+    hist_v: list[np.ndarray] = []
     hist_r: list[np.ndarray] = []
-    pushed_last = None
-    for _ in range(_STAGGER_ROUNDS):
-        extra = None if gen is None or not gen.any() else (resp_t @ gen).reshape(s, 3)
+    for _ in range(_MAX_ROUNDS + 1):
+        rows, gen = (None, None) if not len(points) else \
+            _rows(model, markers, v, points, s, q)
         fs = solve_friction(placement, rest_mm, model, mu=mu, history=history, label=label,
-                            tol=tol, extra=extra, guess=guess)
-        guess = (fs.contact.active, fs.contact.forces)  # the next round starts from here
-        sol = fs.contact
-        # the pins against the window and the plate's pressures together (the strong,
-        # normal coupling through the skin), friction's tangential forces held
-        normal = dataclasses.replace(sol, forces=sol.pressures[:, None] * plate_normal)
-        _, q_new, values = stop_at_window(model, markers, placement, rest_mm, normal,
-                                          label=label, tol=tol,
-                                          load=(sol.active, fs.tangential))
-        q_new = q_new.ravel()  # the end points' forces
-        # the rounds meet through the window's generalised forces on the marker values (a
-        # wrench a pin): a flat end's point forces are not unique (its rows are dependent),
-        # so from round to round they may share the same wrench out differently
-        gen_new = window_generalised_forces(markers, values, q_new) if q_new.any() \
-            else np.zeros(6 * markers.count)
-        g_in = np.zeros_like(gen_new) if gen is None else gen
-        scale = max(float(np.abs(gen_new).max(initial=0.0)), 1e-300)
-        same = mixed and np.abs(gen_new - g_in).max(initial=0.0) <= WINDOW_RTOL * scale
-        if (not q_new.any() and not g_in.any()) or same:
-            h = fs.history
-            held = FrictionHistory(h.placement, h.nodes, h.forces, extra,
-                                   gen_new if q_new.any() else None)
-            return dataclasses.replace(fs, history=held, window=pin_forces(markers, q_new),
-                                       values=values)
-        # the alternation converges linearly (through the tangential forces (b) holds):
-        # Anderson mixing of the generalised forces, restarted when the pins held change
-        pushed = pin_forces(markers, q_new) > 0
-        if pushed_last is not None and not np.array_equal(pushed, pushed_last):
-            hist_g, hist_r = [], []
-        pushed_last = pushed
-        hist_g.append(g_in)
-        hist_r.append(gen_new - g_in)
-        gen = _anderson(hist_g, hist_r)
-        del hist_g[:-_ANDERSON_DEPTH], hist_r[:-_ANDERSON_DEPTH]
-        mixed = True
-    raise ContactError(f"{label or 'contact'}: friction and the pins' window contact did not "
-                       f"settle in {_STAGGER_ROUNDS} rounds")
+                            tol=tol, guess=guess, rows=rows)
+        guess = (fs.contact.active, fs.contact.forces)
+        t_v = model.marker_values(fs.contact.active, fs.contact.forces)
+        if rows is not None:
+            q = fs.row_forces
+            t_v = t_v + model.marker_compliance @ (gen @ q)
+        if p == 0:
+            break
+        z = point_heights(markers, t_v)
+        if not len(points) and z.min() >= WINDOW_Z_MM - WINDOW_TOL_MM:
+            break  # every end clear of the window: the plate-only solution
+        if not len(points) and getattr(model, "marker_compliance", None) is None:
+            raise ContactError(f"{label or 'contact'}: pins reach the window but the model "
+                               "has no marker compliance to stop them")
+        new_points = np.union1d(points, entering_points(z, points, HELD_TOL_MM))
+        held = z.ravel()[points[q > 0]]
+        if np.array_equal(new_points, points) and np.abs(held).max(initial=0.0) <= HELD_TOL_MM \
+                and z.min() >= -HELD_TOL_MM and np.abs(t_v - v).max(initial=0.0) <= VALUES_TOL:
+            break
+        if not len(points) and not len(new_points):
+            break  # only a circle's sag, or round-off, below the window: no vertex is held
+        if not np.array_equal(new_points, points):
+            start = np.zeros(len(new_points))  # the new points start from no force
+            start[np.isin(new_points, points)] = q
+            points, v, q = new_points, t_v, start
+            hist_v, hist_r = [], []
+            continue
+        hist_v.append(v)
+        hist_r.append(t_v - v)
+        v = _anderson(hist_v, hist_r)
+        del hist_v[:-_ANDERSON_DEPTH], hist_r[:-_ANDERSON_DEPTH]
+    else:
+        raise ContactError(f"{label or 'contact'}: friction and the pins' window contact did "
+                           f"not settle in {_MAX_ROUNDS} rounds (lowest end point "
+                           f"{z.min():.3g} mm)")
+    window = np.zeros((p, n))
+    if len(points):
+        window.ravel()[points] = q
+    h = fs.history
+    on = q > 0
+    held = FrictionHistory(h.placement, h.nodes, h.forces, h.extra_mm,
+                           *((points[on], q[on], t_v) if on.any() else (None, None, None)))
+    return dataclasses.replace(fs, history=held, window=pin_forces(markers, window),
+                               values=t_v)
