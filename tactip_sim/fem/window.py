@@ -237,8 +237,7 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
         work, points = new_work, new_points
     # 2. the exact rod rotation: re-linearise at the current values (a fixed point, whose
     #    convergence Anderson mixing speeds up), growing the sets where the exact solve asks
-    hist_v: list[np.ndarray] = []
-    hist_r: list[np.ndarray] = []
+    mixer = _Anderson()
     for _ in range(_MAX_ROUNDS):
         t_v, pw, q, gap, gen = solve(False, v, work, points)
         z = point_heights(markers, t_v)
@@ -253,13 +252,10 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
             break
         if not settled:
             work, points = new_work, new_points
-            hist_v, hist_r = [], []
+            mixer.reset()
             v = t_v
             continue
-        hist_v.append(v)
-        hist_r.append(t_v - v)
-        v = _anderson(hist_v, hist_r)
-        del hist_v[:-_ANDERSON_DEPTH], hist_r[:-_ANDERSON_DEPTH]
+        v = mixer.next(v, t_v)
     else:
         # the fixed point stalls on the deepest presses (every pin held, large rotations):
         # accept its last iterate when no point is below the window by more than 1e-6 mm
@@ -284,15 +280,32 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
 _ANDERSON_DEPTH = 6
 
 
-def _anderson(values: list[np.ndarray], residuals: list[np.ndarray]) -> np.ndarray:
-    """Anderson mixing of a fixed-point iteration ``v -> v + r``: the combination of the last
-    iterates whose residuals cancel best (least squares), stepped by its residual."""
-    if len(values) == 1:
-        return values[0] + residuals[0]
-    dr = np.stack([residuals[k + 1] - residuals[k] for k in range(len(residuals) - 1)], axis=1)
-    dv = np.stack([values[k + 1] - values[k] for k in range(len(values) - 1)], axis=1)
-    gamma = np.linalg.lstsq(dr, residuals[-1], rcond=None)[0]
-    return values[-1] + residuals[-1] - (dv + dr) @ gamma
+class _Anderson:
+    """Anderson mixing of a fixed-point iteration ``v -> t(v)``: the combination of the last
+    :data:`_ANDERSON_DEPTH` iterates whose residuals ``t(v) - v`` cancel best (least squares),
+    stepped by its residual."""
+
+    def __init__(self) -> None:
+        self.values: list[np.ndarray] = []
+        self.residuals: list[np.ndarray] = []
+
+    def reset(self) -> None:
+        """Forget the iterates (the problem changed: a contact set grew)."""
+        self.values.clear()
+        self.residuals.clear()
+
+    def next(self, v: np.ndarray, t_v: np.ndarray) -> np.ndarray:
+        """The next iterate after ``v``, whose image is ``t_v``."""
+        self.values.append(v)
+        self.residuals.append(t_v - v)
+        out = self.values[-1] + self.residuals[-1]
+        if len(self.values) > 1:
+            dr = np.diff(np.stack(self.residuals, axis=1), axis=1)
+            dv = np.diff(np.stack(self.values, axis=1), axis=1)
+            gamma = np.linalg.lstsq(dr, self.residuals[-1], rcond=None)[0]
+            out = out - (dv + dr) @ gamma
+        del self.values[:-_ANDERSON_DEPTH], self.residuals[:-_ANDERSON_DEPTH]
+        return out
 
 
 def _rows(model, markers: Markers, values: np.ndarray, points: np.ndarray, s: int,
@@ -354,8 +367,7 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
     q = np.zeros(len(points)) if history.window_forces is None \
         else np.asarray(history.window_forces, dtype=np.float64)
     guess = None
-    hist_v: list[np.ndarray] = []
-    hist_r: list[np.ndarray] = []
+    mixer = _Anderson()
     for _ in range(_MAX_ROUNDS + 1):
         rows, gen = (None, None) if not len(points) else \
             _rows(model, markers, v, points, s, q)
@@ -363,9 +375,11 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
                             tol=tol, guess=guess, rows=rows)
         guess = (fs.contact.active, fs.contact.forces)
         t_v = model.marker_values(fs.contact.active, fs.contact.forces)
-        if rows is not None:
+        if rows is not None and len(fs.contact.active):
             q = fs.row_forces
             t_v = t_v + model.marker_compliance @ (gen @ q)
+        elif rows is not None:  # nothing on the pad: the pins hang free (a path that left
+            q = np.zeros(len(points))  # contact, which run_path reports)
         if p == 0:
             break
         z = point_heights(markers, t_v)
@@ -385,12 +399,9 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
             start = np.zeros(len(new_points))  # the new points start from no force
             start[np.isin(new_points, points)] = q
             points, v, q = new_points, t_v, start
-            hist_v, hist_r = [], []
+            mixer.reset()
             continue
-        hist_v.append(v)
-        hist_r.append(t_v - v)
-        v = _anderson(hist_v, hist_r)
-        del hist_v[:-_ANDERSON_DEPTH], hist_r[:-_ANDERSON_DEPTH]
+        v = mixer.next(v, t_v)
     else:
         raise ContactError(f"{label or 'contact'}: friction and the pins' window contact did "
                            f"not settle in {_MAX_ROUNDS} rounds (lowest end point "
