@@ -318,8 +318,7 @@ def _natural_residual(lam: np.ndarray, p_t: np.ndarray, z: np.ndarray, z_norm: n
 
 def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: ComplianceOperator, *,
                    mu: float, history: FrictionHistory, label: str = "",
-                   tol: Tolerances = TOL, extra: np.ndarray | None = None,
-                   guess: tuple[np.ndarray, np.ndarray] | None = None,
+                   tol: Tolerances = TOL, guess: tuple[np.ndarray, np.ndarray] | None = None,
                    rows: UnilateralRows | None = None) -> FrictionSolution:
     """One load step with Coulomb friction, from ``history`` to ``placement``.
 
@@ -332,8 +331,6 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     history : the state at the start of the step (:meth:`FrictionHistory.at_rest` to start)
     label : named in error messages (the pose)
     tol : tolerances
-    extra : (s, 3) mm, optional: the candidates' displacement from other, given forces (the
-        window's on the pins), added to ``C f`` in every gap and slip
     guess : optional (nodes, forces (k, 3) mN): where the iteration starts (default: the last
         step's contact nodes and forces); the answer does not depend on it
     rows : optional frictionless unilateral constraints solved at once with the contact (one
@@ -351,9 +348,6 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     s = len(rest_mm)
     everyone = np.arange(s)
     g_rest, _ = placement.gap(rest_mm)
-    ext = np.zeros((s, 3)) if extra is None else np.asarray(extra, dtype=np.float64)
-    # the far-field test of spread_forces, made safe for the extra displacement
-    g_reach = g_rest - np.linalg.norm(ext, axis=1)
     flat = bool(getattr(placement.indenter, "flat", False))
     if rows is not None and not flat:
         raise ValueError("unilateral rows are solved with a flat indenter only: the indenter "
@@ -385,7 +379,7 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     for _ in range(tol.geometry_max_iter):
         geo += 1
         g, nu = placement.gap(rest_mm + u)
-        g0 = g - np.einsum("ij,ij->i", nu, u - ext)  # the gap under the extra part alone
+        g0 = g - np.einsum("ij,ij->i", nu, u)  # the gap with no force
         # the last step's contact nodes seed the first working set: a step that barely moves
         # (or lifts the indenter by less than the pad's deformation) leaves gaps of round-off
         # size there, which the penetration test alone would miss
@@ -404,7 +398,7 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
             x0 = rest_mm[work] + start_of_step(work)
             y_move = indenter_motion(history.placement, placement, x0)
             target = np.einsum("iab,ia->ib", frames[:, :, 1:],
-                               start_of_step(work) + y_move - ext[work])
+                               start_of_step(work) + y_move)
             c4 = cw.reshape(w, 3, w, 3)
             w_loc = np.einsum("iap,iajb,jbq->ipjq", frames, c4, frames,
                               optimize=True).reshape(3 * w, 3 * w)
@@ -418,12 +412,13 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
                 lam, disp, status, it = coulomb_active_set(
                     w_loc, g0[work], target, mu, forces=lam0.reshape(-1, 3), tol=tol,
                     label=label)
-                g_far, g_lin = g_reach, g0
+                g_far, g_lin = g_rest, g0
             else:
                 lam, disp, status, it, q_rows = _with_rows(
                     w_loc, frames, work, rows, g0[work], target, mu, lam0, q_rows, tol, label)
                 ext_q = np.einsum("iaj,j->ia", rows.coupling, q_rows)
-                g_far = g_reach - np.linalg.norm(ext_q, axis=1)
+                # the far-field test of spread_forces, made safe for the rows' push
+                g_far = g_rest - np.linalg.norm(ext_q, axis=1)
                 g_lin = g0 + np.einsum("ij,ij->i", nu, ext_q)
             iterations += it
             slip = disp[:, 1:] - target
@@ -439,7 +434,7 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
             cross = operator.block(work, more)
             cw = np.block([[cw, cross], [cross.T, operator.block(more, more)]])
             work = np.concatenate([work, more])
-        u_new[near] += ext[near] + ext_q[near]
+        u_new[near] += ext_q[near]
         change = float(np.abs(u_new[near] - u[near]).max(initial=0.0))
         u[:] = 0.0
         u[near] = u_new[near]
@@ -451,8 +446,7 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     active = work[on]
     forces = np.einsum("iab,ib->ia", frames[on], lam[on]) if work.size else np.zeros((0, 3))
     pressures = lam[on, 0] if work.size else np.zeros(0)
-    ext = ext + ext_q  # (the rows' forces at the end)
-    surface = operator.surface(active, forces) + ext
+    surface = operator.surface(active, forces) + ext_q
     surface[near] = u[near]
     known = ~np.isnan(surface[:, 0])
     gap = np.empty(s)
@@ -467,7 +461,7 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
         contact=contact, stick=(status[on] == STICK) if work.size else np.zeros(0, bool),
         slip_mm=np.linalg.norm(slip[on], axis=1) if work.size else np.zeros(0),
         tangential=tang, history=FrictionHistory(
-            placement, active, forces, None if extra is None and rows is None else ext),
+            placement, active, forces, None if rows is None else ext_q),
         row_forces=q_rows)
 
 
