@@ -389,12 +389,12 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
             raise ContactError(f"{label or 'contact'}: pins reach the window but the model "
                                "has no marker compliance to stop them")
         new_points = np.union1d(points, entering_points(z, points, HELD_TOL_MM))
+        if not len(new_points):
+            break  # only a circle's sag, or round-off, below the window: no vertex is held
         held = z.ravel()[points[q > 0]]
         if np.array_equal(new_points, points) and np.abs(held).max(initial=0.0) <= HELD_TOL_MM \
                 and z.min() >= -HELD_TOL_MM and np.abs(t_v - v).max(initial=0.0) <= VALUES_TOL:
             break
-        if not len(points) and not len(new_points):
-            break  # only a circle's sag, or round-off, below the window: no vertex is held
         if not np.array_equal(new_points, points):
             start = np.zeros(len(new_points))  # the new points start from no force
             start[np.isin(new_points, points)] = q
