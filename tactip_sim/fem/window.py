@@ -203,14 +203,9 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
         lin_at = zero if at_rest else v_k
         jac_k = jac_rest[pts] if at_rest else point_jacobian(markers, v_k, pts)
         pin = pts // n
-        gen = np.zeros((6 * p, len(pts)))
-        for c, (j, row) in enumerate(zip(pin, jac_k, strict=True)):
-            gen[6 * j:6 * j + 6, c] = row
+        gen, window_block = _point_compliance(model, markers, jac_k, pts)
         # candidate displacement along the plate normal per unit window force: (s, P)
         h_all = np.einsum("a,iak->ik", n_plate, (resp_t @ gen).reshape(s, 3, len(pts)))
-        window_block = gen.T @ mq @ gen
-        crowded = np.bincount(pin, minlength=p)[pin] > 3  # a flat end's 4th point and on
-        window_block[np.flatnonzero(crowded), np.flatnonzero(crowded)] += END_COMPLIANCE
         big = np.block([[model.normal_block(work, work, n_plate), h_all[work]],
                         [h_all[work].T, window_block]])
         z_k = z_rest[pts] if at_rest else point_heights(markers, v_k).ravel()[pts]
@@ -308,6 +303,21 @@ class _Anderson:
         return out
 
 
+def _point_compliance(model, markers: Markers, jac: np.ndarray, points: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The end points' generalised-force columns ``J'`` (6 p, P) from their Jacobian rows
+    ``jac`` (P, 6), and their compliance ``J Q J'`` (P, P) with :data:`END_COMPLIANCE` on the
+    points of pins with more than three in ``points`` (a flat end's 4th point and on)."""
+    p = markers.count
+    pin = np.asarray(points, dtype=np.int64) // markers.end_offsets.shape[1]
+    gen = np.zeros((6 * p, len(pin)))
+    gen[6 * pin[:, None] + np.arange(6), np.arange(len(pin))[:, None]] = jac
+    block = gen.T @ model.marker_compliance @ gen
+    crowded = np.flatnonzero(np.bincount(pin, minlength=p)[pin] > 3)
+    block[crowded, crowded] += END_COMPLIANCE
+    return gen, block
+
+
 def _rows(model, markers: Markers, values: np.ndarray, points: np.ndarray, s: int,
           start: np.ndarray):
     """The :class:`~.friction.UnilateralRows` of end points ``points`` with the rods
@@ -316,14 +326,9 @@ def _rows(model, markers: Markers, values: np.ndarray, points: np.ndarray, s: in
     from .friction import UnilateralRows
 
     p = markers.count
-    n = markers.end_offsets.shape[1]
-    pin = points // n
+    pin = points // markers.end_offsets.shape[1]
     jac = point_jacobian(markers, values, points)
-    gen = np.zeros((6 * p, len(points)))
-    gen[6 * pin[:, None] + np.arange(6), np.arange(len(points))[:, None]] = jac
-    block = gen.T @ model.marker_compliance @ gen
-    crowded = np.flatnonzero(np.bincount(pin, minlength=p)[pin] > 3)
-    block[crowded, crowded] += END_COMPLIANCE  # a flat end's 4th point and on
+    gen, block = _point_compliance(model, markers, jac, points)
     z0 = point_heights(markers, values).ravel()[points] \
         - np.einsum("kj,kj->k", jac, values.reshape(p, 6)[pin])
     coupling = (model.marker_response_t @ gen).reshape(s, 3, len(points))
