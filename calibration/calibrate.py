@@ -25,6 +25,7 @@ from .fit import (
     fit_invariant,
     fit_model,
     invariant_features,
+    join_tables,
     r2_table_csv,
     r2_table_markdown,
     save_model,
@@ -88,7 +89,8 @@ def calibrate(
     ``--fidelity auto`` choice) in the manifest. ``rig`` adds the data collection's
     imperfections (:mod:`calibration.rig`; default: an ideal rig). ``depth_invariant`` adds
     the training grid spread over the test depths (``train_span``) and the depth-invariant
-    model fitted on it (:func:`calibration.fit.fit_invariant`), scored on the same test sets:
+    model fitted on it and the training grid (:func:`calibration.fit.fit_invariant`), scored
+    on the same test sets:
     ``r2_table_invariant.*`` and ``models/invariant/``.
     """
     rig = RigModel() if rig is None else rig
@@ -142,11 +144,14 @@ def calibrate(
                                partial(fit_model, feature=feat), feat,
                                {**stamp, "data": f"tip_{tip}/train"})
             if depth_invariant:
-                _fit_and_score(rows[INVARIANT], models_dir / INVARIANT, tip,
-                               invariant_features(results["train_span"].dataset),
+                # the grid at the training depth and spread over the test depths: twice the
+                # samples per coefficient of the spread grid alone (docs/rig.md)
+                train = join_tables(invariant_features(results["train"].dataset),
+                                    invariant_features(results["train_span"].dataset))
+                _fit_and_score(rows[INVARIANT], models_dir / INVARIANT, tip, train,
                                _test_tables(results, tests, invariant_features),
                                fit_invariant, INVARIANT,
-                               {**stamp, "data": f"tip_{tip}/train_span"})
+                               {**stamp, "data": [f"tip_{tip}/train", f"tip_{tip}/train_span"]})
             timings[f"tip_{tip}_s"] = time.perf_counter() - t_tip
             tip_info[tip] = make_tip(scene, tip).draws
             if charts:

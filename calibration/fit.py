@@ -125,6 +125,23 @@ def invariant_features(dataset: Dataset | str | Path) -> FeatureTable:
                         (int(res[0]), int(res[1])))
 
 
+def join_tables(*tables: FeatureTable) -> FeatureTable:
+    """The samples of several tables of the same feature and image format as one table (the
+    depth-invariant model's training set: the grid at the training depth and spread over the
+    test depths). ``dropped`` keeps each table's dropped sample indices, one after the other."""
+    if not tables:
+        raise ValueError("tables=() is not allowed: join at least one table")
+    sizes = {t.image_size for t in tables}
+    widths = {t.cop_px.shape[1] for t in tables}
+    if len(sizes) > 1 or len(widths) > 1:
+        raise DatasetError(f"cannot join tables of different image sizes {sorted(sizes)} or "
+                           f"feature widths {sorted(widths)}")
+    return FeatureTable(np.concatenate([t.cop_px for t in tables]),
+                        np.concatenate([t.angles_deg for t in tables]),
+                        np.concatenate([t.depth_mm for t in tables]),
+                        np.concatenate([t.dropped for t in tables]), tables[0].image_size)
+
+
 def fit_invariant(train: FeatureTable, order: int):
     """The depth-invariant model of ``order``: a :class:`VectorRegressor` on
     :data:`INVARIANT_INPUTS`, fitted on ``train`` (:func:`invariant_features`)."""

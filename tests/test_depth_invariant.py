@@ -11,7 +11,13 @@ import pytest
 import tactip_sim as ts
 from calibration.calibrate import calibrate
 from calibration.dataset import DatasetError
-from calibration.fit import INVARIANT_INPUTS, invariant_features, load_any_model
+from calibration.fit import (
+    INVARIANT_INPUTS,
+    FeatureTable,
+    invariant_features,
+    join_tables,
+    load_any_model,
+)
 from calibration.protocol import span_training_set, training_set
 
 
@@ -52,7 +58,8 @@ def test_calibrate_with_the_depth_invariant_model(cal):
     assert text[0].startswith("tip,order,depth_mm,r2") and len(text) == 10
     model, fitted_on = load_any_model(out / "models" / "invariant" / "tip_A_order2.json")
     assert tuple(model.input_names) == INVARIANT_INPUTS
-    assert fitted_on["feature"] == "invariant" and fitted_on["data"] == "tip_A/train_span"
+    assert fitted_on["feature"] == "invariant" and fitted_on["data"] == ["tip_A/train",
+                                                                     "tip_A/train_span"]
     assert json.loads((out / "manifest.json").read_text())["depth_invariant"] is True
     # the training set spans the depths; the deformation input grows with depth
     span = invariant_features(out / "tip_A" / "train_span")
@@ -81,3 +88,21 @@ def test_a_dataset_without_the_deformation_is_refused(cal, tmp_path):
     table.write_text("\n".join(old) + "\n")  # as a dataset made before the column was added
     with pytest.raises(DatasetError, match="records no deformation_px"):
         invariant_features(folder)
+
+
+def test_joined_tables_keep_every_sample_and_refuse_mixed_formats():
+    def table(n, size=(640, 480), width=3):
+        rng = np.random.default_rng(n)
+        return FeatureTable(rng.normal(size=(n, width)), rng.normal(size=(n, 2)),
+                            np.full(n, float(n)), np.arange(2), size)
+
+    joined = join_tables(table(4), table(6))
+    assert joined.cop_px.shape == (10, 3) and len(joined.dropped) == 4
+    np.testing.assert_array_equal(joined.depth_mm, [4.0] * 4 + [6.0] * 6)
+    np.testing.assert_array_equal(joined.angles_deg[4:], table(6).angles_deg)
+    with pytest.raises(DatasetError, match="image sizes"):
+        join_tables(table(4), table(6, size=(320, 240)))
+    with pytest.raises(DatasetError, match="feature widths"):
+        join_tables(table(4), table(6, width=2))
+    with pytest.raises(ValueError, match="tables"):
+        join_tables()
