@@ -25,10 +25,16 @@ from calibration.fit import (
 ORDERS = (1, 2, 3)
 
 
+def _offset(test: Path) -> float:
+    """A test set's depth offset (mm) from its folder's name (``test-0p5mm``)."""
+    return float(test.name[4:-2].replace("p", "."))
+
+
 def compare(folder: Path) -> None:
     for tip_dir in sorted(folder.glob("tip_*")):
         tip = tip_dir.name.removeprefix("tip_")
-        tests = sorted(p for p in tip_dir.glob("test*mm") if (p / "targets.csv").is_file())
+        tests = sorted((p for p in tip_dir.glob("test*mm") if (p / "targets.csv").is_file()),
+                       key=_offset)
         if not (tip_dir / "train_span" / "targets.csv").is_file() or not tests:
             print(f"{tip_dir}: no finished train_span or test sets, skipped")
             continue
@@ -42,7 +48,7 @@ def compare(folder: Path) -> None:
             models = (fit_invariant(span, order), fit_invariant(both, order),
                       fit_model(paper_train, order))
             for test in tests:
-                offset = float(test.name[4:-2].replace("p", "."))
+                offset = _offset(test)
                 tables = (invariant_features(test), invariant_features(test), features(test))
                 r2 = [score(m, t, tip=tip, depth_offset_mm=offset).r2
                       for m, t in zip(models, tables, strict=True)]

@@ -64,8 +64,8 @@ INVARIANT = "invariant"
 INVARIANT_INPUTS = ("cop_growth_x_px", "cop_growth_y_px", "deformation_px")
 SWEEP_FEATURES = {**FOLDER_FEATURES, INVARIANT:
                   "the depth-invariant estimate: growth CoP and the perceived deformation (mean "
-                  "marker displacement), fitted on a training grid spread over the test depths "
-                  "(tactip calibrate --depth-invariant; docs/rig.md)"}
+                  "marker displacement), fitted on the training grid and the grid spread over "
+                  "the test depths (tactip calibrate --depth-invariant; docs/rig.md)"}
 """Every feature a saved model may name (the invariant one is made and scored by
 ``tactip calibrate`` on its sweeps)."""
 
