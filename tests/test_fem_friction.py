@@ -244,6 +244,54 @@ def check_the_laws(sim: ts.Simulator, before: FrictionHistory, after: FrictionHi
     assert against.min() > 1 - 1e-6
 
 
+def test_a_step_whose_solve_fails_is_split(fingertip, monkeypatch):
+    """A step whose friction solve does not converge is walked in halves. A stand-in solve
+    that refuses any turn of more than 1.5 deg in one step (the real one failed on large
+    steps of the realistic rig's walks) makes a 4 deg step take four 1 deg steps: the
+    answer is then the one of a path of four 1 deg steps, to round-off; a solve that always
+    fails gives up after ``tol.max_load_steps`` splits, naming the pose."""
+    import dataclasses
+
+    import tactip_sim.fem.loadpath as lp
+    from tactip_sim.fem.contact import ContactError
+
+    real = lp.solve_friction
+
+    def refusing(placement, *args, history, label="", **kw):
+        turn = abs(np.degrees(np.arccos(np.clip(
+            placement.rotation[:, 2] @ history.placement.rotation[:, 2], -1.0, 1.0))))
+        if turn > 1.5:
+            raise ContactError(f"{label}: did not converge (stand-in)")
+        return real(placement, *args, history=history, label=label, **kw)
+
+    ind = ts.Sphere(10.0)
+    start, end = ts.Pose(0, 0, 1.0), ts.Pose(4, 0, 1.0)
+    _, at_start = fingertip.continue_path(path_poses(start, steps=2), indenter=ind,
+                                          friction=0.5)
+    fine, _ = fingertip.continue_path([ts.Pose(k, 0, 1.0) for k in (1, 2, 3, 4)], at_start,
+                                      indenter=ind, friction=0.5)
+    monkeypatch.setattr(lp, "solve_friction", refusing)
+    (split,), after = fingertip.continue_path([end], at_start, indenter=ind, friction=0.5)
+    np.testing.assert_allclose(split.markers_mm, fine[-1].markers_mm, atol=1e-9)
+    assert split.force_N == pytest.approx(fine[-1].force_N, rel=1e-9)
+    assert after.pose == end
+
+    placer = lambda p: place(ind, p, fingertip._cand_rest,  # noqa: E731
+                             skin_thickness_mm=fingertip.body.skin_thickness_mm)
+    sols = lp.run_path([end], placer, fingertip._cand_rest, fingertip.reduced, mu=0.5,
+                       history=at_start)
+    assert sols[0].load_steps == 4
+    monkeypatch.setattr(lp, "solve_friction", lambda *a, label="", **k: (_ for _ in ()).throw(
+        ContactError(f"{label}: did not converge (stand-in)")))
+    few = dataclasses.replace(fingertip.tol, max_load_steps=3)
+    with pytest.raises(ContactError, match=r"roll=4.*not split further: 3 step splits"):
+        lp.run_path([end], placer, fingertip._cand_rest, fingertip.reduced, mu=0.5,
+                    history=at_start, tol=few)
+    with pytest.raises(ContactError, match="start pose is unknown"):
+        lp.run_path([end], placer, fingertip._cand_rest, fingertip.reduced, mu=0.5,
+                    history=dataclasses.replace(at_start, pose=None))
+
+
 def test_bad_input(fingertip):
     pose = ts.Pose(0, 0, 1.0)
     with pytest.raises(ValueError, match=r"friction=-0\.1 is out of range: allowed \[0, 10\]"):

@@ -47,6 +47,7 @@ from .contact import (
     spread_forces,
 )
 from .indenters import Placement
+from .pose import Pose
 from .tolerances import TOL, Tolerances
 
 OPEN, STICK, SLIP = 0, 1, 2
@@ -76,6 +77,8 @@ class FrictionHistory:
     window_forces : (P,) mN or None, the window's force on each of them (along +z)
     window_values : (6 p,) or None, the marker values then (the next step starts its
         pin-window iteration from these three)
+    pose : the pose the step ended at, or None (set by :func:`~.loadpath.run_path`, which
+        splits a step that fails from it)
     """
 
     placement: Placement
@@ -85,6 +88,7 @@ class FrictionHistory:
     window_points: np.ndarray | None = None
     window_forces: np.ndarray | None = None
     window_values: np.ndarray | None = None
+    pose: Pose | None = None
 
     def __post_init__(self) -> None:
         nodes = np.ascontiguousarray(self.nodes, dtype=np.int64)
@@ -150,6 +154,8 @@ class FrictionSolution:
         :func:`~.window.friction_with_window` sets it)
     values : (6 p,) the marker values with the window's forces, or None
     row_forces : (P,) mN, the forces on the :class:`UnilateralRows` points, or None
+    load_steps : the solves this step took (more than 1: :func:`~.loadpath.run_path` split
+        it after a solve that did not converge)
     """
 
     contact: ContactSolution
@@ -160,6 +166,7 @@ class FrictionSolution:
     window: np.ndarray | None = None
     values: np.ndarray | None = None
     row_forces: np.ndarray | None = None
+    load_steps: int = 1
 
 
 def tangent_frames(normals: np.ndarray, reference: np.ndarray) -> np.ndarray:

@@ -22,7 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .contact import ComplianceOperator
+from .contact import ComplianceOperator, ContactError
 from .friction import FrictionHistory, FrictionSolution, solve_friction
 from .indenters import Placement
 from .markers import Markers
@@ -175,23 +175,45 @@ def run_path(poses: list[Pose], placer: Callable[[Pose], Placement], rest_mm: np
         ``mu`` out of range.
     LoadPathError
         A step after the first carries no contact force (the path left contact).
+    ContactError
+        A step's solve did not converge even split ``tol.max_load_steps`` times (a step
+        whose solve fails is split in two by the pose halfway, recursively; the path is then
+        walked more finely, which friction may notice: ``FrictionSolution.load_steps``), or
+        the first step of a path started from a ``history`` without its pose failed.
     """
     mu = check_path(poses, mu)
     fresh = history is None
     if history is None:
-        history = FrictionHistory.at_rest(placer(touching(poses[0])))
+        touch = touching(poses[0])
+        history = dataclasses.replace(FrictionHistory.at_rest(placer(touch)), pose=touch)
     out: list[FrictionSolution] = []
+    splits = 0
     for k, pose in enumerate(poses):
         label = f"{pose} (step {k + 1} of {len(poses)})"
-        if markers is None:
-            sol = solve_friction(placer(pose), rest_mm, operator, mu=mu, history=history,
-                                 label=label, tol=tol)
-        else:
-            sol = friction_with_window(operator, markers, placer(pose), rest_mm, mu=mu,
-                                       history=history, label=label, tol=tol)
+        pending, steps = [pose], 0
+        while pending:  # a step that fails is split by the pose halfway, as in the NH path
+            target = pending[-1]
+            try:
+                if markers is None:
+                    sol = solve_friction(placer(target), rest_mm, operator, mu=mu,
+                                         history=history, label=label, tol=tol)
+                else:
+                    sol = friction_with_window(operator, markers, placer(target), rest_mm,
+                                               mu=mu, history=history, label=label, tol=tol)
+            except ContactError as exc:
+                splits += 1
+                if history.pose is None or splits > tol.max_load_steps:
+                    why = ("the path's start pose is unknown" if history.pose is None else
+                           f"{tol.max_load_steps} step splits")
+                    raise ContactError(f"{exc} (the step was not split further: {why})"
+                                       ) from None
+                pending.append(interpolate(history.pose, target, 0.5))
+                continue
+            pending.pop()
+            steps += 1
+            history = dataclasses.replace(sol.history, pose=target)
         check_in_contact(k, pose, k == 0 and fresh, sol.contact.active.size)
-        out.append(sol)
-        history = sol.history
+        out.append(dataclasses.replace(sol, history=history, load_steps=steps))
         if progress is not None:
             progress(k + 1)
     return out
