@@ -44,14 +44,14 @@ def compare(folder: Path) -> None:
         paper_train = features(tip_dir / "train")
         print(f"\n{folder} tip {tip}: {len(span.cop_px)} spread + {len(grid.cop_px)} grid samples")
         print("order  test depth   spread only   spread + grid   paper's (growth, one depth)")
+        # each test set read once: (offset, the invariant model's table, the paper's table)
+        test_tables = [(_offset(t), invariant_features(t), features(t)) for t in tests]
         for order in ORDERS:
             models = (fit_invariant(span, order), fit_invariant(both, order),
                       fit_model(paper_train, order))
-            for test in tests:
-                offset = _offset(test)
-                tables = (invariant_features(test), invariant_features(test), features(test))
+            for offset, inv, cop in test_tables:
                 r2 = [score(m, t, tip=tip, depth_offset_mm=offset).r2
-                      for m, t in zip(models, tables, strict=True)]
+                      for m, t in zip(models, (inv, inv, cop), strict=True)]
                 print(f"{order:5d}  {offset:+9.1f}   {r2[0]:11.3f}   {r2[1]:13.3f}   {r2[2]:.3f}")
 
 

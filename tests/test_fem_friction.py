@@ -281,8 +281,10 @@ def test_a_step_whose_solve_fails_is_split(fingertip, monkeypatch):
     sols = lp.run_path([end], placer, fingertip._cand_rest, fingertip.reduced, mu=0.5,
                        history=at_start)
     assert sols[0].load_steps == 4
-    monkeypatch.setattr(lp, "solve_friction", lambda *a, label="", **k: (_ for _ in ()).throw(
-        ContactError(f"{label}: did not converge (stand-in)")))
+    def failing(*args, label="", **kw):
+        raise ContactError(f"{label}: did not converge (stand-in)")
+
+    monkeypatch.setattr(lp, "solve_friction", failing)
     few = dataclasses.replace(fingertip.tol, max_load_steps=3)
     with pytest.raises(ContactError, match=r"roll=4.*not split further: 3 step splits"):
         lp.run_path([end], placer, fingertip._cand_rest, fingertip.reduced, mu=0.5,
