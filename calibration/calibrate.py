@@ -16,11 +16,14 @@ from .dataset import atomic_write_text, json_default, safe_name
 from .executor import close_client, open_client
 from .fit import (
     DEFAULT_FEATURE,
+    DEPTH_SIGNAL_LOW,
+    DEPTH_SIGNAL_ORDER,
     FEATURES,
     INVARIANT,
     FeatureTable,
     ScoreRow,
     check_feature,
+    depth_signal,
     features,
     fit_invariant,
     fit_model,
@@ -117,6 +120,7 @@ def calibrate(
     models_dir = out / "models"
     models_dir.mkdir(exist_ok=True)
     tip_info = {}
+    depth_signals: dict[str, float] = {}  # --depth-invariant: how much depth its inputs carry
     sets = [training_set(scene), *evaluation_sets(scene)]
     tests = sets[1:]
     if depth_invariant:
@@ -146,8 +150,9 @@ def calibrate(
             if depth_invariant:
                 # the grid at the training depth and spread over the test depths: twice the
                 # samples per coefficient of the spread grid alone (docs/rig.md)
-                train = join_tables(invariant_features(results["train"].dataset),
-                                    invariant_features(results["train_span"].dataset))
+                span = invariant_features(results["train_span"].dataset)
+                train = join_tables(invariant_features(results["train"].dataset), span)
+                depth_signals[tip] = depth_signal(span)
                 _fit_and_score(rows[INVARIANT], models_dir / INVARIANT, tip, train,
                                _test_tables(results, tests, invariant_features),
                                fit_invariant, INVARIANT,
@@ -167,7 +172,8 @@ def calibrate(
     for other in [*others, *([INVARIANT] if depth_invariant else [])]:
         atomic_write_text(out / f"r2_table_{other}.csv", r2_table_csv(rows[other]))
         atomic_write_text(out / f"r2_table_{other}.md",
-                          r2_table_markdown(rows[other], feature=other))
+                          r2_table_markdown(rows[other], feature=other)
+                          + (depth_signal_note(depth_signals) if other == INVARIANT else ""))
     seconds = time.perf_counter() - t_start
     log.finish()
     timings["total_s"] = seconds
@@ -186,6 +192,7 @@ def calibrate(
         "feature": feature,
         "rig": rig.record(),
         "depth_invariant": depth_invariant,
+        "invariant_depth_signal": depth_signals,  # leave-one-out R² (fit.depth_signal)
         "seed": scene.protocol.seed,
         "pose_sets": {s.name: len(s) for s in sets},
         "workers": workers,
@@ -206,6 +213,22 @@ def calibrate(
             invariant_chart(out, rows[feature], rows[INVARIANT])
     return CalibrationResult(out, rows[feature], seconds, samples, timings,
                              {f: rows[f] for f in rows if f != feature})
+
+
+def depth_signal_note(signals: dict[str, float]) -> str:
+    """The depth-invariant table's note on each tip's depth signal (:func:`depth_signal`),
+    with a warning for a tip whose inputs carry too little of the depth to follow it."""
+    if not signals:
+        return ""
+    cells = ", ".join(f"tip {t} {v:.2f}" for t, v in signals.items())
+    text = (f"\nDepth signal (leave-one-out R² of the spread grid's depth from the model's "
+            f"inputs, order {DEPTH_SIGNAL_ORDER}): {cells}.\n")
+    low = [t for t, v in signals.items() if not v >= DEPTH_SIGNAL_LOW]
+    if low:
+        text += (f"\n**Warning**: below {DEPTH_SIGNAL_LOW} for tip {', '.join(low)}: the "
+                 "perceived deformation tells the depth too poorly for the model to follow it; "
+                 "expect no gain over a model fitted across depths without it (docs/rig.md).\n")
+    return text
 
 
 def _test_tables(results: dict, tests: list, table: Callable

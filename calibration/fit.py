@@ -155,6 +155,49 @@ def fit_invariant(train: FeatureTable, order: int):
     return model.fit(train.cop_px, train.angles_deg)
 
 
+DEPTH_SIGNAL_ORDER = 2
+DEPTH_SIGNAL_LOW = 0.5
+"""Below this, the depth-invariant model's inputs explain less than half of the depth's
+variance on its spread training grid: it has no usable pressure signal (docs/rig.md)."""
+
+
+def depth_signal(table: FeatureTable, order: int = DEPTH_SIGNAL_ORDER) -> float:
+    """How much of the press depth the depth-invariant model's inputs carry: the leave-one-out
+    R² of ``table.depth_mm`` predicted by a least-squares polynomial of ``order`` in the
+    inputs (``table.cop_px``, standardised), over the samples of ``table`` — a training grid
+    spread over depths (``train_span``). Near 1 the inputs tell the depth, so the model can
+    follow it; near or below 0 they do not, and the model can only average over depths.
+
+    Leave-one-out residuals come from the hat matrix, ``e_i / (1 - h_ii)`` (exact for least
+    squares), so no refit per sample.
+
+    Raises
+    ------
+    DatasetError
+        Fewer samples than coefficients + 1, or a table whose depth does not vary.
+    """
+    from perception.vector_regression import vector_powers
+
+    x = np.asarray(table.cop_px, dtype=np.float64)
+    y = np.asarray(table.depth_mm, dtype=np.float64)
+    powers = vector_powers(order, x.shape[1])
+    if len(y) < len(powers) + 2:
+        raise DatasetError(f"{len(y)} samples are too few for the depth signal of an order-"
+                           f"{order} polynomial ({len(powers) + 1} coefficients)")
+    total = float(np.sum((y - y.mean()) ** 2))
+    if total <= 1e-12 * max(1.0, float(np.sum(y ** 2))):
+        raise DatasetError("the depth does not vary in this table: the depth signal needs a "
+                           "grid spread over depths (train_span)")
+    sd = x.std(axis=0)
+    z = (x - x.mean(axis=0)) / np.where(sd > 0, sd, 1.0)
+    a = np.hstack([np.ones((len(z), 1)), np.prod(z[:, None, :] ** powers[None], axis=2)])
+    q, _ = np.linalg.qr(a)
+    hat = np.einsum("ij,ij->i", q, q)
+    resid = y - q @ (q.T @ y)
+    loo = resid / np.maximum(1.0 - hat, 1e-12)
+    return float(1.0 - np.sum(loo ** 2) / total)
+
+
 def fit_model(train: FeatureTable, order: int, feature: str = DEFAULT_FEATURE):
     """A regressor of ``order`` for ``feature`` (:func:`make_model`) fitted on ``train``."""
     model = make_model(order, feature, train.image_size)

@@ -9,11 +9,13 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from calibration.calibrate import calibrate
+from calibration.calibrate import calibrate, depth_signal_note
 from calibration.dataset import DatasetError
 from calibration.fit import (
+    DEPTH_SIGNAL_LOW,
     INVARIANT_INPUTS,
     FeatureTable,
+    depth_signal,
     invariant_features,
     join_tables,
     load_any_model,
@@ -60,7 +62,12 @@ def test_calibrate_with_the_depth_invariant_model(cal):
     assert tuple(model.input_names) == INVARIANT_INPUTS
     assert fitted_on["feature"] == "invariant" and fitted_on["data"] == ["tip_A/train",
                                                                      "tip_A/train_span"]
-    assert json.loads((out / "manifest.json").read_text())["depth_invariant"] is True
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["depth_invariant"] is True
+    # on an ideal rig the perceived deformation tells the depth: no warning
+    assert manifest["invariant_depth_signal"]["A"] > DEPTH_SIGNAL_LOW
+    note = (out / "r2_table_invariant.md").read_text()
+    assert "Depth signal" in note and "Warning" not in note
     # the training set spans the depths; the deformation input grows with depth
     span = invariant_features(out / "tip_A" / "train_span")
     deeper = span.depth_mm > np.median(span.depth_mm)
@@ -106,3 +113,55 @@ def test_joined_tables_keep_every_sample_and_refuse_mixed_formats():
         join_tables(table(4), table(6, width=2))
     with pytest.raises(ValueError, match="tables"):
         join_tables()
+
+
+def _loo_by_refits(x, y, order):
+    """The leave-one-out R² the slow way: standardise and fit without each sample in turn,
+    then predict that sample."""
+    from perception.vector_regression import vector_powers
+
+    powers = vector_powers(order, x.shape[1])
+    pred = np.empty_like(y)
+    for i in range(len(y)):
+        keep = np.arange(len(y)) != i
+        mu, sd = x[keep].mean(axis=0), x[keep].std(axis=0)
+        def design(v, mu=mu, sd=sd):
+            z = (v - mu) / sd
+            return np.hstack([np.ones((len(v), 1)), np.prod(z[:, None, :] ** powers[None], axis=2)])
+        coef = np.linalg.lstsq(design(x[keep]), y[keep], rcond=None)[0]
+        pred[i] = (design(x[i:i + 1]) @ coef)[0]
+    return 1 - np.sum((y - pred) ** 2) / np.sum((y - y.mean()) ** 2)
+
+
+def test_the_depth_signal_is_the_leave_one_out_r2():
+    rng = np.random.default_rng(11)
+    n = 40
+    x = rng.normal(size=(n, 3)) * [30.0, 20.0, 2.0] + [320.0, 240.0, 5.0]
+
+    def table(depth):
+        return FeatureTable(x, np.zeros((n, 2)), depth, np.zeros(0, int), (640, 480))
+
+    # depth a quadratic of the inputs: the inputs tell it exactly
+    exact = 0.5 + 0.1 * (x[:, 2] - 5.0) + 0.01 * (x[:, 2] - 5.0) ** 2 + 1e-4 * x[:, 0]
+    assert depth_signal(table(exact)) == pytest.approx(1.0, abs=1e-9)
+    # depth with no relation to the inputs: nothing to tell (out-of-sample R² below zero)
+    noise = rng.uniform(0.5, 1.5, n)
+    assert depth_signal(table(noise)) < 0.05
+    # partly told: the hat-matrix shortcut equals refitting without each sample
+    part = 1.0 + 0.05 * (x[:, 2] - 5.0) + rng.normal(0, 0.08, n)
+    for order in (1, 2):
+        assert depth_signal(table(part), order) == pytest.approx(
+            _loo_by_refits(x, part, order), abs=1e-10)
+    with pytest.raises(DatasetError, match="does not vary"):
+        depth_signal(table(np.full(n, 1.0)))
+    with pytest.raises(DatasetError, match="too few"):
+        depth_signal(FeatureTable(x[:9], np.zeros((9, 2)), noise[:9], np.zeros(0, int),
+                                  (640, 480)))
+
+
+def test_a_low_depth_signal_is_flagged():
+    note = depth_signal_note({"A": 0.93, "B": 0.18})
+    assert "tip A 0.93, tip B 0.18" in note
+    assert "Warning" in note and "for tip B:" in note
+    assert "Warning" not in depth_signal_note({"A": 0.93})
+    assert depth_signal_note({}) == ""
