@@ -5,7 +5,9 @@ training-depth grid together, scored on one finished calibration's test sets (do
 
 DIR: a `tactip calibrate ... --depth-invariant --out DIR` folder. Prints, per tip, order and
 test depth, the R² of both training sets and of the paper's one-depth growth-CoP model (fitted
-on the training grid alone), all on the same test samples. Nothing is written.
+on the training grid alone), all on the same test samples, and the tip's depth signal (how much
+of the spread grid's depth the model's inputs carry, `calibration.fit.depth_signal`). Nothing
+is written.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import argparse
 from pathlib import Path
 
 from calibration.fit import (
+    depth_signal,
     features,
     fit_invariant,
     fit_model,
@@ -42,7 +45,8 @@ def compare(folder: Path) -> None:
         grid = invariant_features(tip_dir / "train")
         both = join_tables(grid, span)
         paper_train = features(tip_dir / "train")
-        print(f"\n{folder} tip {tip}: {len(span.cop_px)} spread + {len(grid.cop_px)} grid samples")
+        print(f"\n{folder} tip {tip}: {len(span.cop_px)} spread + {len(grid.cop_px)} grid samples"
+              f"; depth signal (leave-one-out R²) {depth_signal(span):.3f}")
         print("order  test depth   spread only   spread + grid   paper's (growth, one depth)")
         # each test set read once: (offset, the invariant model's table, the paper's table)
         test_tables = [(_offset(t), invariant_features(t), features(t)) for t in tests]
