@@ -12,7 +12,7 @@ from pathlib import Path
 import tactip_sim as ts
 from tactip_sim.scene import preset_of, scene_hash, scene_to_dict
 
-from .dataset import atomic_write_text, json_default, safe_name
+from .dataset import DatasetError, atomic_write_text, json_default, safe_name
 from .executor import close_client, open_client
 from .fit import (
     DEFAULT_FEATURE,
@@ -120,7 +120,7 @@ def calibrate(
     models_dir = out / "models"
     models_dir.mkdir(exist_ok=True)
     tip_info = {}
-    depth_signals: dict[str, float] = {}  # --depth-invariant: how much depth its inputs carry
+    depth_signals: dict[str, float | None] = {}  # --depth-invariant: depth its inputs tell
     sets = [training_set(scene), *evaluation_sets(scene)]
     tests = sets[1:]
     if depth_invariant:
@@ -152,7 +152,10 @@ def calibrate(
                 # samples per coefficient of the spread grid alone (docs/rig.md)
                 span = invariant_features(results["train_span"].dataset)
                 train = join_tables(invariant_features(results["train"].dataset), span)
-                depth_signals[tip] = depth_signal(span)
+                try:
+                    depth_signals[tip] = depth_signal(span)
+                except DatasetError:  # a spread grid too small to tell: reported, not fatal
+                    depth_signals[tip] = None
                 _fit_and_score(rows[INVARIANT], models_dir / INVARIANT, tip, train,
                                _test_tables(results, tests, invariant_features),
                                fit_invariant, INVARIANT,
@@ -215,15 +218,17 @@ def calibrate(
                              {f: rows[f] for f in rows if f != feature})
 
 
-def depth_signal_note(signals: dict[str, float]) -> str:
-    """The depth-invariant table's note on each tip's depth signal (:func:`depth_signal`),
-    with a warning for a tip whose inputs carry too little of the depth to follow it."""
+def depth_signal_note(signals: dict[str, float | None]) -> str:
+    """The depth-invariant table's note on each tip's depth signal (:func:`depth_signal`;
+    None: too few spread samples to measure it), with a warning for a tip whose inputs carry
+    too little of the depth to follow it."""
     if not signals:
         return ""
-    cells = ", ".join(f"tip {t} {v:.2f}" for t, v in signals.items())
+    cells = ", ".join(f"tip {t} " + ("not measured (too few spread samples)" if v is None
+                                     else f"{v:.2f}") for t, v in signals.items())
     text = (f"\nDepth signal (leave-one-out R² of the spread grid's depth from the model's "
             f"inputs, order {DEPTH_SIGNAL_ORDER}): {cells}.\n")
-    low = [t for t, v in signals.items() if not v >= DEPTH_SIGNAL_LOW]
+    low = [t for t, v in signals.items() if v is not None and v < DEPTH_SIGNAL_LOW]
     if low:
         text += (f"\n**Warning**: below {DEPTH_SIGNAL_LOW} for tip {', '.join(low)}: the "
                  "perceived deformation tells the depth too poorly for the model to follow it; "

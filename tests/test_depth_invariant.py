@@ -165,3 +165,5 @@ def test_a_low_depth_signal_is_flagged():
     assert "Warning" in note and "for tip B:" in note
     assert "Warning" not in depth_signal_note({"A": 0.93})
     assert depth_signal_note({}) == ""
+    none = depth_signal_note({"A": None})
+    assert "tip A not measured" in none and "Warning" not in none
