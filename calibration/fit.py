@@ -169,7 +169,8 @@ def depth_signal(table: FeatureTable, order: int = DEPTH_SIGNAL_ORDER) -> float:
     follow it; near or below 0 they do not, and the model can only average over depths.
 
     Leave-one-out residuals come from the hat matrix, ``e_i / (1 - h_ii)`` (exact for least
-    squares), so no refit per sample.
+    squares), so no refit per sample; inputs that repeat one another (a rank-deficient
+    design) are fitted on the span they have.
 
     Raises
     ------
@@ -191,7 +192,8 @@ def depth_signal(table: FeatureTable, order: int = DEPTH_SIGNAL_ORDER) -> float:
     sd = x.std(axis=0)
     z = (x - x.mean(axis=0)) / np.where(sd > 0, sd, 1.0)
     a = np.hstack([np.ones((len(z), 1)), np.prod(z[:, None, :] ** powers[None], axis=2)])
-    q, _ = np.linalg.qr(a)
+    u, sv, _ = np.linalg.svd(a, full_matrices=False)
+    q = u[:, sv > sv[0] * len(a) * np.finfo(float).eps]  # the columns' span, rank-revealing
     hat = np.einsum("ij,ij->i", q, q)
     resid = y - q @ (q.T @ y)
     loo = resid / np.maximum(1.0 - hat, 1e-12)

@@ -152,6 +152,9 @@ def test_the_depth_signal_is_the_leave_one_out_r2():
     for order in (1, 2):
         assert depth_signal(table(part), order) == pytest.approx(
             _loo_by_refits(x, part, order), abs=1e-10)
+    # an input repeated: the same polynomial span, the same answer
+    twice = FeatureTable(np.c_[x, x[:, 2]], np.zeros((n, 2)), part, np.zeros(0, int), (640, 480))
+    assert depth_signal(twice, 1) == pytest.approx(depth_signal(table(part), 1), abs=1e-9)
     with pytest.raises(DatasetError, match="does not vary"):
         depth_signal(table(np.full(n, 1.0)))
     with pytest.raises(DatasetError, match="too few"):
