@@ -231,8 +231,9 @@ def depth_signal_note(signals: dict[str, float | None]) -> str:
     low = [t for t, v in signals.items() if v is not None and v < DEPTH_SIGNAL_LOW]
     if low:
         text += (f"\n**Warning**: below {DEPTH_SIGNAL_LOW} for tip {', '.join(low)}: the "
-                 "perceived deformation tells the depth too poorly for the model to follow it; "
-                 "expect no gain over a model fitted across depths without it (docs/rig.md).\n")
+                 "perceived deformation tells the depth too poorly for the model to follow it, "
+                 "and off the training depth it may do worse than the paper's one-depth model "
+                 "(docs/rig.md).\n")
     return text
 
 

@@ -177,7 +177,7 @@ def depth_signal(table: FeatureTable, order: int = DEPTH_SIGNAL_ORDER) -> float:
     DatasetError
         Fewer samples than coefficients + 1, or a table whose depth does not vary.
     """
-    from perception.vector_regression import vector_powers
+    from perception.vector_regression import monomials, vector_powers
 
     x = np.asarray(table.cop_px, dtype=np.float64)
     y = np.asarray(table.depth_mm, dtype=np.float64)
@@ -191,7 +191,7 @@ def depth_signal(table: FeatureTable, order: int = DEPTH_SIGNAL_ORDER) -> float:
                            "grid spread over depths (train_span)")
     sd = x.std(axis=0)
     z = (x - x.mean(axis=0)) / np.where(sd > 0, sd, 1.0)
-    a = np.hstack([np.ones((len(z), 1)), np.prod(z[:, None, :] ** powers[None], axis=2)])
+    a = np.hstack([np.ones((len(z), 1)), monomials(z, powers)])
     u, sv, _ = np.linalg.svd(a, full_matrices=False)
     q = u[:, sv > sv[0] * len(a) * np.finfo(float).eps]  # the columns' span, rank-revealing
     hat = np.einsum("ij,ij->i", q, q)

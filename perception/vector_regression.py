@@ -19,7 +19,7 @@ import numpy as np
 from .errors import ModelError, PerceptionError
 from .regression import RegressionScore, _check_size, model_json, score_predictions
 
-__all__ = ["VectorRegressor", "vector_powers"]
+__all__ = ["VectorRegressor", "monomials", "vector_powers"]
 
 _FORMAT = "perception.VectorRegressor"
 _FORMAT_VERSION = 1
@@ -33,6 +33,12 @@ def vector_powers(order: int, n_inputs: int) -> np.ndarray:
         for combo in combinations_with_replacement(range(n_inputs), degree):
             rows.append(np.bincount(combo, minlength=n_inputs))
     return np.array(rows, dtype=np.int64).reshape(-1, n_inputs)
+
+
+def monomials(z: np.ndarray, powers: np.ndarray) -> np.ndarray:
+    """(n, n_features): the monomials ``prod_k z_k ** powers[f, k]`` of the rows of ``z``
+    (n, d), for exponents ``powers`` (n_features, d) from :func:`vector_powers`."""
+    return np.prod(z[:, None, :] ** powers[None], axis=2)
 
 
 class VectorRegressor:
@@ -94,7 +100,7 @@ class VectorRegressor:
         if self.mean_ is None:
             raise ModelError("VectorRegressor is not fitted: call fit() or load a model first")
         z = (self._inputs(x) - self.mean_) / self.std_
-        return np.prod(z[:, None, :] ** self.powers_[None], axis=2)
+        return monomials(z, self.powers_)
 
     def fit(self, x: np.ndarray, angles_deg: np.ndarray) -> VectorRegressor:
         """Least-squares fit.
