@@ -1,13 +1,14 @@
 """The depth-invariant model fitted on the spread grid alone against the spread grid and the
-training-depth grid together, scored on one finished calibration's test sets (docs/rig.md).
+training-depth grid together, and without its shift input, scored on one finished
+calibration's test sets (docs/rig.md).
 
     python benchmarks/compare_invariant_training.py DIR [DIR ...]
 
 DIR: a `tactip calibrate ... --depth-invariant --out DIR` folder. Prints, per tip, order and
-test depth, the R² of both training sets and of the paper's one-depth growth-CoP model (fitted
-on the training grid alone), all on the same test samples, and the tip's depth signal (how much
-of the spread grid's depth the model's inputs carry, `calibration.fit.depth_signal`). Nothing
-is written.
+test depth, the R² of both training sets, of the model without the array's shift (both grids)
+and of the paper's one-depth growth-CoP model (fitted on the training grid alone), all on the
+same test samples, and the tip's depth signal (how much of the spread grid's depth the
+pressure inputs carry, `calibration.fit.depth_signal`). Nothing is written.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from calibration.fit import (
     fit_model,
     invariant_features,
     join_tables,
+    pressure_part,
     score,
 )
 
@@ -46,17 +48,19 @@ def compare(folder: Path) -> None:
         both = join_tables(grid, span)
         paper_train = features(tip_dir / "train")
         print(f"\n{folder} tip {tip}: {len(span.cop_px)} spread + {len(grid.cop_px)} grid samples"
-              f"; depth signal (leave-one-out R²) {depth_signal(span):.3f}")
-        print("order  test depth   spread only   spread + grid   paper's (growth, one depth)")
+              f"; depth signal (leave-one-out R²) {depth_signal(pressure_part(span)):.3f}")
+        print("order  test depth   spread only   spread + grid   no shift   "
+              "paper's (growth, one depth)")
         # each test set read once: (offset, the invariant model's table, the paper's table)
         test_tables = [(_offset(t), invariant_features(t), features(t)) for t in tests]
         for order in ORDERS:
             models = (fit_invariant(span, order), fit_invariant(both, order),
-                      fit_model(paper_train, order))
+                      fit_invariant(both, order, shift=False), fit_model(paper_train, order))
             for offset, inv, cop in test_tables:
                 r2 = [score(m, t, tip=tip, depth_offset_mm=offset).r2
-                      for m, t in zip(models, (inv, inv, cop), strict=True)]
-                print(f"{order:5d}  {offset:+9.1f}   {r2[0]:11.3f}   {r2[1]:13.3f}   {r2[2]:.3f}")
+                      for m, t in zip(models, (inv, inv, pressure_part(inv), cop), strict=True)]
+                print(f"{order:5d}  {offset:+9.1f}   {r2[0]:11.3f}   {r2[1]:13.3f}   "
+                      f"{r2[2]:8.3f}   {r2[3]:.3f}")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -29,6 +29,7 @@ from .fit import (
     fit_model,
     invariant_features,
     join_tables,
+    pressure_part,
     r2_table_csv,
     r2_table_markdown,
     save_model,
@@ -153,7 +154,7 @@ def calibrate(
                 span = invariant_features(results["train_span"].dataset)
                 train = join_tables(invariant_features(results["train"].dataset), span)
                 try:
-                    depth_signals[tip] = depth_signal(span)
+                    depth_signals[tip] = depth_signal(pressure_part(span))
                 except DatasetError:  # a spread grid too small to tell: reported, not fatal
                     depth_signals[tip] = None
                 _fit_and_score(rows[INVARIANT], models_dir / INVARIANT, tip, train,

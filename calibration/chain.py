@@ -39,6 +39,7 @@ import numpy as np
 import tactip_sim as ts
 from tactip_sim.scene import scene_hash
 
+from .frames import rest_pipeline
 from .protocol import Tip, make_tip
 
 REST_KEY = 2**31 - 1
@@ -229,7 +230,6 @@ class Chain:
     def __init__(self, scene: ts.Scene, *, pad: ts.Pad | None = None, mesh: Any = None,
                  frames: int | None = None, tip_index: int = 0,
                  press_cache: dict | None = None, tip: Tip | None = None) -> None:
-        import perception as pc
         from tactip_sim.render import Renderer
 
         t0 = time.perf_counter()
@@ -248,7 +248,7 @@ class Chain:
         rest = self.render(None, REST_KEY, frames=1)
         self.rest_image = rest.images[0]
         self.rest_truth_px = rest.blobs_px
-        self.pipeline = pc.FeaturePipeline(self.rest_image, expected_count=scene.pins.count)
+        self.pipeline = rest_pipeline(self.rest_image, scene.pins.count)
         self.pin_of = identify_markers(self.pipeline.rest_points, self.rest_truth_px,
                                        self.pipeline.spacing_px)
         self.n_pins = len(self.rest_truth_px)

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from .dataset import Dataset, DatasetError, json_default
+from .frames import SHIFT_INPUTS, array_shift
 
 # Table I of the reference paper: R² at depths -0.5 / 0 / +0.5 mm, per tip and order
 PAPER_R2 = {
@@ -61,11 +62,17 @@ FOLDER_FEATURES = {**FEATURES, **VECTOR_FEATURES}
 
 
 INVARIANT = "invariant"
-INVARIANT_INPUTS = ("cop_growth_x_px", "cop_growth_y_px", "deformation_px")
+PRESSURE_INPUTS = ("cop_growth_x_px", "cop_growth_y_px", "deformation_px")
+"""The depth-invariant model's polynomial inputs: the growth CoP and the perceived deformation
+(mean marker displacement magnitude, recorded by the sweep), which carries the press depth."""
+INVARIANT_INPUTS = (*PRESSURE_INPUTS, *SHIFT_INPUTS)
+"""Every input of the depth-invariant model: :data:`PRESSURE_INPUTS`, then the marker array's
+mean shift (:func:`calibration.frames.array_shift`), which enters linearly."""
 SWEEP_FEATURES = {**FOLDER_FEATURES, INVARIANT:
-                  "the depth-invariant estimate: growth CoP and the perceived deformation (mean "
-                  "marker displacement), fitted on the training grid and the grid spread over "
-                  "the test depths (tactip calibrate --depth-invariant; docs/rig.md)"}
+                  "the depth-invariant estimate: a polynomial in the growth CoP and the "
+                  "perceived deformation (mean marker displacement), plus linear terms in the "
+                  "marker array's mean shift, fitted on the training grid and the grid spread "
+                  "over the test depths (tactip calibrate --depth-invariant; docs/rig.md)"}
 """Every feature a saved model may name (the invariant one is made and scored by
 ``tactip calibrate`` on its sweeps)."""
 
@@ -104,20 +111,24 @@ def features(dataset: Dataset | str | Path, *, feature: str = DEFAULT_FEATURE) -
 
 
 def invariant_features(dataset: Dataset | str | Path) -> FeatureTable:
-    """A finished dataset's inputs of the depth-invariant model (:data:`INVARIANT_INPUTS`:
-    the growth CoP and the perceived deformation, ``cop_px`` (n, 3)) with the poses.
+    """A finished dataset's inputs of the depth-invariant model (:data:`INVARIANT_INPUTS`,
+    ``cop_px`` (n, 5)) with the poses: the growth CoP and the perceived deformation as the
+    sweep recorded them, and the array's mean shift perceived on each sample's stored frame
+    (:func:`calibration.frames.array_shift`; a few seconds per hundred samples).
 
     Raises
     ------
     DatasetError
-        The dataset records no deformation (made before it was recorded: rerun the sweep).
+        The dataset records no deformation (made before it was recorded: rerun the sweep) or
+        keeps no rest frame.
     """
     ds = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
     t = ds.table()
-    x = np.stack([t[c] for c in INVARIANT_INPUTS], axis=1)
-    if len(x) and not np.isfinite(t["deformation_px"]).any():
+    if len(t["index"]) and not np.isfinite(t["deformation_px"]).any():
         raise DatasetError(f"{ds.root} records no deformation_px (a dataset made before it was "
                            "recorded): rerun the sweep into a new folder")
+    x = np.hstack([np.stack([t[c] for c in PRESSURE_INPUTS], axis=1),
+                   array_shift(ds, t["index"]).reshape(-1, len(SHIFT_INPUTS))])
     angles = np.stack([t["roll_deg"], t["pitch_deg"]], axis=1)
     ok = np.all(np.isfinite(x), axis=1)
     res = ds.manifest().get("scene", {}).get("camera", {}).get("resolution", [0, 0])
@@ -142,17 +153,32 @@ def join_tables(*tables: FeatureTable) -> FeatureTable:
                         np.concatenate([t.dropped for t in tables]), tables[0].image_size)
 
 
-def fit_invariant(train: FeatureTable, order: int):
+def fit_invariant(train: FeatureTable, order: int, *, shift: bool = True):
     """The depth-invariant model of ``order``: a :class:`VectorRegressor` on
-    :data:`INVARIANT_INPUTS`, fitted on ``train`` (:func:`invariant_features`)."""
+    :data:`INVARIANT_INPUTS`, a polynomial of ``order`` in :data:`PRESSURE_INPUTS` plus one
+    linear term per shift component, fitted on ``train`` (:func:`invariant_features`).
+    ``shift=False``: the model without the shift, on :data:`PRESSURE_INPUTS` alone (predict
+    from :func:`pressure_part` tables; for comparison, docs/rig.md)."""
     from perception.vector_regression import VectorRegressor
 
-    model = VectorRegressor(order, input_names=INVARIANT_INPUTS, image_size=train.image_size)
+    if shift:
+        model = VectorRegressor(order, input_names=INVARIANT_INPUTS,
+                                image_size=train.image_size, linear_inputs=SHIFT_INPUTS)
+    else:
+        model = VectorRegressor(order, input_names=PRESSURE_INPUTS, image_size=train.image_size)
+        train = pressure_part(train)
     n_coef = len(model.powers_) + 1
     if len(train.cop_px) < max(3 * (order + 1), n_coef):
         raise DatasetError(f"only {len(train.cop_px)} usable training samples for an order-"
                            f"{order} depth-invariant model ({n_coef} coefficients)")
     return model.fit(train.cop_px, train.angles_deg)
+
+
+def pressure_part(table: FeatureTable) -> FeatureTable:
+    """The :data:`PRESSURE_INPUTS` columns of an :func:`invariant_features` table (what
+    :func:`depth_signal` asks about: the shift is there for the tilt, not the depth)."""
+    return FeatureTable(table.cop_px[:, :len(PRESSURE_INPUTS)], table.angles_deg,
+                        table.depth_mm, table.dropped, table.image_size)
 
 
 DEPTH_SIGNAL_ORDER = 2
@@ -162,7 +188,8 @@ variance on its spread training grid: it has no usable pressure signal (docs/rig
 
 
 def depth_signal(table: FeatureTable, order: int = DEPTH_SIGNAL_ORDER) -> float:
-    """How much of the press depth the depth-invariant model's inputs carry: the leave-one-out
+    """How much of the press depth the depth-invariant model's polynomial inputs carry
+    (:func:`pressure_part` of its table): the leave-one-out
     R² of ``table.depth_mm`` predicted by a least-squares polynomial of ``order`` in the
     inputs (``table.cop_px``, standardised), over the samples of ``table`` — a training grid
     spread over depths (``train_span``). Near 1 the inputs tell the depth, so the model can

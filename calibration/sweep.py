@@ -29,6 +29,7 @@ from .chain import Chain, set_tag
 from .dataset import Dataset, SampleRecord, poses_digest
 from .executor import execute
 from .executor import progress as progress_bar
+from .frames import rest_pipeline
 from .protocol import PoseSet, make_tip
 from .rig import TAP_STEPS, RigModel, find_zero, jpeg_roundtrip, motion_blur
 from .versions import package_versions, perception_results_version, physics_results_version
@@ -248,13 +249,10 @@ def _pipeline(spec: SweepSpec, chain: Chain) -> tuple[Any, np.ndarray]:
         return chain.pipeline, chain.pin_of
     key = (spec.chain_key(), q)
     if key not in _PIPELINES:
-        import perception as pc
-
         from .chain import identify_markers
 
         _PIPELINES.clear()
-        pipe = pc.FeaturePipeline(jpeg_roundtrip(chain.rest_image, q),
-                                  expected_count=chain.scene.pins.count)
+        pipe = rest_pipeline(chain.rest_image, chain.scene.pins.count, q)
         _PIPELINES[key] = (pipe, identify_markers(pipe.rest_points, chain.rest_truth_px,
                                                   pipe.spacing_px))
     return _PIPELINES[key]

@@ -3,7 +3,9 @@ and pitch, by polynomial least squares.
 
 The same model as :class:`perception.PoseRegressor` (a multivariate polynomial of order 1-3,
 ordinary least squares, one output per angle) for d inputs instead of the two CoP
-coordinates. Each input is standardised with the training mean and standard deviation
+coordinates. Inputs named in ``linear_inputs`` enter at degree 1 only (no powers, no
+products): the polynomial spans the other inputs, and each linear input adds one term. Each
+input is standardised with the training mean and standard deviation
 (``z_k = (x_k - mean_k) / std_k``) before the monomials are formed, so that inputs in px and
 in px/px enter on one scale and the design matrix stays well conditioned. A saved model is
 plain JSON, as for :class:`~perception.PoseRegressor`.
@@ -19,7 +21,7 @@ import numpy as np
 from .errors import ModelError, PerceptionError
 from .regression import RegressionScore, _check_size, model_json, score_predictions
 
-__all__ = ["VectorRegressor", "monomials", "vector_powers"]
+__all__ = ["VectorRegressor", "monomials", "structured_powers", "vector_powers"]
 
 _FORMAT = "perception.VectorRegressor"
 _FORMAT_VERSION = 1
@@ -33,6 +35,20 @@ def vector_powers(order: int, n_inputs: int) -> np.ndarray:
         for combo in combinations_with_replacement(range(n_inputs), degree):
             rows.append(np.bincount(combo, minlength=n_inputs))
     return np.array(rows, dtype=np.int64).reshape(-1, n_inputs)
+
+
+def structured_powers(order: int, n_inputs: int, linear: tuple[int, ...] = ()) -> np.ndarray:
+    """(n_features, n_inputs) int: the monomials of degree 1..order of the inputs not in
+    ``linear`` (:func:`vector_powers`' order), then degree 1 of each input in ``linear`` (in the
+    order given). With ``linear`` empty it is :func:`vector_powers`."""
+    poly = [k for k in range(n_inputs) if k not in linear]
+    rows = np.zeros((0, n_inputs), dtype=np.int64)
+    if poly:
+        sub = vector_powers(order, len(poly))
+        rows = np.zeros((len(sub), n_inputs), dtype=np.int64)
+        rows[:, poly] = sub
+    unit = np.eye(n_inputs, dtype=np.int64)[list(linear)]
+    return np.vstack([rows, unit])
 
 
 def monomials(z: np.ndarray, powers: np.ndarray) -> np.ndarray:
@@ -52,6 +68,9 @@ class VectorRegressor:
     image_size : (w, h), px, optional
         The frame format the features were measured on (recorded, checked by the caller).
     angle_names : (2,) str
+    linear_inputs : sequence of str, optional
+        Inputs (by name) that enter at degree 1 only; the polynomial of ``order`` spans the
+        others (default: none, the full polynomial in every input).
 
     Attributes
     ----------
@@ -64,7 +83,8 @@ class VectorRegressor:
 
     def __init__(self, order: int = 2, *, input_names: tuple[str, ...] | list[str],
                  image_size: tuple[int, int] | None = None,
-                 angle_names: tuple[str, str] = ("roll_deg", "pitch_deg")) -> None:
+                 angle_names: tuple[str, str] = ("roll_deg", "pitch_deg"),
+                 linear_inputs: tuple[str, ...] | list[str] = ()) -> None:
         if isinstance(order, bool) or order not in (1, 2, 3):
             raise PerceptionError(f"order={order!r} must be 1, 2 or 3")
         names = tuple(str(n) for n in input_names)
@@ -74,7 +94,14 @@ class VectorRegressor:
         self.input_names = names
         self.image_size = None if image_size is None else _check_size(image_size)
         self.angle_names = (str(angle_names[0]), str(angle_names[1]))
-        self.powers_ = vector_powers(self.order, len(names))
+        linear = tuple(str(n) for n in linear_inputs)
+        unknown = [n for n in linear if n not in names]
+        if unknown or len(set(linear)) != len(linear):
+            raise PerceptionError(f"linear_inputs={list(linear)!r} must name distinct inputs "
+                                  f"among input_names ({', '.join(names)})")
+        self.linear_inputs = linear
+        self.powers_ = structured_powers(self.order, len(names),
+                                         tuple(names.index(n) for n in linear))
         self.coef_: np.ndarray | None = None
         self.intercept_: np.ndarray | None = None
         self.mean_: np.ndarray | None = None
@@ -156,6 +183,7 @@ class VectorRegressor:
         return {"format": _FORMAT, "version": _FORMAT_VERSION, "order": self.order,
                 "angle_names": list(self.angle_names), "input_names": list(self.input_names),
                 "image_size": None if self.image_size is None else list(self.image_size),
+                "linear_inputs": list(self.linear_inputs),
                 "normalisation": {"mean": self.mean_.tolist(), "std": self.std_.tolist(),
                                   "formula": "z_k = (x_k - mean[k]) / std[k]"},
                 "powers": self.powers_.tolist(), "coef": self.coef_.tolist(),
@@ -173,7 +201,8 @@ class VectorRegressor:
             raise ModelError(f"unsupported model version {data.get('version')!r}")
         try:
             model = cls(int(data["order"]), input_names=data["input_names"],
-                        image_size=data["image_size"], angle_names=tuple(data["angle_names"]))
+                        image_size=data["image_size"], angle_names=tuple(data["angle_names"]),
+                        linear_inputs=data.get("linear_inputs", ()))
             powers = np.asarray(data["powers"], dtype=np.int64)
             coef = np.asarray(data["coef"], dtype=np.float64)
             intercept = np.asarray(data["intercept"], dtype=np.float64)
@@ -183,7 +212,8 @@ class VectorRegressor:
             raise ModelError(f"malformed model description: {exc!r}") from None
         d, nf = model.n_inputs, len(model.powers_)
         if not np.array_equal(powers, model.powers_):
-            raise ModelError(f"powers do not match an order-{model.order} model of {d} inputs")
+            raise ModelError(f"powers do not match an order-{model.order} model of {d} inputs "
+                             f"(linear in {list(model.linear_inputs)})")
         if coef.shape != (2, nf) or intercept.shape != (2,) or mean.shape != (d,) \
                 or std.shape != (d,):
             raise ModelError("coefficient, intercept or normalisation arrays have the wrong "
@@ -201,4 +231,5 @@ class VectorRegressor:
     def __repr__(self) -> str:
         state = "fitted" if self.coef_ is not None else "unfitted"
         return (f"VectorRegressor(order={self.order}, inputs={self.n_inputs}, "
+                f"linear={len(self.linear_inputs)}, "
                 f"image_size={self.image_size}, {state})")

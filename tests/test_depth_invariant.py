@@ -10,10 +10,12 @@ import pytest
 
 import tactip_sim as ts
 from calibration.calibrate import calibrate, depth_signal_note
-from calibration.dataset import DatasetError
+from calibration.dataset import Dataset, DatasetError
+from calibration.frames import array_shift
 from calibration.fit import (
     DEPTH_SIGNAL_LOW,
     INVARIANT_INPUTS,
+    SHIFT_INPUTS,
     FeatureTable,
     depth_signal,
     invariant_features,
@@ -60,6 +62,7 @@ def test_calibrate_with_the_depth_invariant_model(cal):
     assert text[0].startswith("tip,order,depth_mm,r2") and len(text) == 10
     model, fitted_on = load_any_model(out / "models" / "invariant" / "tip_A_order2.json")
     assert tuple(model.input_names) == INVARIANT_INPUTS
+    assert model.linear_inputs == SHIFT_INPUTS  # the shift enters linearly
     assert fitted_on["feature"] == "invariant" and fitted_on["data"] == ["tip_A/train",
                                                                      "tip_A/train_span"]
     manifest = json.loads((out / "manifest.json").read_text())
@@ -72,6 +75,10 @@ def test_calibrate_with_the_depth_invariant_model(cal):
     span = invariant_features(out / "tip_A" / "train_span")
     deeper = span.depth_mm > np.median(span.depth_mm)
     assert span.cop_px[deeper, 2].mean() > 1.3 * span.cop_px[~deeper, 2].mean()
+    # the array's shift, perceived on the stored frames, is within the deformation (the mean
+    # of the displacements' lengths bounds the length of their mean)
+    shift = np.hypot(span.cop_px[:, 3], span.cop_px[:, 4])
+    assert np.isfinite(shift).all() and (shift <= span.cop_px[:, 2] + 0.05).all()
     # every test set is scored on its usable samples, and the model is a usable one there
     assert all(r.n >= 14 and r.r2 > 0.8 for r in rows if r.order == 2)
     from calibration.report import invariant_chart, summary_charts
@@ -170,3 +177,40 @@ def test_a_low_depth_signal_is_flagged():
     assert depth_signal_note({}) == ""
     none = depth_signal_note({"A": None})
     assert "tip A not measured" in none and "Warning" not in none
+
+
+def _shifted_dataset(root, jpeg_quality, shifts):
+    """A dataset folder of synthetic frames: a marker lattice at rest and translated by each
+    of ``shifts`` (px), as a sweep lays them out (manifest, rest frame, sample frames)."""
+    import cv2
+
+    import perception as pc
+    from perception.synthetic import render_markers
+
+    rest_pts = pc.hex_lattice(61, 26.0, (320.0, 240.0))
+    rng = np.random.default_rng(3)
+    ds = Dataset(root)
+    ds.open_for_sweep({"rig": {"jpeg_quality": jpeg_quality}},
+                      {"scene": {"pins": {"count": len(rest_pts)}}})
+    frame = render_markers(rest_pts, diameter_px=11.0, noise_sigma=0.01, rng=rng).image
+    ds.write_rest(cv2.imencode(".png", frame)[1].tobytes())
+    for i, d in enumerate(shifts):
+        img = render_markers(rest_pts + d, diameter_px=11.0, noise_sigma=0.01, rng=rng).image
+        if jpeg_quality:
+            from calibration.rig import jpeg_roundtrip
+
+            img = jpeg_roundtrip(img, jpeg_quality)  # the sweep stores compressed frames
+        (root / "images" / f"{i:05d}.png").write_bytes(cv2.imencode(".png", img)[1].tobytes())
+    return ds
+
+
+@pytest.mark.parametrize("jpeg_quality", [0, 75])
+def test_the_array_shift_of_stored_frames_is_their_translation(tmp_path, jpeg_quality):
+    shifts = [(2.5, -1.5), (-0.75, 3.25), (0.0, 0.0)]  # px, chosen here
+    ds = _shifted_dataset(tmp_path / "set", jpeg_quality, shifts)
+    got = array_shift(ds, np.arange(4))  # sample 3 has no frame: NaN, not an error
+    np.testing.assert_allclose(got[:3], shifts, atol=0.05 if jpeg_quality == 0 else 0.1)
+    assert np.isnan(got[3]).all()
+    (tmp_path / "set" / "images" / "rest.png").unlink()
+    with pytest.raises(DatasetError, match="no rest frame"):
+        array_shift(ds, np.arange(1))

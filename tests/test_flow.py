@@ -149,6 +149,58 @@ def test_vector_regressor_matches_scikit_learn_on_noisy_data():
         np.testing.assert_allclose(ours.predict(xt), ref.predict(xt), atol=1e-6)
 
 
+def _partly_linear(n, rng, square=0.0):
+    """Angles that are a quadratic in inputs a, b and linear in c and d (plus ``square`` times
+    c², which a model linear in c cannot represent)."""
+    x = np.column_stack([rng.uniform(-3, 3, n), rng.uniform(10, 30, n), rng.normal(0, 2, n),
+                         rng.normal(5, 1, n)])
+    roll = 1.5 * x[:, 0] * x[:, 1] - 0.2 * x[:, 1] ** 2 + 3.0 * x[:, 2] - 2.0 * x[:, 3]
+    pitch = 0.5 * x[:, 0] ** 2 + 7.0 * x[:, 3] + 1.0 + square * x[:, 2] ** 2
+    return x, np.column_stack([roll, pitch])
+
+
+def test_linear_inputs_enter_at_degree_one_only(tmp_path):
+    import json
+
+    rng = np.random.default_rng(5)
+    names = ("a", "b", "c", "d")
+    m = VectorRegressor(2, input_names=names, linear_inputs=("c", "d"))
+    # a quadratic in two inputs has 5 monomials; each linear input adds one: 7 (+ the constant)
+    assert len(m.powers_) == 7
+    x, y = _partly_linear(60, rng)
+    m.fit(x, y)
+    xt, yt = _partly_linear(20, rng)
+    np.testing.assert_allclose(m.predict(xt), yt, atol=1e-8)
+    back = VectorRegressor.from_dict(json.loads(m.to_json()))
+    assert back.linear_inputs == ("c", "d")
+    np.testing.assert_allclose(back.predict(xt), m.predict(xt), rtol=0, atol=1e-12)
+    # c², c·a and the like are not in the model: a curved answer in c is not fitted exactly,
+    # while the full quadratic in every input fits it
+    x2, y2 = _partly_linear(60, rng, square=0.8)
+    xt2, yt2 = _partly_linear(20, rng, square=0.8)
+    part = VectorRegressor(2, input_names=names, linear_inputs=("c", "d")).fit(x2, y2)
+    full = VectorRegressor(2, input_names=names).fit(x2, y2)
+    assert np.abs(part.predict(xt2) - yt2).max() > 0.5
+    np.testing.assert_allclose(full.predict(xt2), yt2, atol=1e-8)
+    # the same model as scikit-learn's least squares on the same columns (a second method)
+    from sklearn.linear_model import LinearRegression
+
+    z = (x - x.mean(axis=0)) / x.std(axis=0)
+    cols = np.column_stack([z[:, 0], z[:, 1], z[:, 0] ** 2, z[:, 0] * z[:, 1], z[:, 1] ** 2,
+                            z[:, 2], z[:, 3]])
+    noisy = y + rng.normal(0, 0.5, y.shape)
+    ref = LinearRegression().fit(cols, noisy)
+    ours = VectorRegressor(2, input_names=names, linear_inputs=("c", "d")).fit(x, noisy)
+    zt = (xt - x.mean(axis=0)) / x.std(axis=0)
+    colt = np.column_stack([zt[:, 0], zt[:, 1], zt[:, 0] ** 2, zt[:, 0] * zt[:, 1],
+                            zt[:, 1] ** 2, zt[:, 2], zt[:, 3]])
+    np.testing.assert_allclose(ours.predict(xt), ref.predict(colt), atol=1e-8)
+    with pytest.raises(PerceptionError, match="linear_inputs"):
+        VectorRegressor(2, input_names=names, linear_inputs=("e",))
+    with pytest.raises(PerceptionError, match="linear_inputs"):
+        VectorRegressor(2, input_names=names, linear_inputs=("c", "c"))
+
+
 def test_vector_regressor_errors_name_the_problem():
     m = VectorRegressor(2, input_names=("a", "b"))
     with pytest.raises(ModelError, match="not fitted"):
