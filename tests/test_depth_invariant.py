@@ -11,7 +11,6 @@ import pytest
 import tactip_sim as ts
 from calibration.calibrate import calibrate, depth_signal_note
 from calibration.dataset import Dataset, DatasetError
-from calibration.frames import array_shift
 from calibration.fit import (
     DEPTH_SIGNAL_LOW,
     INVARIANT_INPUTS,
@@ -22,6 +21,7 @@ from calibration.fit import (
     join_tables,
     load_any_model,
 )
+from calibration.frames import array_shift
 from calibration.protocol import span_training_set, training_set
 
 
