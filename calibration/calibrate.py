@@ -228,7 +228,7 @@ def depth_signal_note(signals: dict[str, float | None]) -> str:
     cells = ", ".join(f"tip {t} " + ("not measured (too few spread samples)" if v is None
                                      else f"{v:.2f}") for t, v in signals.items())
     text = (f"\nDepth signal (leave-one-out R² of the spread grid's depth from the model's "
-            f"inputs, order {DEPTH_SIGNAL_ORDER}): {cells}.\n")
+            f"growth CoP and deformation, order {DEPTH_SIGNAL_ORDER}): {cells}.\n")
     low = [t for t, v in signals.items() if v is not None and v < DEPTH_SIGNAL_LOW]
     if low:
         text += (f"\n**Warning**: below {DEPTH_SIGNAL_LOW} for tip {', '.join(low)}: the "

@@ -142,7 +142,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--depth-invariant", action="store_true",
                    help="also sweep the training grid spread over the test depths and fit the "
                    "depth-invariant model on it and the training grid together (growth CoP + "
-                   "perceived deformation): "
+                   "perceived deformation, plus the marker array's mean shift): "
                    "r2_table_invariant.* (docs/rig.md)")
     _feature_argument(p, "headline CoP feature (all are fitted and reported)")
     _scale_args(p)
