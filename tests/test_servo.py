@@ -322,6 +322,42 @@ def test_bad_inputs(servo_setup, scene, tmp_path):
         load_servo_model(tmp_path / "missing.json", scene)
 
 
+def test_the_depth_invariant_model_closes_the_loop(servo_setup, scene, tmp_path):
+    """A depth-invariant model (growth CoP, deformation and the array's shift) fitted on the
+    same sweep's stored frames drives the loop: each frame's observation carries its inputs,
+    and it settles within 1° of a surface it did not know. A model whose inputs do not match
+    its stated feature is refused."""
+    import json
+
+    from calibration.fit import (
+        INVARIANT_INPUTS,
+        fit_invariant,
+        invariant_features,
+        save_model,
+    )
+    from calibration.servo import load_servo_model, run_surface
+    from tactip_sim.scene import scene_hash
+
+    _, chain, cop_path = servo_setup
+    table = invariant_features(cop_path.parent / "train")
+    path = tmp_path / "invariant.json"
+    save_model(fit_invariant(table, 1), path, feature="invariant",
+               fitted_on={"scene_hash": scene_hash(scene), "tip": "A"})
+    model = load_servo_model(path, scene, nominal=True)
+    assert model.feature == "invariant"
+    res = run_surface(chain, model, 9.0, -5.0, ServoParams(), seed=3)
+    s = res.summaries[0]
+    assert s["outcome"] == "settled" and s["converged"], s
+    assert abs(s["final_roll_error_deg"]) <= 1.0 and abs(s["final_pitch_error_deg"]) <= 1.0
+    obs, _, _ = res.fingers[0].plant.frame(0)
+    assert obs.inputs.shape == (len(INVARIANT_INPUTS),)
+    data = json.loads(path.read_text())
+    data["fitted_on"]["feature"] = "growth"  # a vector model posing as a CoP model
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="reads inputs"):
+        load_servo_model(path, scene, nominal=True)
+
+
 def test_cli_servo_writes_the_summary(servo_setup, scene_path, tmp_path):
     from tactip_sim.commands.cli import main
 

@@ -87,12 +87,13 @@ class FingerController:
         self._counts = {"settle": 0, "diverge": 0, "limit": 0, "lost": 0, "off": 0}
 
     # ---------------------------------------------------------------- helpers
-    def predict(self, cop_px: np.ndarray) -> np.ndarray:
-        """(2,) predicted roll, pitch (degrees) of a CoP; NaN for an undefined CoP."""
-        cop = np.asarray(cop_px, dtype=float)
-        if cop.shape != (2,) or not np.all(np.isfinite(cop)):
+    def predict(self, inputs: np.ndarray) -> np.ndarray:
+        """(2,) predicted roll, pitch (degrees) from the regressor's inputs (a CoP, or the
+        depth-invariant model's vector: ``Observation.inputs``); NaN where one is undefined."""
+        x = np.asarray(inputs, dtype=float)
+        if x.ndim != 1 or not len(x) or not np.all(np.isfinite(x)):
             return np.full(2, np.nan)
-        return np.asarray(self.regressor.predict(cop)[0], dtype=float)
+        return np.asarray(self.regressor.predict(x[None, :])[0], dtype=float)
 
     def finish(self, outcome: str, frame: int, reason: str = "") -> None:
         """Fix the outcome (once) and stop."""
@@ -120,7 +121,7 @@ class FingerController:
         adjustment may start (paper: after all three sensors detect contact).
         """
         p = self.params
-        self.predicted_deg = self.predict(obs.cop_px)
+        self.predicted_deg = self.predict(obs.inputs)
         self.in_contact = self.detector.update(obs.deformation_px)
         k = obs.frame
         if self.phase == "closing":

@@ -28,8 +28,10 @@ perturbations are drawn from them) and is compared on those keys."""
 class ServoModel:
     """A regressor ready for the loop.
 
-    regressor : perception.PoseRegressor (CoP px -> roll, pitch degrees)
-    feature : the CoP feature it reads ("growth", "area" or "hull")
+    regressor : perception.PoseRegressor (CoP px -> roll, pitch degrees), or for the
+        depth-invariant model a perception.vector_regression.VectorRegressor (growth CoP,
+        deformation, the array's mean shift -> roll, pitch)
+    feature : what it reads: a CoP feature ("growth", "area" or "hull") or "invariant"
     tip : the tip the servo's chain must be
     provenance : how the model was checked (for summary.json)
     """
@@ -80,20 +82,24 @@ def load_servo_model(path: str | Path, scene: Any, *, tip: str | None = None,
         resolution; its scene differs from ``scene`` in a section that changes the frames; it
         was fitted on another tip than ``tip``.
     """
-    from ..fit import FEATURES, load_model
+    from ..fit import FEATURES, INVARIANT, INVARIANT_INPUTS, load_any_model
 
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"model={str(path)!r}: no such file (fit one with tactip calibrate or "
                          "tactip fit)")
     try:
-        regressor, fitted_on = load_model(path)
+        regressor, fitted_on = load_any_model(path)
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"model={str(path)!r} is not a saved pose regressor: {exc}") from None
     feature = fitted_on.get("feature", "growth")
-    if feature not in FEATURES:
-        raise ValueError(f"model={str(path)!r} reads CoP feature {feature!r}; allowed: "
-                         f"{', '.join(FEATURES)}")
+    if feature not in (*FEATURES, INVARIANT):
+        raise ValueError(f"model={str(path)!r} reads feature {feature!r}; allowed: "
+                         f"{', '.join((*FEATURES, INVARIANT))}")
+    names = tuple(getattr(regressor, "input_names", ("cop_x_px", "cop_y_px")))
+    if (feature == INVARIANT) != (names == INVARIANT_INPUTS):
+        raise ValueError(f"model={str(path)!r} says feature {feature!r} but reads inputs "
+                         f"{', '.join(names)}")
     size = tuple(fitted_on.get("image_size") or (regressor.image_size or ()))
     resolution = tuple(scene.camera.resolution)
     if size and size != resolution:

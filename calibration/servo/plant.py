@@ -19,6 +19,7 @@ import numpy as np
 import tactip_sim as ts
 
 from ..chain import Chain, set_tag
+from ..fit import INVARIANT
 from .kinematics import (
     aligning_joints,
     angles_of,
@@ -94,7 +95,11 @@ class Observation:
     """What the controller sees of one frame (nothing from the simulator's state).
 
     frame, t_s : frame index and its time (s)
-    cop_px : (2,) the regressor's CoP feature, OpenCV px (NaN: undefined in this frame)
+    cop_px : (2,) the regressor's CoP feature, OpenCV px (NaN: undefined in this frame); the
+        growth CoP for the depth-invariant model
+    inputs : (d,) what the regressor reads: ``cop_px``, or for the depth-invariant model
+        (``feature="invariant"``) ``cop_px``, ``deformation_px`` and the array's mean shift
+        (x, y px), as :func:`calibration.fit.invariant_features` gives them
     deformation_px : mean marker displacement from the rest frame (px), what the contact
         detector thresholds
     reliable : perception called the frame fully reliable
@@ -107,6 +112,11 @@ class Observation:
     deformation_px: float
     reliable: bool
     joints_deg: np.ndarray
+    inputs: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.inputs is None:  # a CoP model reads the CoP alone
+            object.__setattr__(self, "inputs", self.cop_px)
 
 
 @dataclass(frozen=True)
@@ -250,11 +260,21 @@ class FingerPlant:
         per = sample.perceived
         import perception as pc
 
-        deformation = pc.surface_deformation(per.points, self.chain.pipeline.rest_points)
-        cop = np.asarray(getattr(per, f"cop_{self.feature}"), dtype=float)
+        rest = self.chain.pipeline.rest_points
+        deformation = pc.surface_deformation(per.points, rest)
+        inputs = None
+        if self.feature == INVARIANT:
+            from perception.flow import FLOW_NAMES, flow_features
+
+            cop = np.asarray(per.cop_growth, dtype=float)
+            flow = flow_features(per.points, rest, cop)
+            shift = [flow[FLOW_NAMES.index("mean_dx")], flow[FLOW_NAMES.index("mean_dy")]]
+            inputs = np.array([*cop, deformation, *shift], dtype=float)
+        else:
+            cop = np.asarray(getattr(per, f"cop_{self.feature}"), dtype=float)
         obs = Observation(frame=index, t_s=index * self.params.dt, cop_px=cop,
                           deformation_px=float(deformation), reliable=per.reliable > 0,
-                          joints_deg=self.q_deg.copy())
+                          joints_deg=self.q_deg.copy(), inputs=inputs)
         if self.contact.kinematic_truth:
             angles = np.array([pose.roll_deg, pose.pitch_deg])
         else:
