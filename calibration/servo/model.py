@@ -99,7 +99,10 @@ def load_servo_model(path: str | Path, scene: Any, *, tip: str | None = None,
     names = tuple(getattr(regressor, "input_names", ("cop_x_px", "cop_y_px")))
     if (feature == INVARIANT) != (names == INVARIANT_INPUTS):
         raise ValueError(f"model={str(path)!r} says feature {feature!r} but reads inputs "
-                         f"{', '.join(names)}")
+                         f"{', '.join(names)}" + (
+                             " (a depth-invariant model made before the array's shift was an "
+                             "input: rerun its tactip calibrate command, which refits it)"
+                             if feature == INVARIANT else ""))
     size = tuple(fitted_on.get("image_size") or (regressor.image_size or ()))
     resolution = tuple(scene.camera.resolution)
     if size and size != resolution:
