@@ -2,14 +2,15 @@
 "Why the lab's CoP fails here").
 
     python benchmarks/hull_cop_diagnosis.py SWEEP_TIP_DIR [--real FOLDER]
+                                            [--area-ratio-max R [R ...]]
 
 SWEEP_TIP_DIR: one tip's folder of a finished `tactip calibrate` run (its `train` and
 `test+0p0mm` datasets; e.g. OUT/tip_A). For the stored frame of each sample it computes the
-hull CoP three ways: from the markers the detector finds (the lab's method, as the sweep
-does), from the tracked markers, and from the markers' true projections (the records'
-`markers_px`). Each is fitted on `train` (order 2) and scored on `test+0p0mm`. It counts the
-true markers with no detection within a third of a spacing, and how many of them sit in
-merged blobs.
+growth CoP (for comparison) and the hull CoP three ways: from the markers the detector finds
+(the lab's method, as the sweep does), from the tracked markers, and from the markers' true
+projections (the records' `markers_px`). Each is fitted on `train` (order 2) and scored on
+`test+0p0mm`. It counts the true markers with no detection within a third of a spacing, and
+how many of them sit in merged blobs.
 
 Then it splits the hull CoP's change from rest into two parts: the rest-area-weighted mean
 displacement (the array's shift) and the growth of the cells about the rest CoP. With the
@@ -19,7 +20,9 @@ areas a = a0 + g and positions p = p0 + d,
 
 exactly. The split is done on the true projections, and with `--real` (default
 ../shared/real/tactip331_tap128) on the tracked markers of the real taps. It prints each
-part's in-sample R² (order 2) and their correlation. Nothing is written.
+part's in-sample R² (order 2) and their correlation. ``--area-ratio-max`` repeats the first
+part with the detector cutting blobs above R times a marker's area
+(``perception.DetectionParams.area_ratio_max``; default 2.5). Nothing is written.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ def scored(model, x, y) -> np.ndarray:
     return r2(y[ok], model.predict(x[ok]))
 
 
-def sweep_hull(folder: Path):
+def sweep_hull(folder: Path, detection=None):
     """Per sample of a dataset: hull CoP of detected, tracked and true markers; angles;
     true markers missed by the detector and those of them inside merged blobs."""
     import cv2
@@ -63,13 +66,15 @@ def sweep_hull(folder: Path):
     from perception.hull_cop import hull_cop
 
     ds = Dataset(folder)
-    pipe = dataset_pipeline(ds)
-    out = {"detected": [], "tracked": [], "true": [], "angles": [], "missed": [], "merged": []}
+    pipe = dataset_pipeline(ds, detection=detection)
+    out = {"detected": [], "tracked": [], "true": [], "growth": [], "angles": [], "missed": [],
+           "merged": []}
     for rec in ds.records():
         frame = cv2.imread(str(ds.image_path(rec.index)), cv2.IMREAD_UNCHANGED)
         pipe.reset()
         f = pipe.process(frame)
         out["detected"].append(f.cop_hull)
+        out["growth"].append(f.cop_growth)
         pts = f.points[np.isfinite(f.points).all(axis=1)]
         out["tracked"].append(hull_cop(pts))
         truth = rec.markers_px[rec.visible]
@@ -77,7 +82,8 @@ def sweep_hull(folder: Path):
         out["angles"].append([rec.roll_deg, rec.pitch_deg])
         det = pc.detect_markers_detailed(frame, mask=pipe.search_region,
                                          expected_count=len(pipe.rest_points),
-                                         expected_diameter_px=pipe.expected_diameter_px)
+                                         expected_diameter_px=pipe.expected_diameter_px,
+                                         params=detection)
         near = cKDTree(det.points).query(truth)[0] if len(det.points) else np.full(len(truth),
                                                                                     np.inf)
         missed = near > pipe.spacing_px / 3
@@ -129,18 +135,32 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--real", type=Path,
                     default=ROOT.parent / "shared" / "real" / "tactip331_tap128",
                     help="labelled real taps for the split (Bristol layout)")
+    ap.add_argument("--area-ratio-max", type=float, nargs="+", default=[],
+                    help="also with the detector cutting blobs above these multiples of a "
+                    "marker's area (each > 1)")
     args = ap.parse_args(argv)
     for name in ("train", "test+0p0mm"):
         if not (args.tip_dir / name / "targets.csv").is_file():
             ap.error(f"{args.tip_dir / name}: no finished dataset (run tactip calibrate first)")
-    train, test = sweep_hull(args.tip_dir / "train"), sweep_hull(args.tip_dir / "test+0p0mm")
-    print(f"{args.tip_dir}: true markers with no detection within a third of a spacing, per "
-          f"frame: {train['missed'].mean():.2f} (max {train['missed'].max():.0f}); imaged "
-          f"with a neighbour: {train['merged'].mean():.2f}")
-    print("hull CoP, order 2, fitted on train, scored on test+0p0mm (R² roll / pitch):")
-    for way in ("detected", "tracked", "true"):
-        s = scored(fit2(train[way], train["angles"]), test[way], test["angles"])
-        print(f"   {way:9s} markers: {s[0]:.3f} / {s[1]:.3f}")
+    if any(not r > 1 for r in args.area_ratio_max):
+        ap.error(f"--area-ratio-max={args.area_ratio_max}: each must be > 1")
+    import perception as pc
+
+    for ratio in [None, *args.area_ratio_max]:
+        params = None if ratio is None else pc.DetectionParams(area_ratio_max=ratio)
+        train = sweep_hull(args.tip_dir / "train", params)
+        test = sweep_hull(args.tip_dir / "test+0p0mm", params)
+        label = "default detection" if ratio is None else f"area_ratio_max {ratio:g}"
+        print(f"{args.tip_dir}, {label}: true markers with no detection within a third of a "
+              f"spacing, per frame: {train['missed'].mean():.2f} (max "
+              f"{train['missed'].max():.0f}); imaged with a neighbour: "
+              f"{train['merged'].mean():.2f}")
+        print("   hull CoP, order 2, fitted on train, scored on test+0p0mm (R² roll / pitch):")
+        for way in ("detected", "tracked", "true"):
+            s = scored(fit2(train[way], train["angles"]), test[way], test["angles"])
+            print(f"      {way:9s} markers: {s[0]:.3f} / {s[1]:.3f}")
+        s = scored(fit2(train["growth"], train["angles"]), test["growth"], test["angles"])
+        print(f"   growth CoP, the same way: {s[0]:.3f} / {s[1]:.3f}")
 
     from calibration.dataset import Dataset
     from calibration.frames import dataset_pipeline
@@ -159,7 +179,6 @@ def main(argv: list[str] | None = None) -> None:
     report_split("simulated, true projections", rest, frames,
                  np.array([[r.roll_deg, r.pitch_deg] for r in recs]))
 
-    import perception as pc
     from calibration.bristol import TAP_GATE_FRACTION, TAP_SEARCH_FRACTION, BristolFolder
 
     folder = BristolFolder.open(args.real)

@@ -16,6 +16,7 @@ not see it: a translation of the array changes no Voronoi cell's area.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -25,22 +26,25 @@ SHIFT_INPUTS = ("shift_x_px", "shift_y_px")
 """The names of :func:`array_shift`'s two columns (px, OpenCV x right, y down)."""
 
 
-def rest_pipeline(rest_image: np.ndarray, expected_count: int, jpeg_quality: int = 0):
+def rest_pipeline(rest_image: np.ndarray, expected_count: int, jpeg_quality: int = 0, *,
+                  detection: Any = None):
     """The feature pipeline a sweep perceives its frames with: on the rest frame, or on the
     rest frame through the rig's JPEG compression when ``jpeg_quality`` > 0 (the real
-    camera's rest frame is compressed too)."""
+    camera's rest frame is compressed too). ``detection``: other
+    ``perception.DetectionParams`` than the default (for studies; sweeps use the default)."""
     import perception as pc
 
     if jpeg_quality > 0:
         from .rig import jpeg_roundtrip
 
         rest_image = jpeg_roundtrip(rest_image, int(jpeg_quality))
-    return pc.FeaturePipeline(rest_image, expected_count=int(expected_count))
+    return pc.FeaturePipeline(rest_image, expected_count=int(expected_count),
+                              detection=detection)
 
 
-def dataset_pipeline(ds: Dataset):
+def dataset_pipeline(ds: Dataset, *, detection: Any = None):
     """:func:`rest_pipeline` for the dataset ``ds``: its stored rest frame, its scene's pin
-    count and its rig's compression (from its manifest).
+    count and its rig's compression (from its manifest); ``detection`` as there.
 
     Raises
     ------
@@ -61,7 +65,7 @@ def dataset_pipeline(ds: Dataset):
     rest = cv2.imread(str(ds.rest_image_path), cv2.IMREAD_UNCHANGED)
     if rest is None:
         raise DatasetError(f"cannot read {ds.rest_image_path}")
-    return rest_pipeline(rest, count, int(rig.get("jpeg_quality", 0) or 0))
+    return rest_pipeline(rest, count, int(rig.get("jpeg_quality", 0) or 0), detection=detection)
 
 
 def array_shift(dataset: Dataset | str | Path, indices: np.ndarray | None = None) -> np.ndarray:
