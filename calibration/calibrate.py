@@ -9,6 +9,8 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
+import numpy as np
+
 import tactip_sim as ts
 from tactip_sim.scene import preset_of, scene_hash, scene_to_dict
 
@@ -122,6 +124,7 @@ def calibrate(
     models_dir.mkdir(exist_ok=True)
     tip_info = {}
     depth_signals: dict[str, float | None] = {}  # --depth-invariant: depth its inputs tell
+    detection: dict[str, dict[str, float]] = {}  # markers the detector found, per tip
     sets = [training_set(scene), *evaluation_sets(scene)]
     tests = sets[1:]
     if depth_invariant:
@@ -140,6 +143,8 @@ def calibrate(
                 results[pose_set.name] = res
                 samples += res.computed
                 sample_seconds += res.sample_seconds
+            detection[tip] = detection_summary(
+                [r.dataset for r in results.values()], scene.pins.count)
             stamp = {"scene_hash": scene_hash(scene), "tip": tip, "frames": frames}
             for feat in (feature, *others):
                 table = partial(features, feature=feat)
@@ -177,7 +182,8 @@ def calibrate(
         atomic_write_text(out / f"r2_table_{other}.csv", r2_table_csv(rows[other]))
         atomic_write_text(out / f"r2_table_{other}.md",
                           r2_table_markdown(rows[other], feature=other)
-                          + (depth_signal_note(depth_signals) if other == INVARIANT else ""))
+                          + (depth_signal_note(depth_signals) if other == INVARIANT else "")
+                          + (detection_note(detection) if other == "hull" else ""))
     seconds = time.perf_counter() - t_start
     log.finish()
     timings["total_s"] = seconds
@@ -197,6 +203,7 @@ def calibrate(
         "rig": rig.record(),
         "depth_invariant": depth_invariant,
         "invariant_depth_signal": depth_signals,  # leave-one-out R² (fit.depth_signal)
+        "markers_detected": detection,  # per frame, over every sample of each tip
         "seed": scene.protocol.seed,
         "pose_sets": {s.name: len(s) for s in sets},
         "workers": workers,
@@ -236,6 +243,28 @@ def depth_signal_note(signals: dict[str, float | None]) -> str:
                  "and off the training depth it may do worse than the paper's one-depth model "
                  "(docs/rig.md).\n")
     return text
+
+
+def detection_summary(datasets: list, pins: int) -> dict[str, float]:
+    """Markers the detector found per frame over every sample of ``datasets`` (each sample's
+    ``n_markers``, the mean over its frames): mean, lowest sample, and the pins there are."""
+    counts = np.concatenate([np.asarray(d.table()["n_markers"], dtype=float) for d in datasets])
+    counts = counts[np.isfinite(counts)]
+    if not len(counts):
+        return {"mean": float("nan"), "min": float("nan"), "pins": int(pins)}
+    return {"mean": float(counts.mean()), "min": float(counts.min()), "pins": int(pins)}
+
+
+def detection_note(detection: dict[str, dict[str, float]]) -> str:
+    """The lab's-CoP table's note on the markers found per frame: its tessellation is of the
+    detected markers, so each one missed or merged reshapes its neighbours' cells."""
+    if not detection:
+        return ""
+    cells = ", ".join(f"tip {t} {d['mean']:.1f} of {d['pins']} (lowest sample {d['min']:.1f})"
+                      for t, d in detection.items())
+    return (f"\nMarkers detected per frame: {cells}. The lab's CoP tessellates the detected "
+            "markers, so each marker missed or merged with a neighbour reshapes the cells "
+            "around it (docs/calibration.md, \"Why the lab's CoP fails here\").\n")
 
 
 def _test_tables(results: dict, tests: list, table: Callable

@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from calibration.calibrate import calibrate, depth_signal_note
+from calibration.calibrate import (
+    calibrate,
+    depth_signal_note,
+    detection_note,
+    detection_summary,
+)
 from calibration.dataset import Dataset, DatasetError
 from calibration.fit import (
     DEPTH_SIGNAL_LOW,
@@ -67,6 +72,9 @@ def test_calibrate_with_the_depth_invariant_model(cal):
                                                                      "tip_A/train_span"]
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["depth_invariant"] is True
+    found = manifest["markers_detected"]["A"]
+    assert found["pins"] == 97 and 0 < found["min"] <= found["mean"] <= 97
+    assert "Markers detected per frame: tip A" in (out / "r2_table_hull.md").read_text()
     # on an ideal rig the perceived deformation tells the depth: no warning
     assert manifest["invariant_depth_signal"]["A"] > DEPTH_SIGNAL_LOW
     note = (out / "r2_table_invariant.md").read_text()
@@ -214,3 +222,19 @@ def test_the_array_shift_of_stored_frames_is_their_translation(tmp_path, jpeg_qu
     (tmp_path / "set" / "images" / "rest.png").unlink()
     with pytest.raises(DatasetError, match="no rest frame"):
         array_shift(ds, np.arange(1))
+
+
+def test_the_markers_detected_are_summed_over_every_sample():
+    class Table:
+        def __init__(self, counts):
+            self.counts = counts
+
+        def table(self):
+            return {"n_markers": np.array(self.counts)}
+
+    got = detection_summary([Table([90.0, 97.0]), Table([np.nan, 95.5])], 97)
+    assert got == {"mean": pytest.approx((90 + 97 + 95.5) / 3), "min": 90.0, "pins": 97}
+    assert np.isnan(detection_summary([Table([np.nan])], 97)["mean"])
+    note = detection_note({"A": got})
+    assert "tip A 94.2 of 97 (lowest sample 90.0)" in note
+    assert detection_note({}) == ""
