@@ -2,7 +2,7 @@
 "Why the lab's CoP fails here").
 
     python benchmarks/hull_cop_diagnosis.py SWEEP_TIP_DIR [--real FOLDER]
-                                            [--area-ratio-max R [R ...]]
+                                            [--area-ratio-max R [R ...]] [--split-clusters]
 
 SWEEP_TIP_DIR: one tip's folder of a finished `tactip calibrate` run (its `train` and
 `test+0p0mm` datasets; e.g. OUT/tip_A). For the stored frame of each sample it computes the
@@ -22,7 +22,9 @@ exactly. The split is done on the true projections, and with `--real` (default
 ../shared/real/tactip331_tap128) on the tracked markers of the real taps. It prints each
 part's in-sample R² (order 2) and their correlation. ``--area-ratio-max`` repeats the first
 part with the detector cutting blobs above R times a marker's area
-(``perception.DetectionParams.area_ratio_max``; default 2.5). Nothing is written.
+(``perception.DetectionParams.area_ratio_max``; default 2.5), ``--split-clusters`` with
+the detector splitting touching markers (``DetectionParams.split_clusters``). Nothing is
+written.
 """
 
 from __future__ import annotations
@@ -138,6 +140,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--area-ratio-max", type=float, nargs="+", default=[],
                     help="also with the detector cutting blobs above these multiples of a "
                     "marker's area (each > 1)")
+    ap.add_argument("--split-clusters", action="store_true",
+                    help="also with the detector splitting touching markers "
+                    "(perception.DetectionParams.split_clusters)")
     args = ap.parse_args(argv)
     for name in ("train", "test+0p0mm"):
         if not (args.tip_dir / name / "targets.csv").is_file():
@@ -146,11 +151,14 @@ def main(argv: list[str] | None = None) -> None:
         ap.error(f"--area-ratio-max={args.area_ratio_max}: each must be > 1")
     import perception as pc
 
-    for ratio in [None, *args.area_ratio_max]:
-        params = None if ratio is None else pc.DetectionParams(area_ratio_max=ratio)
+    configs = [("default detection", None),
+               *((f"area_ratio_max {r:g}", pc.DetectionParams(area_ratio_max=r))
+                 for r in args.area_ratio_max),
+               *([("split_clusters", pc.DetectionParams(split_clusters=True))]
+                 if args.split_clusters else [])]
+    for label, params in configs:
         train = sweep_hull(args.tip_dir / "train", params)
         test = sweep_hull(args.tip_dir / "test+0p0mm", params)
-        label = "default detection" if ratio is None else f"area_ratio_max {ratio:g}"
         print(f"{args.tip_dir}, {label}: true markers with no detection within a third of a "
               f"spacing, per frame: {train['missed'].mean():.2f} (max "
               f"{train['missed'].max():.0f}); imaged with a neighbour: "

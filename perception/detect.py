@@ -325,30 +325,36 @@ def _detect_grey(grey: np.ndarray, shape: tuple[int, int], scale: float, region,
     area_ref = np.pi * d_known**2 / 4.0 if d_known else float(median(mom.area[ok]))
     ratio = mom.area / area_ref
     code[ok & ((ratio < p.area_ratio_min) | (ratio > p.area_ratio_max))] = _SIZE
+    label_ids = (order + 1).astype(np.int64)  # each row's label (-1: a piece of a split blob)
+    split = False
+    if p.split_clusters:
+        # touching markers (a press crowding them): one marker per peak of the distance
+        # transform, the blob's pixels shared among the peaks
+        many = (((code == 0) | (code == _SHAPE) | (code == _SIZE)) & finite
+                & (ratio > _CLUSTER_RATIO[0]) & (ratio < _CLUSTER_RATIO[1]))
+        if many.any():
+            pieces = _split_clusters(labels, label_ids, np.flatnonzero(many), th_box,
+                                     th_level, area_ref, p)
+            if pieces is not None:
+                pts, mom, code, label_ids = _with_pieces(pts, mom, code, label_ids, pieces,
+                                                         (x0, y0))
+                ratio, finite, split = mom.area / area_ref, np.isfinite(pts).all(axis=1), True
     # two markers joined by a smear: one blob of about twice the area, rejected for its shape
     # or size, split across its major axis when both halves are marker-shaped
     pair = (((code == _SHAPE) | (code == _SIZE)) & finite & (ratio > _BINARY_PAIR_RATIO[0])
-            & (ratio < _BINARY_PAIR_RATIO[1]))
+            & (ratio < _BINARY_PAIR_RATIO[1]) & (label_ids > 0))
     if pair.any():
-        halves = _split_pairs(labels, order, np.flatnonzero(pair), th_box, th_level,
+        halves = _split_pairs(labels, label_ids, np.flatnonzero(pair), th_box, th_level,
                               area_ref, p)
         if halves is not None:
-            rows, h_pts, h_area, h_elong, h_fill = halves
-            h_pts = h_pts + (x0, y0)
-            keep = np.ones(len(pts), dtype=bool)
-            keep[rows] = False
-            pts = np.concatenate([pts[keep], h_pts])
-            again = np.lexsort((pts[:, 0], pts[:, 1]))  # raster order again (NaN last)
-            pts = pts[again]
-            mom = BlobMoments(area=np.concatenate([mom.area[keep], h_area])[again],
-                              elongation=np.concatenate([mom.elongation[keep], h_elong])[again],
-                              fill=np.concatenate([mom.fill[keep], h_fill])[again])
-            code = np.concatenate([code[keep], np.zeros(len(h_pts), dtype=np.int8)])[again]
-            finite = np.isfinite(pts).all(axis=1)
-            pix = np.rint(np.where(finite[:, None], pts, 0.0)).astype(np.intp)
-            ix = np.minimum(np.maximum(pix[:, 0], x0), x1 - 1)
-            iy = np.minimum(np.maximum(pix[:, 1], y0), y1 - 1)
-            peaks = local_max[iy - y0, ix - x0].astype(np.float64) / scale
+            pts, mom, code, label_ids = _with_pieces(pts, mom, code, label_ids, halves,
+                                                     (x0, y0))
+            finite, split = np.isfinite(pts).all(axis=1), True
+    if split:
+        pix = np.rint(np.where(finite[:, None], pts, 0.0)).astype(np.intp)
+        ix = np.minimum(np.maximum(pix[:, 0], x0), x1 - 1)
+        iy = np.minimum(np.maximum(pix[:, 1], y0), y1 - 1)
+        peaks = local_max[iy - y0, ix - x0].astype(np.float64) / scale
     ok = code == 0
     if not ok.any():
         return _reject_all(shape, pts, finite, code, "no blobs of marker size", sigma)
@@ -391,16 +397,116 @@ def _ellipse_shape(area, cxx, cyy, cxy):
     return np.sqrt(l1 / l2), area / (4.0 * np.pi * np.sqrt(l1 * l2))
 
 
-def _split_pairs(labels: np.ndarray, order: np.ndarray, rows: np.ndarray, th: np.ndarray,
+def _with_pieces(pts: np.ndarray, mom: BlobMoments, code: np.ndarray, label_ids: np.ndarray,
+                 pieces: tuple, offset: tuple[int, int]):
+    """The blobs with the split ones (``pieces``' rows) replaced by their pieces (accepted so
+    far, label -1), in raster order again (NaN last)."""
+    rows, p_pts, p_area, p_elong, p_fill = pieces
+    keep = np.ones(len(pts), dtype=bool)
+    keep[rows] = False
+    pts = np.concatenate([pts[keep], p_pts + offset])
+    again = np.lexsort((pts[:, 0], pts[:, 1]))
+    mom = BlobMoments(area=np.concatenate([mom.area[keep], p_area])[again],
+                      elongation=np.concatenate([mom.elongation[keep], p_elong])[again],
+                      fill=np.concatenate([mom.fill[keep], p_fill])[again])
+    code = np.concatenate([code[keep], np.zeros(len(p_pts), dtype=np.int8)])[again]
+    label_ids = np.concatenate([label_ids[keep], np.full(len(p_pts), -1)])[again]
+    return pts[again], mom, code, label_ids
+
+
+def _piece_measures(xs: np.ndarray, ys: np.ndarray, th: np.ndarray, level: float):
+    """(intensity-weighted centroid, area, elongation, fill) of the pixels ``xs, ys`` of
+    the window, or None for fewer than 2 pixels or no weight above ``level``."""
+    n = len(xs)
+    if n < 2:
+        return None
+    hx, hy = xs.astype(np.float64), ys.astype(np.float64)
+    e, f = _ellipse_shape(float(n), hx.var() + 1.0 / 12.0, hy.var() + 1.0 / 12.0,
+                          ((hx - hx.mean()) * (hy - hy.mean())).mean())
+    w = np.maximum(th[ys, xs].astype(np.float64) - level, 0.0)
+    if w.sum() <= 0:
+        return None
+    return ((float((w * hx).sum() / w.sum()), float((w * hy).sum() / w.sum())), float(n),
+            float(e), float(f))
+
+
+def _split_clusters(labels: np.ndarray, label_ids: np.ndarray, rows: np.ndarray,
+                    th: np.ndarray, level: float, area_ref: float, p: DetectionParams):
+    """Markers of the blobs ``rows`` that are several touching markers. A blob is several
+    markers when its distance transform has 2 or more peaks at least half a marker radius
+    deep and a radius apart (greedy, deepest first: one marker, however large, has one). It
+    holds as many markers as that, or as its area in reference areas if more (packed markers
+    share one peak between them). The blob's pixels are then shared among that many centres
+    by k-means, started from the peaks and the pixels farthest from them. ``(split rows,
+    centroids, areas, elongations, fills)`` for the blobs whose pieces all pass the area and
+    shape filters; None if no blob does."""
+    r_ref = float(np.sqrt(area_ref / np.pi))
+    k = odd(r_ref)
+    done, pts, area, elong, fill = [], [], [], [], []
+    for row in rows:
+        ys, xs = np.nonzero(labels == label_ids[row])
+        by, bx = ys.min() - 1, xs.min() - 1
+        mask = np.zeros((ys.max() - by + 2, xs.max() - bx + 2), np.uint8)
+        mask[ys - by, xs - bx] = 1
+        dist = cv2.distanceTransform(mask, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        top = cv2.dilate(dist, np.ones((k, k), np.uint8))
+        cand = np.argwhere((dist >= top) & (dist >= 0.5 * r_ref))
+        peaks: list[np.ndarray] = []
+        for c in cand[np.argsort(-dist[cand[:, 0], cand[:, 1]], kind="stable")]:
+            if all(np.hypot(*(c - q)) >= r_ref for q in peaks):
+                peaks.append(c)
+        if len(peaks) < 2:
+            continue
+        n_markers = min(max(len(peaks), int(round(len(ys) / area_ref))), 6)
+        at = _kmeans(np.column_stack([ys, xs]).astype(np.float64),
+                     np.asarray(peaks, dtype=np.float64) + (by, bx), n_markers)
+        owner = np.argmin((ys[:, None] - at[None, :, 0]) ** 2
+                          + (xs[:, None] - at[None, :, 1]) ** 2, axis=1)
+        measures = [_piece_measures(xs[owner == j], ys[owner == j], th, level)
+                    for j in range(len(at))]
+        if any(m is None for m in measures) or not all(
+                p.area_ratio_min <= m[1] / area_ref <= p.area_ratio_max
+                and m[2] <= p.max_elongation and m[3] >= p.min_fill for m in measures):
+            continue
+        done.append(row)
+        for c, a, e, f in measures:
+            pts.append(c)
+            area.append(a)
+            elong.append(e)
+            fill.append(f)
+    if not done:
+        return None
+    return (np.array(done), np.array(pts), np.array(area), np.array(elong), np.array(fill))
+
+
+def _kmeans(pixels: np.ndarray, start: np.ndarray, k: int, iterations: int = 30) -> np.ndarray:
+    """(k, 2) centres of ``pixels`` (n, 2) by Lloyd's k-means, started from ``start`` and,
+    while fewer than ``k``, the pixel farthest from the centres so far."""
+    centres = [c for c in start[:k]]
+    while len(centres) < k:
+        d2 = np.min([((pixels - c) ** 2).sum(axis=1) for c in centres], axis=0)
+        centres.append(pixels[int(np.argmax(d2))])
+    at = np.asarray(centres, dtype=np.float64)
+    for _ in range(iterations):
+        owner = np.argmin(((pixels[:, None, :] - at[None]) ** 2).sum(axis=2), axis=1)
+        new = np.array([pixels[owner == j].mean(axis=0) if np.any(owner == j) else at[j]
+                        for j in range(k)])
+        if np.allclose(new, at, atol=1e-3):
+            break
+        at = new
+    return at
+
+
+def _split_pairs(labels: np.ndarray, label_ids: np.ndarray, rows: np.ndarray, th: np.ndarray,
                  level: float, area_ref: float, p: DetectionParams):
-    """Halves of the blobs ``rows`` (indices after the raster ``order`` of the labels), each
+    """Halves of the blobs ``rows`` (``label_ids[row]``: the blob's label), each
     cut across its major axis through its centroid: ``(split rows, (2k, 2) intensity-weighted
     centroids in the window's pixels, areas, elongations, fills)`` for the k blobs with a
     waist at the cut (:data:`_PAIR_WAIST`) whose two halves both pass the area and shape
     filters; None if no blob does."""
     done, pts, area, elong, fill = [], [], [], [], []
     for row in rows:
-        ys, xs = np.nonzero(labels == order[row] + 1)
+        ys, xs = np.nonzero(labels == label_ids[row])
         x, y = xs.astype(np.float64), ys.astype(np.float64)
         dx, dy = x - x.mean(), y - y.mean()
         theta = 0.5 * np.arctan2(2.0 * (dx * dy).mean(), (dx * dx).mean() - (dy * dy).mean())
@@ -535,6 +641,9 @@ def _rebinarised(grey: np.ndarray) -> np.ndarray | None:
     return out if out.min() != out.max() else None
 
 
+#: Blobs of this range of areas (in reference areas) are examined for touching markers when
+#: ``DetectionParams.split_clusters`` is on: more than one marker and a half, up to six.
+_CLUSTER_RATIO = (1.5, 6.5)
 #: Components nearer than this many marker diameters to a much larger bright structure (the
 #: rim ring of a binarised frame) are not markers.
 _BINARY_RIM_DIAMETERS = 1.5

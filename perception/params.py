@@ -69,6 +69,11 @@ class DetectionParams:
     min_diameter_px : float
         Markers smaller than this cannot be located to sub-pixel accuracy; the detection is
         unreliable. Range (0, 1e3].
+    split_clusters : bool
+        Grey-level frames: a blob of more than 1.5 marker areas whose distance transform has
+        several peaks a marker radius apart (touching markers, e.g. crowded at the rim of a
+        pressed pad) is split into one marker per peak. Off by default (the published results
+        were perceived without it; docs/calibration.md, "Why the lab's CoP fails here").
     """
 
     noise_sigmas: float = 6.0
@@ -86,6 +91,7 @@ class DetectionParams:
     max_size_dispersion: float = 0.35
     max_spacing_dispersion: float = 0.35
     min_diameter_px: float = 2.0
+    split_clusters: bool = False
 
     def __post_init__(self) -> None:
         _check_range("noise_sigmas", self.noise_sigmas, 0, 100, lo_open=True)
@@ -103,6 +109,9 @@ class DetectionParams:
         _check_range("max_size_dispersion", self.max_size_dispersion, 0, 10, lo_open=True)
         _check_range("max_spacing_dispersion", self.max_spacing_dispersion, 0, 10, lo_open=True)
         _check_range("min_diameter_px", self.min_diameter_px, 0, 1e3, lo_open=True)
+        if not isinstance(self.split_clusters, bool):
+            raise PerceptionError(f"split_clusters={self.split_clusters!r} must be True or "
+                                  "False")
 
 
 @dataclass(frozen=True)
