@@ -442,7 +442,7 @@ def _split_clusters(labels: np.ndarray, label_ids: np.ndarray, rows: np.ndarray,
     shape filters; None if no blob does."""
     r_ref = float(np.sqrt(area_ref / np.pi))
     k = odd(r_ref)
-    done, pts, area, elong, fill = [], [], [], [], []
+    found = []
     for row in rows:
         ys, xs = np.nonzero(labels == label_ids[row])
         by, bx = ys.min() - 1, xs.min() - 1
@@ -462,8 +462,17 @@ def _split_clusters(labels: np.ndarray, label_ids: np.ndarray, rows: np.ndarray,
                      np.asarray(peaks, dtype=np.float64) + (by, bx), n_markers)
         owner = np.argmin((ys[:, None] - at[None, :, 0]) ** 2
                           + (xs[:, None] - at[None, :, 1]) ** 2, axis=1)
-        measures = [_piece_measures(xs[owner == j], ys[owner == j], th, level)
-                    for j in range(len(at))]
+        found.append((row, [_piece_measures(xs[owner == j], ys[owner == j], th, level)
+                            for j in range(len(at))]))
+    return _accepted_pieces(found, area_ref, p)
+
+
+def _accepted_pieces(found: list, area_ref: float, p: DetectionParams):
+    """``(split rows, centroids, areas, elongations, fills)`` of the blobs in ``found`` (each
+    ``(row, its pieces' _piece_measures)``) whose pieces all pass the area and shape filters;
+    None if no blob does."""
+    done, pts, area, elong, fill = [], [], [], [], []
+    for row, measures in found:
         if any(m is None for m in measures) or not all(
                 p.area_ratio_min <= m[1] / area_ref <= p.area_ratio_max
                 and m[2] <= p.max_elongation and m[3] >= p.min_fill for m in measures):
@@ -504,7 +513,7 @@ def _split_pairs(labels: np.ndarray, label_ids: np.ndarray, rows: np.ndarray, th
     centroids in the window's pixels, areas, elongations, fills)`` for the k blobs with a
     waist at the cut (:data:`_PAIR_WAIST`) whose two halves both pass the area and shape
     filters; None if no blob does."""
-    done, pts, area, elong, fill = [], [], [], [], []
+    found = []
     for row in rows:
         ys, xs = np.nonzero(labels == label_ids[row])
         x, y = xs.astype(np.float64), ys.astype(np.float64)
@@ -515,33 +524,9 @@ def _split_pairs(labels: np.ndarray, label_ids: np.ndarray, rows: np.ndarray, th
         if waist >= _PAIR_WAIST * 2.0 * np.sqrt(area_ref / np.pi):
             continue  # no waist: one oval, not two markers side by side
         side = along >= 0.0
-        measures = []
-        for s_ in (side, ~side):
-            n = int(s_.sum())
-            if n < 2:
-                break
-            hx, hy = x[s_], y[s_]
-            e_half, f_half = _ellipse_shape(float(n), hx.var() + 1.0 / 12.0,
-                                            hy.var() + 1.0 / 12.0,
-                                            ((hx - hx.mean()) * (hy - hy.mean())).mean())
-            w = np.maximum(th[ys[s_], xs[s_]].astype(np.float64) - level, 0.0)
-            if w.sum() <= 0:
-                break
-            measures.append(((float((w * hx).sum() / w.sum()), float((w * hy).sum() / w.sum())),
-                             float(n), float(e_half), float(f_half)))
-        if len(measures) < 2 or not all(
-                p.area_ratio_min <= m[1] / area_ref <= p.area_ratio_max
-                and m[2] <= p.max_elongation and m[3] >= p.min_fill for m in measures):
-            continue
-        done.append(row)
-        for c, a, e, f in measures:
-            pts.append(c)
-            area.append(a)
-            elong.append(e)
-            fill.append(f)
-    if not done:
-        return None
-    return (np.array(done), np.array(pts), np.array(area), np.array(elong), np.array(fill))
+        found.append((row, [_piece_measures(xs[s_], ys[s_], th, level)
+                            for s_ in (side, ~side)]))
+    return _accepted_pieces(found, area_ref, p)
 
 
 def _above_floor(th: np.ndarray, floor: float) -> tuple[np.ndarray, np.ndarray]:
