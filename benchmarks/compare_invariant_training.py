@@ -2,19 +2,23 @@
 training-depth grid together, and without its shift input, scored on one finished
 calibration's test sets (docs/rig.md).
 
-    python benchmarks/compare_invariant_training.py DIR [DIR ...]
+    python benchmarks/compare_invariant_training.py DIR [DIR ...] [--bootstrap N]
 
 DIR: a `tactip calibrate ... --depth-invariant --out DIR` folder. Prints, per tip, order and
 test depth, the R² of both training sets, of the model without the array's shift (both grids)
 and of the paper's one-depth growth-CoP model (fitted on the training grid alone), all on the
 same test samples, and the tip's depth signal (how much of the spread grid's depth the
-pressure inputs carry, `calibration.fit.depth_signal`). Nothing is written.
+pressure inputs carry, `calibration.fit.depth_signal`). ``--bootstrap N`` adds, per order
+and depth, a paired bootstrap (N resamples of the test poses, seed 0) of the difference
+between the model on both grids and the paper's: its 95 % interval. Nothing is written.
 """
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
+import numpy as np
 
 from calibration.fit import (
     depth_signal,
@@ -35,7 +39,33 @@ def _offset(test: Path) -> float:
     return float(test.name[4:-2].replace("p", "."))
 
 
-def compare(folder: Path) -> None:
+def _kept(test: Path, table) -> np.ndarray:
+    """The sample indices of ``test`` that ``table`` kept (its rows, in order)."""
+    from calibration.dataset import Dataset
+
+    index = np.asarray(Dataset(test).table()["index"], dtype=int)
+    return index[~np.isin(index, table.dropped)]
+
+
+def _r2(y: np.ndarray, pred: np.ndarray) -> float:
+    """Mean of the roll and pitch R² (as the tables report it)."""
+    return float(np.mean(1 - ((y - pred) ** 2).sum(axis=0)
+                         / ((y - y.mean(axis=0)) ** 2).sum(axis=0)))
+
+
+def paired_interval(y, pred_a, pred_b, n: int, seed: int = 0) -> tuple[float, float]:
+    """95 % interval of R²(a) − R²(b) over ``n`` resamples of the rows (the same rows for
+    both)."""
+    rng = np.random.default_rng(seed)
+    diffs = []
+    for _ in range(n):
+        k = rng.integers(0, len(y), len(y))
+        diffs.append(_r2(y[k], pred_a[k]) - _r2(y[k], pred_b[k]))
+    lo, hi = np.percentile(diffs, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+def compare(folder: Path, bootstrap: int = 0) -> None:
     for tip_dir in sorted(folder.glob("tip_*")):
         tip = tip_dir.name.removeprefix("tip_")
         tests = sorted((p for p in tip_dir.glob("test*mm") if (p / "targets.csv").is_file()),
@@ -50,17 +80,29 @@ def compare(folder: Path) -> None:
         print(f"\n{folder} tip {tip}: {len(span.cop_px)} spread + {len(grid.cop_px)} grid samples"
               f"; depth signal (leave-one-out R²) {depth_signal(pressure_part(span)):.3f}")
         print("order  test depth   spread only   spread + grid   no shift   "
-              "paper's (growth, one depth)")
-        # each test set read once: (offset, the invariant model's table, the paper's table)
-        test_tables = [(_offset(t), invariant_features(t), features(t)) for t in tests]
+              "paper's (growth, one depth)" + ("   both − paper's, 95 %" if bootstrap else ""))
+        # each test set read once: (offset, the invariant model's table, the paper's table,
+        # the samples both kept)
+        test_tables = []
+        for t in tests:
+            inv, cop = invariant_features(t), features(t)
+            both_kept = np.intersect1d(_kept(t, inv), _kept(t, cop))
+            rows = (np.isin(_kept(t, inv), both_kept), np.isin(_kept(t, cop), both_kept))
+            test_tables.append((_offset(t), inv, cop, rows))
         for order in ORDERS:
             models = (fit_invariant(span, order), fit_invariant(both, order),
                       fit_invariant(both, order, shift=False), fit_model(paper_train, order))
-            for offset, inv, cop in test_tables:
+            for offset, inv, cop, (in_inv, in_cop) in test_tables:
                 r2 = [score(m, t, tip=tip, depth_offset_mm=offset).r2
                       for m, t in zip(models, (inv, inv, pressure_part(inv), cop), strict=True)]
-                print(f"{order:5d}  {offset:+9.1f}   {r2[0]:11.3f}   {r2[1]:13.3f}   "
-                      f"{r2[2]:8.3f}   {r2[3]:.3f}")
+                line = (f"{order:5d}  {offset:+9.1f}   {r2[0]:11.3f}   {r2[1]:13.3f}   "
+                        f"{r2[2]:8.3f}   {r2[3]:.3f}")
+                if bootstrap:
+                    lo, hi = paired_interval(inv.angles_deg[in_inv],
+                                             models[1].predict(inv.cop_px[in_inv]),
+                                             models[3].predict(cop.cop_px[in_cop]), bootstrap)
+                    line += f"   [{lo:+.3f}, {hi:+.3f}]"
+                print(line)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -68,8 +110,14 @@ def main(argv: list[str] | None = None) -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("folders", nargs="+", type=Path,
                         help="finished `tactip calibrate --depth-invariant` output folders")
-    for folder in parser.parse_args(argv).folders:
-        compare(folder)
+    parser.add_argument("--bootstrap", type=int, default=0, metavar="N",
+                        help="paired bootstrap resamples for the difference from the paper's "
+                        "model (0: none)")
+    args = parser.parse_args(argv)
+    if args.bootstrap < 0:
+        parser.error(f"--bootstrap={args.bootstrap} must be >= 0")
+    for folder in args.folders:
+        compare(folder, args.bootstrap)
 
 
 if __name__ == "__main__":
