@@ -182,7 +182,8 @@ def calibrate(
         atomic_write_text(out / f"r2_table_{other}.csv", r2_table_csv(rows[other]))
         atomic_write_text(out / f"r2_table_{other}.md",
                           r2_table_markdown(rows[other], feature=other)
-                          + (depth_signal_note(depth_signals) if other == INVARIANT else "")
+                          + (invariant_gain_note(rows["growth"], rows[INVARIANT])
+                             + depth_signal_note(depth_signals) if other == INVARIANT else "")
                           + (detection_note(detection) if other == "hull" else ""))
     seconds = time.perf_counter() - t_start
     log.finish()
@@ -243,6 +244,27 @@ def depth_signal_note(signals: dict[str, float | None]) -> str:
                  "and off the training depth it may do worse than the paper's one-depth model "
                  "(docs/rig.md).\n")
     return text
+
+
+def invariant_gain_note(one_depth: list[ScoreRow], invariant: list[ScoreRow]) -> str:
+    """The depth-invariant table's comparison with the one-depth growth-CoP model on the same
+    test sets: R² difference per tip, order and depth (positive: the invariant model does
+    better)."""
+    base = {(r.tip, r.order, r.depth_mm): r.r2 for r in one_depth}
+    cells = {(r.tip, r.order, r.depth_mm): r.r2 - base[(r.tip, r.order, r.depth_mm)]
+             for r in invariant if (r.tip, r.order, r.depth_mm) in base}
+    if not cells:
+        return ""
+    depths = sorted({k[2] for k in cells})
+    lines = ["", "Against the one-depth growth-CoP model of the same order on the same test "
+             "sets (R² difference; positive: the depth-invariant model does better):", "",
+             "| tip | order | " + " | ".join(f"{d:+.1f} mm" for d in depths) + " |",
+             "|---|---|" + "---|" * len(depths)]
+    for tip, order in sorted({k[:2] for k in cells}):
+        lines.append(f"| {tip} | {order} | " + " | ".join(
+            f"{cells[(tip, order, d)]:+.3f}" if (tip, order, d) in cells else "—"
+            for d in depths) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def detection_summary(datasets: list, pins: int) -> dict[str, float]:

@@ -14,6 +14,7 @@ from calibration.calibrate import (
     depth_signal_note,
     detection_note,
     detection_summary,
+    invariant_gain_note,
 )
 from calibration.dataset import Dataset, DatasetError
 from calibration.fit import (
@@ -79,6 +80,7 @@ def test_calibrate_with_the_depth_invariant_model(cal):
     assert manifest["invariant_depth_signal"]["A"] > DEPTH_SIGNAL_LOW
     note = (out / "r2_table_invariant.md").read_text()
     assert "Depth signal" in note and "Warning" not in note
+    assert "Against the one-depth growth-CoP model" in note
     # the training set spans the depths; the deformation input grows with depth
     span = invariant_features(out / "tip_A" / "train_span")
     deeper = span.depth_mm > np.median(span.depth_mm)
@@ -238,3 +240,16 @@ def test_the_markers_detected_are_summed_over_every_sample():
     note = detection_note({"A": got})
     assert "tip A 94.2 of 97 (lowest sample 90.0)" in note
     assert detection_note({}) == ""
+
+
+def test_the_gain_over_the_one_depth_model_is_per_cell():
+    from calibration.fit import ScoreRow
+
+    def row(order, depth, r2):
+        return ScoreRow("A", order, depth, r2, r2, r2, 1.0, 1.0, 30, 0)
+
+    one = [row(2, -0.5, 0.80), row(2, 0.0, 0.97), row(2, 0.5, 0.79)]
+    inv = [row(2, -0.5, 0.84), row(2, 0.0, 0.96), row(2, 0.5, 0.95)]
+    note = invariant_gain_note(one, inv)
+    assert "| A | 2 | +0.040 | -0.010 | +0.160 |" in note
+    assert invariant_gain_note(one, []) == ""
