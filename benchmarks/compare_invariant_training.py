@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.dataset import Dataset
 from calibration.fit import (
     depth_signal,
     features,
@@ -39,11 +40,8 @@ def _offset(test: Path) -> float:
     return float(test.name[4:-2].replace("p", "."))
 
 
-def _kept(test: Path, table) -> np.ndarray:
-    """The sample indices of ``test`` that ``table`` kept (its rows, in order)."""
-    from calibration.dataset import Dataset
-
-    index = np.asarray(Dataset(test).table()["index"], dtype=int)
+def _kept(index: np.ndarray, table) -> np.ndarray:
+    """The sample indices (of a test set's ``index``) that ``table`` kept, in its row order."""
     return index[~np.isin(index, table.dropped)]
 
 
@@ -86,8 +84,10 @@ def compare(folder: Path, bootstrap: int = 0) -> None:
         test_tables = []
         for t in tests:
             inv, cop = invariant_features(t), features(t)
-            both_kept = np.intersect1d(_kept(t, inv), _kept(t, cop))
-            rows = (np.isin(_kept(t, inv), both_kept), np.isin(_kept(t, cop), both_kept))
+            index = np.asarray(Dataset(t).table()["index"], dtype=int)
+            kept_inv, kept_cop = _kept(index, inv), _kept(index, cop)
+            both_kept = np.intersect1d(kept_inv, kept_cop)
+            rows = (np.isin(kept_inv, both_kept), np.isin(kept_cop, both_kept))
             test_tables.append((_offset(t), inv, cop, rows))
         for order in ORDERS:
             models = (fit_invariant(span, order), fit_invariant(both, order),

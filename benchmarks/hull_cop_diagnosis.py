@@ -187,14 +187,10 @@ def main(argv: list[str] | None = None) -> None:
     report_split("simulated, true projections", rest, frames,
                  np.array([[r.roll_deg, r.pitch_deg] for r in recs]))
 
-    from calibration.bristol import TAP_GATE_FRACTION, TAP_SEARCH_FRACTION, BristolFolder
+    from calibration.bristol import BristolFolder, tap_pipeline
 
     folder = BristolFolder.open(args.real)
-    tracking = pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False,
-                                 merge_needs_lost_neighbour=True)
-    pipe = pc.FeaturePipeline(folder.reference, tracking=tracking)
-    pipe = pc.FeaturePipeline(folder.reference, tracking=tracking,
-                              search_margin_px=TAP_SEARCH_FRACTION * pipe.spacing_px)
+    pipe = tap_pipeline(folder.reference)
     pts, keep = [], []
     for i, path in enumerate(folder.images):
         pipe.reset()

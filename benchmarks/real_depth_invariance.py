@@ -41,16 +41,12 @@ BANDS = ((2.0, 3.0), (3.0, 4.0), (4.0, 5.01))
 def perceive(folder_path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(X (n, 5), angles (n, 2), depth (n,)) of the reliably perceived taps."""
     import perception as pc
-    from calibration.bristol import TAP_GATE_FRACTION, TAP_SEARCH_FRACTION, BristolFolder
-    from perception.flow import FLOW_NAMES
+    from calibration.bristol import BristolFolder, tap_pipeline
+    from perception.flow import SHIFT_COLUMNS
 
     folder = BristolFolder.open(folder_path)
-    tracking = pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False,
-                                 merge_needs_lost_neighbour=True)
-    pipe = pc.FeaturePipeline(folder.reference, tracking=tracking)
-    pipe = pc.FeaturePipeline(folder.reference, tracking=tracking,
-                              search_margin_px=TAP_SEARCH_FRACTION * pipe.spacing_px)
-    cols = [FLOW_NAMES.index("mean_dx"), FLOW_NAMES.index("mean_dy")]
+    pipe = tap_pipeline(folder.reference)
+    cols = list(SHIFT_COLUMNS)
     x = np.full((len(folder), len(NAMES)), np.nan)
     ok = np.zeros(len(folder), dtype=bool)
     for i, path in enumerate(folder.images):

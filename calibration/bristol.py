@@ -430,6 +430,22 @@ def _check_same_sensor(folder: BristolFolder, rest_markers: int) -> None:
             "sensor? Pass --rest with a rest frame of this sensor")
 
 
+def tap_pipeline(reference: np.ndarray | str, expected_count: int | None = None):
+    """The feature pipeline a folder of taps is perceived with: each frame tracked straight
+    from ``reference`` (no velocity) with a gate of :data:`TAP_GATE_FRACTION` spacings, an
+    oversized blob a merged pair only if a marker is missing next to it, and the search
+    reaching :data:`TAP_SEARCH_FRACTION` spacings beyond the Voronoi region."""
+    import perception as pc
+
+    tracking = pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False,
+                                 merge_needs_lost_neighbour=True)
+    pipe = pc.FeaturePipeline(reference, expected_count=expected_count, tracking=tracking)
+    if TAP_SEARCH_FRACTION > 0:  # the spacing is known once the rest frame is detected
+        pipe = pc.FeaturePipeline(reference, expected_count=expected_count, tracking=tracking,
+                                  search_margin_px=TAP_SEARCH_FRACTION * pipe.spacing_px)
+    return pipe
+
+
 def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
                     progress: bool = False) -> FrameTable:
     """Every frame of ``folder`` through the feature pipeline, each against the reference.
@@ -443,26 +459,14 @@ def perceive_folder(folder: BristolFolder, *, expected_count: int | None = None,
 
     import perception as pc
 
-    # taps: each frame tracked straight from the rest frame (no velocity), a gate of one
-    # spacing, an oversized blob a merged pair only if a marker is missing next to it
-    tracking = pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False,
-                                 merge_needs_lost_neighbour=True)
-    def pipeline(ref):
-        pipe = pc.FeaturePipeline(ref, expected_count=expected_count, tracking=tracking)
-        if TAP_SEARCH_FRACTION > 0:  # the spacing is known once the rest frame is detected
-            pipe = pc.FeaturePipeline(
-                ref, expected_count=expected_count, tracking=tracking,
-                search_margin_px=TAP_SEARCH_FRACTION * pipe.spacing_px)
-        return pipe
-
     try:
         try:
-            pipe = pipeline(folder.reference)
+            pipe = tap_pipeline(folder.reference, expected_count)
         except pc.PerceptionError as exc:
             if folder.rest_frame is None:
                 raise
             folder = folder.with_single_rest(f"their median was not usable ({exc})")
-            pipe = pipeline(folder.reference)
+            pipe = tap_pipeline(folder.reference, expected_count)
     except pc.PerceptionError as exc:
         raise DatasetError(f"{folder.rest}: the reference frame cannot be used ({exc})") from None
     _check_same_sensor(folder, len(pipe.rest_points))

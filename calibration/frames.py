@@ -76,9 +76,8 @@ def array_shift(dataset: Dataset | str | Path, indices: np.ndarray | None = None
     marker is tracked or the frame is missing."""
     import cv2
 
-    from perception.flow import FLOW_NAMES
+    from perception.flow import SHIFT_COLUMNS
 
-    cols = [FLOW_NAMES.index("mean_dx"), FLOW_NAMES.index("mean_dy")]
     ds = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
     if indices is None:
         indices = ds.table()["index"]
@@ -90,5 +89,5 @@ def array_shift(dataset: Dataset | str | Path, indices: np.ndarray | None = None
             continue
         pipe.reset()  # each sample tracked from rest, as the sweep tracked it
         f = pipe.process(frame)
-        out[row] = f.flow[cols]  # NaN only if no marker is tracked
+        out[row] = f.flow[list(SHIFT_COLUMNS)]  # NaN only if no marker is tracked
     return out

@@ -31,11 +31,13 @@ import numpy as np
 from .errors import PointsError
 from .geometry import as_points
 
-__all__ = ["FLOW_NAMES", "flow_features"]
+__all__ = ["FLOW_NAMES", "SHIFT_COLUMNS", "flow_features"]
 
 FLOW_NAMES = ("cop_x", "cop_y", "mean_dx", "mean_dy", "wc_x", "wc_y",
               "j_xx", "j_xy", "j_yx", "j_yy")
 """Names of the :func:`flow_features` entries, in order (``j_xy`` = d(dx)/dy)."""
+SHIFT_COLUMNS = (FLOW_NAMES.index("mean_dx"), FLOW_NAMES.index("mean_dy"))
+"""Where the array's mean shift (``mean_dx``, ``mean_dy``) sits in :func:`flow_features`."""
 
 
 def flow_features(points: np.ndarray, rest_points: np.ndarray, cop_growth: np.ndarray

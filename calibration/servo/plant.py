@@ -264,11 +264,10 @@ class FingerPlant:
         deformation = pc.surface_deformation(per.points, rest)
         inputs = None
         if self.feature == INVARIANT:
-            from perception.flow import FLOW_NAMES, flow_features
+            from perception.flow import SHIFT_COLUMNS, flow_features
 
             cop = np.asarray(per.cop_growth, dtype=float)
-            flow = flow_features(per.points, rest, cop)
-            shift = [flow[FLOW_NAMES.index("mean_dx")], flow[FLOW_NAMES.index("mean_dy")]]
+            shift = flow_features(per.points, rest, cop)[list(SHIFT_COLUMNS)]
             inputs = np.array([*cop, deformation, *shift], dtype=float)
         else:
             cop = np.asarray(getattr(per, f"cop_{self.feature}"), dtype=float)
