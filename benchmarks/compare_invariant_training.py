@@ -31,8 +31,10 @@ from calibration.fit import (
     pressure_part,
     score,
 )
+from perception.regression import score_predictions
 
 ORDERS = (1, 2, 3)
+ANGLES = ("roll_deg", "pitch_deg")
 
 
 def _offset(test: Path) -> float:
@@ -47,8 +49,7 @@ def _kept(index: np.ndarray, table) -> np.ndarray:
 
 def _r2(y: np.ndarray, pred: np.ndarray) -> float:
     """Mean of the roll and pitch R² (as the tables report it)."""
-    return float(np.mean(1 - ((y - pred) ** 2).sum(axis=0)
-                         / ((y - y.mean(axis=0)) ** 2).sum(axis=0)))
+    return score_predictions(y, pred, ANGLES).r2_overall
 
 
 def paired_interval(y, pred_a, pred_b, n: int, seed: int = 0) -> tuple[float, float]:

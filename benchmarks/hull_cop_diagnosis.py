@@ -41,7 +41,10 @@ if str(ROOT) not in sys.path:  # run from a checkout without installing
 
 
 def r2(y: np.ndarray, p: np.ndarray) -> np.ndarray:
-    return 1 - ((y - p) ** 2).sum(axis=0) / ((y - y.mean(axis=0)) ** 2).sum(axis=0)
+    """(2,) R² of roll and pitch."""
+    from perception.regression import score_predictions
+
+    return score_predictions(y, p, ("roll_deg", "pitch_deg")).r2
 
 
 def fit2(x_train, y_train):

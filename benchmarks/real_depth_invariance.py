@@ -62,7 +62,10 @@ def perceive(folder_path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def r2(y: np.ndarray, p: np.ndarray) -> np.ndarray:
-    return 1 - ((y - p) ** 2).sum(axis=0) / ((y - y.mean(axis=0)) ** 2).sum(axis=0)
+    """(2,) R² of roll and pitch."""
+    from perception.regression import score_predictions
+
+    return score_predictions(y, p, ("roll_deg", "pitch_deg")).r2
 
 
 def fit(x, y, model, order):
