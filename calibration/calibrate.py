@@ -136,8 +136,11 @@ def calibrate(
         for tip in tips:
             t_tip = time.perf_counter()
             results = {}
+            # one mesh for all the tip's sets: the one its datasets keep, if any (a resume)
+            mesh = SweepSpec(scene, tip, sets[0], frames=frames, rig=rig).with_mesh(
+                kept_in=[out / f"tip_{tip}" / s.name for s in sets]).mesh
             for pose_set in sets:
-                spec = SweepSpec(scene, tip, pose_set, frames=frames, rig=rig)
+                spec = SweepSpec(scene, tip, pose_set, frames=frames, rig=rig, mesh=mesh)
                 res = run_sweep(spec, out / f"tip_{tip}" / pose_set.name, client=client,
                                 progress=progress, on_sample=log.tick)
                 results[pose_set.name] = res

@@ -3,6 +3,7 @@
 Layout of a dataset folder::
 
     manifest.json        what made it: scene (resolved) and its hash, tip, pose set, seeds
+    mesh.npz             the tip's tet mesh the samples are computed with (a resume uses it)
     images/00000.png     one frame per sample (a noisy frame as the camera would give it)
     images/rest.png      the tip at rest (the reference frame for perception)
     records/00000.npz    one record per sample: pose, features, ground truth (the unit of resume)
@@ -35,6 +36,7 @@ import numpy as np
 from tactip_sim.scene.names import check_name
 
 MANIFEST = "manifest.json"
+MESH_FILE = "mesh.npz"  # the tip's tet mesh, as pytetwild built it (Dataset.keep_mesh)
 DATASET_KIND = "tactip-sim dataset"
 FORMAT_VERSION = 2
 
@@ -220,7 +222,8 @@ class Dataset:
                 was, now = mismatch[k]
                 why = {
                     "mesh_digest": "; the tip's tet mesh differs from the one that computed it "
-                                   "(pytetwild builds a different mesh on each machine: resume "
+                                   "(pytetwild builds a different mesh on each machine, and "
+                                   f"this dataset keeps no {MESH_FILE} of its own: resume "
                                    "where that mesh is cached, or ship it in scenes/meshes/)",
                     "perception_results": "; it was perceived by another perception version, "
                                           "whose features would not match this one's",
@@ -246,6 +249,36 @@ class Dataset:
         data = self.manifest()
         data.update(fields)
         atomic_write_text(self.manifest_path, json.dumps(data, indent=2, default=json_default))
+
+    # -- the tip's mesh -----------------------------------------------------------------------
+    @property
+    def mesh_path(self) -> Path:
+        return self.root / MESH_FILE
+
+    def stored_mesh(self, scene: Any) -> Any:
+        """The tip's tet mesh this dataset's samples were computed with (:meth:`keep_mesh`),
+        snapped onto ``scene``'s surfaces; None if it keeps none (datasets begun before it
+        kept one) or one meshed for another scene (another sweep, which the identity check
+        then names).
+
+        Raises DatasetError if the file is unreadable."""
+        if not self.mesh_path.is_file():
+            return None
+        from tactip_sim.mesh import MeshKeyError, read_mesh
+
+        try:
+            return read_mesh(self.mesh_path, scene)
+        except MeshKeyError:
+            return None
+        except ValueError as exc:
+            raise DatasetError(f"{exc}; or choose a new --out folder") from None
+
+    def keep_mesh(self, mesh: Any) -> None:
+        """Keep a copy of the tip's mesh (``TetMesh``) in the dataset, once. pytetwild builds
+        a different mesh each time, so a sweep resumed from another checkout, machine or
+        cache continues with this very mesh instead of refusing a new one."""
+        if mesh is not None and not self.mesh_path.is_file():
+            atomic_write_bytes(self.mesh_path, mesh.to_npz_bytes())
 
     # -- records ------------------------------------------------------------------------------
     def record_path(self, index: int) -> Path:

@@ -63,16 +63,21 @@ class SweepSpec:
     mesh: Any = field(default=None, repr=False, compare=False)
     rig: RigModel = field(default_factory=RigModel)
 
-    def with_mesh(self) -> SweepSpec:
-        """This spec with its tip's mesh (from the cache, ``scenes/meshes/`` or built once)."""
+    def with_mesh(self, kept_in: Sequence[str | Path] = ()) -> SweepSpec:
+        """This spec with its tip's mesh: the one a dataset folder of ``kept_in`` keeps
+        (:meth:`~calibration.dataset.Dataset.keep_mesh`: the mesh its samples were computed
+        with, whichever checkout or cache resumes it), else from ``scenes/meshes/``, the
+        cache, or built once."""
         if self.mesh is not None:
             return self
-        from dataclasses import replace
-
         from tactip_sim.mesh import tetrahedralise
 
         tip = make_tip(self.scene, self.tip, nominal=self.nominal)
-        return replace(self, mesh=tetrahedralise(tip.scene))
+        for folder in kept_in:
+            kept = Dataset(folder).stored_mesh(tip.scene)
+            if kept is not None:
+                return dc_replace(self, mesh=kept)
+        return dc_replace(self, mesh=tetrahedralise(tip.scene))
 
     def identity(self) -> dict[str, Any]:
         return {
@@ -402,7 +407,7 @@ def run_sweep(
     """
     import platform
 
-    spec = spec.with_mesh()
+    spec = spec.with_mesh(kept_in=[out])
     ds = Dataset(out)
     ds.open_for_sweep(spec.identity(), {
         "scene": scene_to_dict(spec.scene),
@@ -410,6 +415,7 @@ def run_sweep(
         "machine": {"python": platform.python_version(), "node": platform.node()},
         "n_samples": len(spec.poses),
     })
+    ds.keep_mesh(spec.mesh)  # the mesh these samples are computed with (identity checked)
     done = ds.done()
     todo = [i for i in range(len(spec.poses)) if i not in done]
     written: list[SampleRecord] = []

@@ -296,6 +296,50 @@ def test_every_worker_computes_with_the_mesh_of_the_spec(small_scene, tmp_path):
         run_sweep(base, tmp_path / "serial", progress=False)
 
 
+def test_a_sweep_resumes_with_the_mesh_its_dataset_keeps(small_scene, tmp_path):
+    """pytetwild builds another mesh in every checkout's cache, so a sweep begun elsewhere
+    used to be refused on resume (mesh_digest). The dataset keeps its mesh: a spec that names
+    no mesh resumes with it (not the bundled one) and ends with the uninterrupted run's
+    bytes; a kept file that is damaged or meshed for another scene is named."""
+    from dataclasses import replace
+
+    from tactip_sim.mesh import MeshKeyError, TetMesh, read_mesh
+
+    scene = ts.replace_in(small_scene, fidelity={"element_order": 1})  # cheap compliance
+    base = SweepSpec(scene, "A", PoseSet("kept", TINY[:3]), frames=1, nominal=True)
+    m = base.with_mesh().mesh
+    interior = np.ones(len(m.nodes), bool)
+    interior[np.unique(_boundary_nodes(m.tets))] = False
+    nodes = m.nodes.copy()
+    nodes[interior] += np.random.default_rng(1).normal(0, 0.05, (interior.sum(), 3))
+    built_elsewhere = replace(base, mesh=TetMesh(nodes, m.tets, m.regions, m.key, 0.0))
+    run_sweep(built_elsewhere, tmp_path / "whole", progress=False, chunk=1)
+
+    class Killed(Exception):
+        pass
+
+    def kill(index):
+        if index == 0:
+            raise Killed
+
+    out = tmp_path / "resumed"
+    with pytest.raises(Killed):
+        run_sweep(built_elsewhere, out, progress=False, chunk=1, on_sample=kill)
+    kept = Dataset(out).stored_mesh(scene)
+    assert kept.digest == built_elsewhere.mesh.digest != m.digest
+    res = run_sweep(base, out, progress=False, chunk=1)  # base names no mesh
+    assert res.computed == 2 and res.skipped == 1
+    assert _files(out) == _files(tmp_path / "whole")
+
+    other = ts.replace_in(scene, skin={"thickness_mm": 1.5})  # another pad: another mesh key
+    assert Dataset(out).stored_mesh(other) is None  # another sweep's: the identity names it
+    with pytest.raises(MeshKeyError, match="built for another scene.*mesh key"):
+        read_mesh(out / "mesh.npz", other)
+    (out / "mesh.npz").write_bytes(b"torn")
+    with pytest.raises(DatasetError, match=r"mesh\.npz is unreadable.*new --out"):
+        run_sweep(base, out, progress=False)
+
+
 def _boundary_nodes(tets):
     """Nodes on faces that belong to one tet only."""
     faces = np.sort(np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]],

@@ -3,11 +3,13 @@ solves)."""
 
 from .snap import snap_nodes
 from .tetra import (
+    MeshKeyError,
     MeshQuality,
     TetMesh,
     bundled_path,
     mesh_key,
     mesh_quality,
+    read_mesh,
     tetrahedralise,
 )
 from .topology import REGION_GEL, REGION_SKIN, TET_FACES, boundary_faces, tet_volumes
@@ -16,12 +18,14 @@ __all__ = [
     "REGION_GEL",
     "REGION_SKIN",
     "TET_FACES",
+    "MeshKeyError",
     "MeshQuality",
     "TetMesh",
     "boundary_faces",
     "bundled_path",
     "mesh_key",
     "mesh_quality",
+    "read_mesh",
     "snap_nodes",
     "tet_volumes",
     "tetrahedralise",

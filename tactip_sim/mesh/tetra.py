@@ -4,6 +4,7 @@ surfaces, quality, and a disk cache."""
 from __future__ import annotations
 
 import hashlib
+import io
 import os
 import subprocess
 import sys
@@ -24,8 +25,9 @@ from ..scene import Scene
 from .snap import snap_nodes
 from .topology import REGION_GEL, REGION_SKIN, TET_FACES, tet_volumes
 
-__all__ = ["REGION_GEL", "REGION_SKIN", "TET_FACES", "MeshQuality", "TetMesh", "bundled_path",
-           "mesh_key", "mesh_quality", "sizing_field", "tet_volumes", "tetrahedralise"]
+__all__ = ["REGION_GEL", "REGION_SKIN", "TET_FACES", "MeshKeyError", "MeshQuality", "TetMesh",
+           "bundled_path",
+           "mesh_key", "mesh_quality", "read_mesh", "sizing_field", "tet_volumes", "tetrahedralise"]
 
 BUNDLED_DIR = Path(__file__).resolve().parents[2] / "scenes" / "meshes"
 MESHER_VERSION = 3  # bump when the meshing recipe changes: invalidates cached meshes
@@ -106,11 +108,19 @@ class TetMesh:
 
     def save(self, path: str | Path) -> Path:
         """Write the mesh as :func:`tetrahedralise` reads it from ``scenes/meshes/`` (the
-        mesher's nodes, tets, regions); e.g. ``mesh.save(bundled_path(mesh.key))``."""
+        mesher's nodes, tets, regions, and its key); e.g. ``mesh.save(bundled_path(mesh.key))``."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(path, nodes=self.stored_nodes, tets=self.tets, regions=self.regions)
+        path.write_bytes(self.to_npz_bytes())
         return path
+
+    def to_npz_bytes(self) -> bytes:
+        """The ``.npz`` file :meth:`save` writes, as bytes (the mesher's nodes, tets, regions
+        and the :func:`mesh_key` the mesh was built for)."""
+        buf = io.BytesIO()
+        np.savez(buf, nodes=self.stored_nodes, tets=self.tets, regions=self.regions,
+                 key=np.array(self.key))
+        return buf.getvalue()
 
     @property
     def volumes(self) -> np.ndarray:
@@ -245,13 +255,8 @@ def tetrahedralise(scene: Scene, *, use_cache: bool = True) -> TetMesh:
     t0 = time.perf_counter()
     from_cache = use_cache and path.is_file()
     if from_cache and bundled:  # a file of the project: read, never removed
-        try:
-            # opened here: np.load(path) leaves the file open when it is not a zip
-            with path.open("rb") as fh, np.load(fh) as data:
-                raw, tets, regions = data["nodes"], data["tets"], data["regions"]
-        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
-            raise ValueError(f"bundled mesh {path} is unreadable ({exc}); restore it "
-                             f"(git checkout -- {path.name} in {path.parent})") from None
+        raw, tets, regions, _ = _read_saved(
+            path, f"restore it (git checkout -- {path.name} in {path.parent})", "bundled ")
     elif from_cache:  # a cache entry: checked (digest, keys, finite); a bad one is rebuilt
         data = cache.load_npz(path, ["nodes", "tets", "regions"])
         from_cache = data is not None
@@ -267,6 +272,47 @@ def tetrahedralise(scene: Scene, *, use_cache: bool = True) -> TetMesh:
                        build_seconds=np.float64(time.perf_counter() - t0))
     nodes = snap_nodes(raw, tets, regions, scene, label=key)
     return TetMesh(nodes, tets, regions, key, time.perf_counter() - t0, from_cache=from_cache,
+                   mesher_nodes=raw)
+
+
+class MeshKeyError(ValueError):
+    """A stored mesh was built for another scene (:func:`read_mesh`)."""
+
+
+def _read_saved(path: Path, remedy: str, what: str = ""
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str | None]:
+    """The arrays :meth:`TetMesh.save` wrote to ``path`` and the key it recorded (None in
+    files written before it recorded one); ValueError ending in ``remedy`` if unreadable."""
+    try:
+        # opened here: np.load(path) leaves the file open when it is not a zip
+        with path.open("rb") as fh, np.load(fh) as data:
+            key = str(data["key"]) if "key" in data.files else None
+            return data["nodes"], data["tets"], data["regions"], key
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{what}mesh {path} is unreadable ({exc}); {remedy}") from None
+
+
+def read_mesh(path: str | Path, scene: Scene) -> TetMesh:
+    """The mesh :meth:`TetMesh.save` wrote to ``path`` (e.g. a dataset's own copy of its
+    tip's mesh), snapped onto ``scene``'s surfaces as :func:`tetrahedralise` snaps its meshes.
+
+    Raises
+    ------
+    MeshKeyError
+        It was built for another scene than ``scene`` (its recorded :func:`mesh_key` differs).
+    ValueError
+        The file is unreadable.
+    """
+    path = Path(path)
+    t0 = time.perf_counter()
+    raw, tets, regions, key = _read_saved(path, "delete it to build the mesh again")
+    expected = mesh_key(scene)
+    if key is not None and key != expected:
+        raise MeshKeyError(f"mesh {path} was built for another scene (mesh key {key}, this "
+                         f"scene's {expected}): the pad's geometry or meshing keys differ")
+    raw = np.ascontiguousarray(raw, dtype=np.float64)
+    nodes = snap_nodes(raw, tets, regions, scene, label=expected)
+    return TetMesh(nodes, tets, regions, expected, time.perf_counter() - t0, from_cache=True,
                    mesher_nodes=raw)
 
 
