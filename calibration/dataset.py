@@ -256,29 +256,12 @@ class Dataset:
         return self.root / MESH_FILE
 
     def stored_mesh(self, scene: Any) -> Any:
-        """The tip's tet mesh this dataset's samples were computed with (:meth:`keep_mesh`),
-        snapped onto ``scene``'s surfaces; None if it keeps none (datasets begun before it
-        kept one) or one meshed for another scene (another sweep, which the identity check
-        then names).
-
-        Raises DatasetError if the file is unreadable."""
-        if not self.mesh_path.is_file():
-            return None
-        from tactip_sim.mesh import MeshKeyError, read_mesh
-
-        try:
-            return read_mesh(self.mesh_path, scene)
-        except MeshKeyError:
-            return None
-        except ValueError as exc:
-            raise DatasetError(f"{exc}; or choose a new --out folder") from None
+        """:func:`stored_mesh` of this dataset's folder."""
+        return stored_mesh(self.root, scene)
 
     def keep_mesh(self, mesh: Any) -> None:
-        """Keep a copy of the tip's mesh (``TetMesh``) in the dataset, once. pytetwild builds
-        a different mesh each time, so a sweep resumed from another checkout, machine or
-        cache continues with this very mesh instead of refusing a new one."""
-        if mesh is not None and not self.mesh_path.is_file():
-            atomic_write_bytes(self.mesh_path, mesh.to_npz_bytes())
+        """:func:`keep_mesh` in this dataset's folder."""
+        keep_mesh(self.root, mesh)
 
     # -- records ------------------------------------------------------------------------------
     def record_path(self, index: int) -> Path:
@@ -402,6 +385,35 @@ class Dataset:
             except ValueError:
                 cols[name] = np.array(vals, dtype=object)
         return cols
+
+
+def stored_mesh(root: str | os.PathLike[str], scene: Any) -> Any:
+    """The tip's tet mesh (``TetMesh``) the samples in folder ``root`` were computed with
+    (:func:`keep_mesh`), snapped onto ``scene``'s surfaces; None if the folder keeps none
+    (folders begun before they kept one) or one meshed for another scene (another sweep,
+    which the identity check then names).
+
+    Raises DatasetError if the file is unreadable."""
+    path = Path(root) / MESH_FILE
+    if not path.is_file():
+        return None
+    from tactip_sim.mesh import MeshKeyError, read_mesh
+
+    try:
+        return read_mesh(path, scene)
+    except MeshKeyError:
+        return None
+    except ValueError as exc:
+        raise DatasetError(f"{exc}; or choose a new --out folder") from None
+
+
+def keep_mesh(root: str | os.PathLike[str], mesh: Any) -> None:
+    """Keep a copy of the tip's mesh (``TetMesh``) in folder ``root``, once. pytetwild
+    builds a different mesh each time, so work resumed from another checkout, machine or
+    cache continues with this very mesh instead of refusing a new one."""
+    path = Path(root) / MESH_FILE
+    if mesh is not None and not path.is_file():
+        atomic_write_bytes(path, mesh.to_npz_bytes())
 
 
 def _f(x: float) -> str:

@@ -264,6 +264,12 @@ def two_objects(tmp_path_factory):
     assert first is None and info1["computed"] == 5
     cs, info2 = generate(spec, out, progress=False)  # ... and resumed
     assert info2 == {**info2, "computed": spec.n_contacts - 5, "skipped": 5}
+    # the folder keeps the mesh its contacts were computed with (a resume elsewhere uses it)
+    from calibration.dataset import stored_mesh
+    from calibration.recognition.store import ContactDataset
+
+    kept = stored_mesh(out, spec.scene)
+    assert kept.digest == ContactDataset(out).manifest()["identity"]["mesh_digest"]
     return spec, cs, out
 
 

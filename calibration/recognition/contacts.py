@@ -97,15 +97,19 @@ class ContactSpec:
         a, r = len(self.library.actions_mm), self.repeats
         return index // (a * r), (index // r) % a, index % r
 
-    def with_mesh(self) -> ContactSpec:
+    def with_mesh(self, kept_in: str | Path | None = None) -> ContactSpec:
+        """This spec with its tip's mesh: the one folder ``kept_in`` keeps
+        (:func:`~calibration.dataset.keep_mesh`), else bundled, cached or built once."""
         if self.mesh is not None:
             return self
         from tactip_sim.mesh import tetrahedralise
 
+        from ..dataset import stored_mesh
         from ..protocol import make_tip
 
-        return dataclasses.replace(
-            self, mesh=tetrahedralise(make_tip(self.scene, self.tip, nominal=self.nominal).scene))
+        scene = make_tip(self.scene, self.tip, nominal=self.nominal).scene
+        kept = None if kept_in is None else stored_mesh(kept_in, scene)
+        return dataclasses.replace(self, mesh=kept if kept is not None else tetrahedralise(scene))
 
     def identity(self) -> dict[str, Any]:
         from tactip_sim.scene import scene_hash
@@ -307,11 +311,12 @@ def generate(spec: ContactSpec, out: str | Path, *, workers: int = 1,
 
     from tactip_sim.scene import scene_to_dict
 
+    from ..dataset import keep_mesh
     from ..executor import execute
     from ..executor import progress as progress_bar
     from ..versions import package_versions
 
-    spec = spec.with_mesh()
+    spec = spec.with_mesh(kept_in=out)
     ds = ContactDataset(out)
     ds.open(spec.identity(), {
         "n_contacts": spec.n_contacts, "groups": [o.group for o in spec.library.objects],
@@ -319,6 +324,7 @@ def generate(spec: ContactSpec, out: str | Path, *, workers: int = 1,
         "versions": package_versions(),
         "machine": {"python": platform.python_version(), "node": platform.node()},
         "geometry_tol_mm": GEOMETRY_TOL_MM})
+    keep_mesh(out, spec.mesh)  # the mesh these contacts are computed with (identity checked)
     done = ds.done()
     todo = [i for i in range(spec.n_contacts) if i not in done]
     if limit is not None:

@@ -2,7 +2,8 @@
 record by record, atomically; resumable) and :class:`ContactSet` (its arrays, what the
 studies use). :func:`calibration.recognition.contacts.generate` fills the folder.
 
-Folder layout: ``manifest.json`` (identity and provenance), ``rest.npz`` (the rest frame, full
+Folder layout: ``manifest.json`` (identity and provenance), ``mesh.npz`` (the tip's tet mesh,
+:func:`calibration.dataset.keep_mesh`), ``rest.npz`` (the rest frame, full
 and downsampled, and the pins at rest), ``records/NNNNN.npz`` (one per contact, the unit of
 resume) and, when complete, ``contacts.npz`` (every record stacked).
 """
