@@ -277,16 +277,9 @@ def test_every_worker_computes_with_the_mesh_of_the_spec(small_scene, tmp_path):
     results, and be refused when a resume brings another mesh."""
     from dataclasses import replace
 
-    from tactip_sim.mesh import TetMesh
-
     scene = ts.replace_in(small_scene, fidelity={"element_order": 1})  # cheap compliance
     base = SweepSpec(scene, "A", PoseSet("mesh", TINY[:4]), frames=1, nominal=True).with_mesh()
-    m = base.mesh
-    interior = np.ones(len(m.nodes), bool)
-    interior[np.unique(_boundary_nodes(m.tets))] = False
-    nodes = m.nodes.copy()
-    nodes[interior] += np.random.default_rng(0).normal(0, 0.05, (interior.sum(), 3))
-    odd = replace(base, mesh=TetMesh(nodes, m.tets, m.regions, m.key, 0.0))
+    odd = replace(base, mesh=_another_instance(base.mesh, seed=0))
     run_sweep(odd, tmp_path / "serial", progress=False, chunk=1)
     run_sweep(odd, tmp_path / "workers", workers=2, progress=False, chunk=1)
     run_sweep(base, tmp_path / "bundled", progress=False, chunk=2)
@@ -303,16 +296,12 @@ def test_a_sweep_resumes_with_the_mesh_its_dataset_keeps(small_scene, tmp_path):
     bytes; a kept file that is damaged or meshed for another scene is named."""
     from dataclasses import replace
 
-    from tactip_sim.mesh import MeshKeyError, TetMesh, read_mesh
+    from tactip_sim.mesh import MeshKeyError, read_mesh
 
     scene = ts.replace_in(small_scene, fidelity={"element_order": 1})  # cheap compliance
     base = SweepSpec(scene, "A", PoseSet("kept", TINY[:3]), frames=1, nominal=True)
     m = base.with_mesh().mesh
-    interior = np.ones(len(m.nodes), bool)
-    interior[np.unique(_boundary_nodes(m.tets))] = False
-    nodes = m.nodes.copy()
-    nodes[interior] += np.random.default_rng(1).normal(0, 0.05, (interior.sum(), 3))
-    built_elsewhere = replace(base, mesh=TetMesh(nodes, m.tets, m.regions, m.key, 0.0))
+    built_elsewhere = replace(base, mesh=_another_instance(m, seed=1))
     run_sweep(built_elsewhere, tmp_path / "whole", progress=False, chunk=1)
 
     class Killed(Exception):
@@ -338,6 +327,18 @@ def test_a_sweep_resumes_with_the_mesh_its_dataset_keeps(small_scene, tmp_path):
     (out / "mesh.npz").write_bytes(b"torn")
     with pytest.raises(DatasetError, match=r"mesh\.npz is unreadable.*new --out"):
         run_sweep(base, out, progress=False)
+
+
+def _another_instance(mesh, *, seed: int):
+    """``mesh`` with its interior nodes moved (up to ~0.1 mm): a mesh no cache or bundle
+    holds, as another pytetwild build would be."""
+    from tactip_sim.mesh import TetMesh
+
+    interior = np.ones(len(mesh.nodes), bool)
+    interior[np.unique(_boundary_nodes(mesh.tets))] = False
+    nodes = mesh.nodes.copy()
+    nodes[interior] += np.random.default_rng(seed).normal(0, 0.05, (interior.sum(), 3))
+    return TetMesh(nodes, mesh.tets, mesh.regions, mesh.key, 0.0)
 
 
 def _boundary_nodes(tets):
