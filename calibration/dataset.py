@@ -400,11 +400,13 @@ def stored_mesh(root: str | os.PathLike[str], scene: Any) -> Any:
     from tactip_sim.mesh import MeshKeyError, read_mesh
 
     try:
-        return read_mesh(path, scene)
+        return read_mesh(path, scene, remedy=(
+            "it is the mesh this folder's samples were computed with: restore it, or delete "
+            "it to resume where the cache holds that mesh, or choose a new --out folder"))
     except MeshKeyError:
         return None
     except ValueError as exc:
-        raise DatasetError(f"{exc}; or choose a new --out folder") from None
+        raise DatasetError(str(exc)) from None
 
 
 def keep_mesh(root: str | os.PathLike[str], mesh: Any) -> None:

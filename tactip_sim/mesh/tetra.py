@@ -292,7 +292,8 @@ def _read_saved(path: Path, remedy: str, what: str = ""
         raise ValueError(f"{what}mesh {path} is unreadable ({exc}); {remedy}") from None
 
 
-def read_mesh(path: str | Path, scene: Scene) -> TetMesh:
+def read_mesh(path: str | Path, scene: Scene, *,
+              remedy: str = "delete it to build the mesh again") -> TetMesh:
     """The mesh :meth:`TetMesh.save` wrote to ``path`` (e.g. a dataset's own copy of its
     tip's mesh), snapped onto ``scene``'s surfaces as :func:`tetrahedralise` snaps its meshes.
 
@@ -301,11 +302,11 @@ def read_mesh(path: str | Path, scene: Scene) -> TetMesh:
     MeshKeyError
         It was built for another scene than ``scene`` (its recorded :func:`mesh_key` differs).
     ValueError
-        The file is unreadable.
+        The file is unreadable (the message ends with ``remedy``).
     """
     path = Path(path)
     t0 = time.perf_counter()
-    raw, tets, regions, key = _read_saved(path, "delete it to build the mesh again")
+    raw, tets, regions, key = _read_saved(path, remedy)
     expected = mesh_key(scene)
     if key is not None and key != expected:
         raise MeshKeyError(f"mesh {path} was built for another scene (mesh key {key}, this "
