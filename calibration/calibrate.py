@@ -37,6 +37,7 @@ from .fit import (
     save_model,
     score,
 )
+from .gap import label_variances, pose_noise_note
 from .protocol import evaluation_sets, make_tip, span_training_set, training_set
 from .rig import RigModel
 from .runlog import RunLog
@@ -179,12 +180,19 @@ def calibrate(
     finally:
         log.flush()  # an interrupted invocation keeps its time and samples in runs.json
         close_client(client)
+    label_var = label_variances(scene)
+
+    def beside_paper(feat: str) -> str:  # how far from Table I, and what would close it
+        return pose_noise_note(rows[feat], rig.pose_angle_sd_deg, label_var)
+
     atomic_write_text(out / "r2_table.csv", r2_table_csv(rows[feature]))
-    atomic_write_text(out / "r2_table.md", r2_table_markdown(rows[feature], feature=feature))
+    atomic_write_text(out / "r2_table.md", r2_table_markdown(rows[feature], feature=feature)
+                      + beside_paper(feature))
     for other in [*others, *([INVARIANT] if depth_invariant else [])]:
         atomic_write_text(out / f"r2_table_{other}.csv", r2_table_csv(rows[other]))
         atomic_write_text(out / f"r2_table_{other}.md",
                           r2_table_markdown(rows[other], feature=other)
+                          + (beside_paper(other) if other != INVARIANT else "")
                           + (invariant_gain_note(rows["growth"], rows[INVARIANT])
                              + depth_signal_note(depth_signals) if other == INVARIANT else "")
                           + (detection_note(detection) if other == "hull" else ""))

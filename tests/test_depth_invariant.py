@@ -81,6 +81,11 @@ def test_calibrate_with_the_depth_invariant_model(cal):
     note = (out / "r2_table_invariant.md").read_text()
     assert "Depth signal" in note and "Warning" not in note
     assert "Against the one-depth growth-CoP model" in note
+    # each feature's table against the paper's Table I (the invariant one is compared with the
+    # one-depth model instead)
+    assert "Against the paper, cell by cell:" in (out / "r2_table.md").read_text()
+    assert "Against the paper, cell by cell:" in (out / "r2_table_hull.md").read_text()
+    assert "Against the paper, cell by cell:" not in note
     # the training set spans the depths; the deformation input grows with depth
     span = invariant_features(out / "tip_A" / "train_span")
     deeper = span.depth_mm > np.median(span.depth_mm)

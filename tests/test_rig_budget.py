@@ -5,15 +5,9 @@ are ``tactip calibrate``'s (tested there); the measured budget is in docs/rig.md
 import pytest
 
 from calibration.fit import FEATURES
+from calibration.gap import equivalent_pose_noise_deg, label_variances
 from calibration.rig import SOURCES, load_rig
-from calibration.studies.rig_budget import (
-    chart,
-    configs,
-    equivalent_pose_noise_deg,
-    label_variances,
-    ranking,
-    report,
-)
+from calibration.studies.rig_budget import chart, configs, ranking, report
 
 
 def test_configurations_switch_one_source_on_at_a_time():
@@ -118,6 +112,27 @@ def test_the_report_says_what_would_explain_each_gap():
     # within the goal: not listed (B order 2 at 0 mm: 0.94 against 0.92)
     assert "| B | 2 | +0.0 | +0.020 |" not in text.split("What would explain")[1]
     assert "What would explain" not in report(r2, rig, ["A", "B"])  # no variances: no section
+
+
+def test_calibrates_note_counts_the_cells_and_prices_the_better_ones():
+    from calibration.fit import ScoreRow
+    from calibration.gap import pose_noise_note
+
+    def row(tip, order, depth, r2):
+        return ScoreRow(tip, order, depth, r2, r2, r2, 1.0, 1.0, 30, 0)
+
+    var = {-0.5: (64.0, 20.0), 0.0: (64.0, 20.0), 0.5: (64.0, 20.0)}
+    rows = [row("A", 2, -0.5, 0.93),  # paper 0.92: within
+            row("A", 2, 0.0, 0.99),  # paper 0.91: better by 0.08
+            row("A", 2, 0.5, 0.60),  # paper 0.92: worse
+            row("A", 3, 0.0, 0.10),  # order 3: not a goal cell
+            row("Z", 2, 0.0, 0.50)]  # no paper value
+    text = pose_noise_note(rows, 0.019, var)
+    sd = equivalent_pose_noise_deg(0.08, 64.0, 20.0)
+    assert "1 of 3 order-1/2 cells within ±0.05" in text
+    assert f"A order 2 at +0.0 mm (+0.080): {sd:.2f}°" in text and "0.019°" in text
+    assert "1 cell is worse by more" in text
+    assert pose_noise_note([row("Z", 2, 0.0, 0.5)], 0.0, var) == ""
 
 
 def test_label_variances_are_the_test_sets(scene):

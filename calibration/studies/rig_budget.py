@@ -28,6 +28,7 @@ import numpy as np
 
 from ..dataset import atomic_write_text, json_default
 from ..fit import DEFAULT_FEATURE, FEATURES, PAPER_DEPTHS, PAPER_R2
+from ..gap import GOAL, equivalent_pose_noise_deg, label_variances, paper_r2
 from ..rig import NOT_MODELLED, SOURCES, RigModel, check_sources, load_rig
 
 ORDER = 2  # the paper's headline model
@@ -83,35 +84,6 @@ def _paper(tips: list[str], order: int, depth: float) -> str:
     return f"{min(vals):.2f}" if min(vals) == max(vals) else f"{min(vals):.2f}–{max(vals):.2f}"
 
 
-GOAL = 0.05
-"""The issue's goal: every order-1/2 cell of ``all`` within this of the paper's Table I."""
-
-
-def equivalent_pose_noise_deg(r2_loss: float, var_roll: float, var_pitch: float) -> float:
-    """The sd (degrees) of independent errors on both angles between the pose commanded (the
-    label) and the pose reached (what the sensor sees) that lowers the mean of the roll and
-    pitch R² by ``r2_loss``; NaN if ``r2_loss`` <= 0 (no added noise raises an R²).
-
-    Such an error adds its variance ``s²`` to each angle's residual and leaves the labels'
-    spread as it is, so each R² falls by ``s² / Var(label)`` in expectation and the mean by
-    ``s² / 2 (1 / Var(roll) + 1 / Var(pitch))``. ``var_*``: the test set's label variances
-    (deg², the population variances R²'s total sum of squares uses)."""
-    if not (var_roll > 0 and var_pitch > 0):
-        raise ValueError(f"label variances {var_roll!r}, {var_pitch!r} must be positive")
-    if not r2_loss > 0:
-        return float("nan")
-    return float(np.sqrt(2.0 * r2_loss / (1.0 / var_roll + 1.0 / var_pitch)))
-
-
-def label_variances(scene: Any) -> dict[float, tuple[float, float]]:
-    """Each test set's (Var roll, Var pitch) of its commanded labels, deg², by depth offset."""
-    from ..protocol import evaluation_sets
-
-    return {float(ps.depth_offset_mm): (float(np.var(ps.poses[:, 0])),
-                                        float(np.var(ps.poses[:, 1])))
-            for ps in evaluation_sets(scene)}
-
-
 def gap_lines(by_cfg: dict[str, dict], rig: RigModel,
               label_var: dict[float, tuple[float, float]]) -> list[str]:
     """The report's "what would explain the gap": for each order-1/2 cell of ``all`` outside
@@ -131,10 +103,10 @@ def gap_lines(by_cfg: dict[str, dict], rig: RigModel,
     alone = {c: cells for c, cells in by_cfg.items() if c not in ("ideal", "all")}
     ideal = by_cfg.get("ideal", {})
     for (tip, order, depth), value in sorted(by_cfg["all"].items()):
-        if order > 2 or (tip, order) not in PAPER_R2 or depth not in PAPER_DEPTHS \
-                or depth not in label_var:
+        paper = paper_r2(tip, order, depth)
+        if order > 2 or paper is None or depth not in label_var:
             continue
-        diff = value - PAPER_R2[(tip, order)][PAPER_DEPTHS.index(depth)]
+        diff = value - paper
         if abs(diff) <= GOAL:
             continue
         if diff > 0:
@@ -323,5 +295,4 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["GOAL", "configs", "configure_parser", "equivalent_pose_noise_deg", "gap_lines",
-           "label_variances", "main", "ranking", "report", "run"]
+__all__ = ["configs", "configure_parser", "gap_lines", "main", "ranking", "report", "run"]
