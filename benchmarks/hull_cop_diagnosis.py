@@ -3,6 +3,7 @@
 
     python benchmarks/hull_cop_diagnosis.py SWEEP_TIP_DIR [--real FOLDER]
                                             [--area-ratio-max R [R ...]] [--split-clusters]
+                                            [--orders]
 
 SWEEP_TIP_DIR: one tip's folder of a finished `tactip calibrate` run (its `train` and
 `test+0p0mm` datasets; e.g. OUT/tip_A). For the stored frame of each sample it computes the
@@ -23,8 +24,9 @@ exactly. The split is done on the true projections, and with `--real` (default
 part's in-sample R² (order 2) and their correlation. ``--area-ratio-max`` repeats the first
 part with the detector cutting blobs above R times a marker's area
 (``perception.DetectionParams.area_ratio_max``; default 2.5), ``--split-clusters`` with
-the detector splitting touching markers (``DetectionParams.split_clusters``). Nothing is
-written.
+the detector splitting touching markers (``DetectionParams.split_clusters``). ``--orders``
+adds, for each detector setting, the paper's Table I layout: orders 1-3 fitted on ``train``
+and scored on every test set. Nothing is written.
 """
 
 from __future__ import annotations
@@ -47,11 +49,11 @@ def r2(y: np.ndarray, p: np.ndarray) -> np.ndarray:
     return score_predictions(y, p, ("roll_deg", "pitch_deg")).r2
 
 
-def fit2(x_train, y_train):
+def fit2(x_train, y_train, order: int = 2):
     from perception.vector_regression import VectorRegressor
 
     ok = np.isfinite(x_train).all(axis=1)
-    return VectorRegressor(2, input_names=("x", "y")).fit(x_train[ok], y_train[ok])
+    return VectorRegressor(order, input_names=("x", "y")).fit(x_train[ok], y_train[ok])
 
 
 def scored(model, x, y) -> np.ndarray:
@@ -102,6 +104,21 @@ def sweep_hull(folder: Path, detection=None):
     return {k: np.asarray(v, dtype=float) for k, v in out.items()}
 
 
+def print_orders(tip_dir: Path, train: dict, detection) -> None:
+    """Orders 1-3 fitted on ``train`` (:func:`sweep_hull`'s output), scored on every test set
+    of ``tip_dir``: mean R² of roll and pitch, laid out as the paper's Table I."""
+    tests = sorted(tip_dir.glob("test*mm"), key=lambda p: float(
+        p.name[4:-2].replace("p", ".")))
+    sets = {p.name: sweep_hull(p, detection) for p in tests
+            if (p / "targets.csv").is_file()}
+    print("   Table I layout (mean R² of roll and pitch; columns: " + ", ".join(sets) + "):")
+    for way in ("growth", "detected", "true"):
+        for order in (1, 2, 3):
+            model = fit2(train[way], train["angles"], order)
+            cells = [scored(model, t[way], t["angles"]).mean() for t in sets.values()]
+            print(f"      {way:9s} order {order}: " + "  ".join(f"{c:6.3f}" for c in cells))
+
+
 def split(rest: np.ndarray, frames: np.ndarray):
     """(CoP change, shift part, growth part), each (n, 2), of the hull CoP of ``frames``
     (n, m, 2; NaN rows: markers lost) against ``rest`` (m, 2)."""
@@ -146,6 +163,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--split-clusters", action="store_true",
                     help="also with the detector splitting touching markers "
                     "(perception.DetectionParams.split_clusters)")
+    ap.add_argument("--orders", action="store_true",
+                    help="also the paper's Table I layout: orders 1-3 fitted on train and "
+                    "scored on every test set, for the growth CoP and the hull CoP of the "
+                    "detected and the true markers (mean R² of roll and pitch)")
     args = ap.parse_args(argv)
     for name in ("train", "test+0p0mm"):
         if not (args.tip_dir / name / "targets.csv").is_file():
@@ -172,6 +193,8 @@ def main(argv: list[str] | None = None) -> None:
             print(f"      {way:9s} markers: {s[0]:.3f} / {s[1]:.3f}")
         s = scored(fit2(train["growth"], train["angles"]), test["growth"], test["angles"])
         print(f"   growth CoP, the same way: {s[0]:.3f} / {s[1]:.3f}")
+        if args.orders:
+            print_orders(args.tip_dir, train, params)
 
     from calibration.dataset import Dataset
     from calibration.frames import dataset_pipeline
