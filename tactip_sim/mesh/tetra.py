@@ -26,8 +26,8 @@ from .snap import snap_nodes
 from .topology import REGION_GEL, REGION_SKIN, TET_FACES, tet_volumes
 
 __all__ = ["REGION_GEL", "REGION_SKIN", "TET_FACES", "MeshKeyError", "MeshQuality", "TetMesh",
-           "bundled_path",
-           "mesh_key", "mesh_quality", "read_mesh", "sizing_field", "tet_volumes", "tetrahedralise"]
+           "bundled_path", "mesh_key", "mesh_quality", "read_mesh", "sizing_field",
+           "tet_volumes", "tetrahedralise"]
 
 BUNDLED_DIR = Path(__file__).resolve().parents[2] / "scenes" / "meshes"
 MESHER_VERSION = 3  # bump when the meshing recipe changes: invalidates cached meshes
