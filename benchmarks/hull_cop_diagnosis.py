@@ -104,13 +104,14 @@ def sweep_hull(folder: Path, detection=None):
     return {k: np.asarray(v, dtype=float) for k, v in out.items()}
 
 
-def print_orders(tip_dir: Path, train: dict, detection) -> None:
+def print_orders(tip_dir: Path, train: dict, detection, done: dict[str, dict]) -> None:
     """Orders 1-3 fitted on ``train`` (:func:`sweep_hull`'s output), scored on every test set
-    of ``tip_dir``: mean R² of roll and pitch, laid out as the paper's Table I."""
+    of ``tip_dir``: mean R² of roll and pitch, laid out as the paper's Table I. ``done``: test
+    sets already swept with ``detection``, by folder name (not swept again)."""
     tests = sorted(tip_dir.glob("test*mm"), key=lambda p: float(
         p.name[4:-2].replace("p", ".")))
-    sets = {p.name: sweep_hull(p, detection) for p in tests
-            if (p / "targets.csv").is_file()}
+    sets = {p.name: done[p.name] if p.name in done else sweep_hull(p, detection)
+            for p in tests if (p / "targets.csv").is_file()}
     print("   Table I layout (mean R² of roll and pitch; columns: " + ", ".join(sets) + "):")
     for way in ("growth", "detected", "true"):
         for order in (1, 2, 3):
@@ -194,7 +195,7 @@ def main(argv: list[str] | None = None) -> None:
         s = scored(fit2(train["growth"], train["angles"]), test["growth"], test["angles"])
         print(f"   growth CoP, the same way: {s[0]:.3f} / {s[1]:.3f}")
         if args.orders:
-            print_orders(args.tip_dir, train, params)
+            print_orders(args.tip_dir, train, params, {"test+0p0mm": test})
 
     from calibration.dataset import Dataset
     from calibration.frames import dataset_pipeline

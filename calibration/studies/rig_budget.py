@@ -90,7 +90,7 @@ def gap_lines(by_cfg: dict[str, dict], rig: RigModel,
     :data:`GOAL` of Table I, the pose noise that would close it where the simulation is
     better than the paper (:func:`equivalent_pose_noise_deg`), or, where it is worse (no
     added noise can raise an R²), the sources that cost most in that cell alone."""
-    lines = ["What would explain each order-1/2 cell outside ±0.05 of the paper. Where the "
+    lines = [f"What would explain each order-1/2 cell outside ±{GOAL:g} of the paper. Where the "
              "simulation is better, the sd of independent pose errors (commanded against "
              "reached, on both angles) that would lower it to the paper's value: it lowers the "
              "mean R² by s²/2 (1/Var roll + 1/Var pitch) over the test set's labels. The rig's "
@@ -125,7 +125,7 @@ def gap_lines(by_cfg: dict[str, dict], rig: RigModel,
                 else "no source alone costs R² here (their combination does)")
         lines.append(f"| {tip} | {order} | {depth:+.1f} | {diff:+.3f} | {why} |")
     if len(lines) == 4:
-        lines.append("| — | — | — | — | every order-1/2 cell within ±0.05 |")
+        lines.append(f"| — | — | — | — | every order-1/2 cell within ±{GOAL:g} |")
     return lines
 
 
