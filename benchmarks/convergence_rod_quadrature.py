@@ -79,9 +79,9 @@ def solve(size: float, instance: int, pose, out: Path) -> Path:
 
 def dense_base(pad, radius_mm: float, thickness_mm: float, n_r: int, n_theta: int, n_z: int):
     """Quadrature points (p, k, 3) and weights (k,) over each pin's base: Gauss-Legendre in
-    radius (weight r) and through the skin, ``n_theta`` equal angles; laid on the skin's inner
-    face through the pins' layout map, as the product's 7-point rule is."""
-    from tactip_sim.geometry import map_to_dome
+    radius (weight r) and through the skin, ``n_theta`` equal angles; laid on the skin as the
+    product's 7-point rule is (:func:`tactip_sim.fem.markers.lay_on_skin`)."""
+    from tactip_sim.fem.markers import lay_on_skin
 
     xr, wr = np.polynomial.legendre.leggauss(n_r)
     r = 0.5 * (xr + 1.0)
@@ -91,14 +91,9 @@ def dense_base(pad, radius_mm: float, thickness_mm: float, n_r: int, n_theta: in
     w_disk /= w_disk.sum()
     ring = radius_mm * np.stack([rr.ravel() * np.cos(tt.ravel()),
                                  rr.ravel() * np.sin(tt.ravel())], axis=1)
-    uv = pad.pins.lattice_uv[:, None, :] + ring[None]
-    on_face = map_to_dome(pad.inner, uv.reshape(-1, 2))
-    normal = pad.inner.outward_normal(on_face)
     xz, wz = np.polynomial.legendre.leggauss(n_z)
-    depth = thickness_mm * 0.5 * (xz + 1.0)
-    pts = on_face[:, None, :] + depth[None, :, None] * normal[:, None, :]
     weights = (w_disk[:, None] * (0.5 * wz)[None, :]).ravel()
-    return pts.reshape(len(pad.pins.roots), -1, 3), weights
+    return lay_on_skin(pad, ring, thickness_mm * 0.5 * (xz + 1.0)), weights
 
 
 def markers_by_rule(size: float, instance: int, out: Path) -> dict[str, np.ndarray]:

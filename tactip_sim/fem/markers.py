@@ -162,20 +162,27 @@ _DISK_T = np.concatenate([[0.0], np.arange(6) * np.pi / 3.0])
 _DISK_W = np.concatenate([[0.25], np.full(6, 0.125)])
 
 
+def lay_on_skin(pad: Pad, ring_mm: np.ndarray, depths_mm: np.ndarray) -> np.ndarray:
+    """Points (p, k z, 3) around each pin's base: the in-plane offsets ``ring_mm`` (k, 2) laid
+    on the skin's inner face in the pins' own layout coordinates (the map that placed the
+    roots, so the disk follows the dome's curvature), each at the ``depths_mm`` (z,) along the
+    skin's outward normal; point ``i z + j`` is offset ``i`` at depth ``j``."""
+    uv = pad.pins.lattice_uv[:, None, :] + np.asarray(ring_mm)[None]  # (p, k, 2)
+    on_face = map_to_dome(pad.inner, uv.reshape(-1, 2))
+    normal = pad.inner.outward_normal(on_face)
+    pts = on_face[:, None, :] + np.asarray(depths_mm)[None, :, None] * normal[:, None, :]
+    return pts.reshape(len(pad.pins.roots), -1, 3)
+
+
 def _base_points(pad: Pad, radius_mm: float, thickness_mm: float
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Quadrature points (p, k, 3) and weights (k,) of each pin's base: the 7-point disk rule
-    laid on the skin's inner face in the pins' own layout coordinates (the map that placed
-    the roots, so the disk follows the dome's curvature), each point at two Gauss depths
+    laid on the skin (:func:`lay_on_skin`), each point at two Gauss depths
     (``t/2 -+ t/(2 sqrt 3)``) along the skin's outward normal."""
     ring = radius_mm * _DISK_R[:, None] * np.stack([np.cos(_DISK_T), np.sin(_DISK_T)], axis=1)
-    uv = pad.pins.lattice_uv[:, None, :] + ring[None]  # (p, 7, 2)
-    on_face = map_to_dome(pad.inner, uv.reshape(-1, 2))
-    normal = pad.inner.outward_normal(on_face)
     depth = thickness_mm * (0.5 + np.array([-1.0, 1.0]) / (2.0 * np.sqrt(3.0)))
-    pts = on_face[:, None, :] + depth[None, :, None] * normal[:, None, :]  # (7 p, 2, 3)
     weights = np.repeat(_DISK_W, len(depth)) / len(depth)  # sums to 1
-    return pts.reshape(len(pad.pins.roots), -1, 3), weights
+    return lay_on_skin(pad, ring, depth), weights
 
 
 def _mean_gradient(space: Space, points: np.ndarray, weights: np.ndarray) -> sp.csr_matrix:
