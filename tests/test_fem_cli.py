@@ -112,7 +112,8 @@ def test_press_takes_friction_from_the_scene(capsys):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--friction", "-1", "--path", "tap"], "friction=-1.0 is out of range: allowed [0, 10]"),
+    (["--friction", "-1", "--path", "tap"], "--friction=-1.0 is out of range: allowed [0, 10]"),
+    (["--friction", "-0.3"], "--friction=-0.3 is out of range: allowed [0, 10]"),  # no --path
     (["--friction", "0.5", "--steps", "0"], "--steps=0 is out of range: allowed [1, 10000]"),
     (["--friction", "0.5", "--path", "direct"], "--path direct is frictionless"),
     (["--friction", "0.5", "--depth", "-0.5"], "leaves contact"),

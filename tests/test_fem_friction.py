@@ -182,14 +182,14 @@ def test_pins_stop_at_the_window_along_a_path(fingertip):
     """A deep re-orientation whose pins reach the window: without friction it ends where the
     press (which stops them, fem/window.py) does, whatever the path; with friction no tip
     ends below the window's inner face (z = 0) and the window holds some of them."""
-    pose, start = ts.Pose(16, -11, 2.1), ts.Pose(0, -4, 2.1)
+    pose, start = ts.Pose(16, -11, 2.1), ts.Pose(8, -7, 2.1)
     pressed = fingertip.press(pose)
     assert pressed.pins_on_window > 0  # the pose is deep enough to test the window
-    free = fingertip.press_path(pose, start=start, steps=2, tap_steps=2, friction=0.0)[-1]
+    free = fingertip.press_path(pose, start=start, steps=1, tap_steps=1, friction=0.0)[-1]
     assert np.abs(free.markers_mm - pressed.markers_mm).max() < 1e-3
     assert free.pins_on_window == pressed.pins_on_window
     assert free.force_N == pytest.approx(pressed.force_N, rel=1e-4)
-    poses = path_poses(pose, start=start, steps=2, tap_steps=2)
+    poses = path_poses(pose, start=start, steps=1, tap_steps=1)  # a tap, then one turn
     _, before = fingertip.continue_path(poses[:-1], friction=0.5)
     (rough,), after = fingertip.continue_path(poses[-1:], before, friction=0.5)
     assert rough.markers_mm[:, 2].min() > -1e-6 and rough.tips_below_window == 0

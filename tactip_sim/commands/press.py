@@ -98,6 +98,7 @@ def _indenter(args: argparse.Namespace, scene):
 
 def _cmd_press(args: argparse.Namespace) -> int:
     from ..fem.contact import ContactError
+    from ..fem.loadpath import check_friction, check_steps
     from ..fem.pose import Pose
     from ..simulator import Simulator
 
@@ -105,13 +106,17 @@ def _cmd_press(args: argparse.Namespace) -> int:
     depth = scene.protocol.training_depth_mm if args.depth is None else args.depth
     pose = Pose(args.roll, args.pitch, depth, offset_mm=tuple(args.offset), yaw_deg=args.yaw)
     indenter = _indenter(args, scene)
-    sim = Simulator(scene, solver=args.solver)
-    sim.warn_under_resolved = False  # this command prints its own warning below
-    mu = scene.indenter.friction_coefficient if args.friction is None else args.friction
+    # the options checked before any work (a mesh, a compliance) starts
+    mu = scene.indenter.friction_coefficient if args.friction is None \
+        else check_friction(args.friction, "--friction")
     path = args.path or ("tap" if mu > 0 else "direct")
     if path == "direct" and mu != 0:
         raise ValueError(f"--path direct is frictionless: friction={mu:g} needs --path tap "
                          "or reorient (allowed friction for direct: 0)")
+    if path != "direct":
+        check_steps(args.steps, "--steps")
+    sim = Simulator(scene, solver=args.solver)
+    sim.warn_under_resolved = False  # this command prints its own warning below
     total_s = time.perf_counter()
     try:
         if path == "direct":
