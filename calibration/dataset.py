@@ -433,6 +433,28 @@ def json_default(obj: Any) -> Any:
     raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
 
 
+def plain(obj: Any, digits: int | None = None) -> Any:
+    """A JSON-ready copy of ``obj``: mappings (keys as strings), sequences and arrays to lists,
+    NumPy scalars to Python's, non-finite floats to ``None`` (JSON has no NaN), every float
+    rounded to ``digits`` decimals if given."""
+    if isinstance(obj, dict):
+        return {str(k): plain(v, digits) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [plain(v, digits) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return plain(obj.tolist(), digits)
+    if isinstance(obj, np.bool_ | bool):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.floating | float):
+        v = float(obj)
+        if not np.isfinite(v):
+            return None
+        return v if digits is None else round(v, digits)
+    return obj
+
+
 def poses_digest(poses: Iterable[Iterable[float]]) -> str:
     import hashlib
 

@@ -24,28 +24,10 @@ import numpy as np
 
 import tactip_sim as ts
 
-from ..dataset import atomic_write_text, json_default
+from ..dataset import atomic_write_text, json_default, plain
 from .contacts import ContactSet, ContactSpec, generate
 from .objects import Library
 from .studies import METHOD_LABELS, SUBSETS, Settings
-
-
-def plain(obj: Any) -> Any:
-    """JSON-ready copy (arrays to lists, NaN to None, numpy scalars to Python)."""
-    if isinstance(obj, dict):
-        return {str(k): plain(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return plain(obj.tolist())
-    if isinstance(obj, np.bool_ | bool):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.floating | float):
-        v = float(obj)
-        return None if not np.isfinite(v) else v
-    return obj
 
 
 class Steps:

@@ -41,6 +41,7 @@ import tactip_sim as ts
 from tactip_sim.scene import apply_preset, replace_in, scene_hash
 
 from ..chain import Chain, set_tag
+from ..dataset import atomic_write_text, plain
 
 REFERENCE = "reference"
 BASE = "balanced"
@@ -380,24 +381,12 @@ def run_fidelity_study(scene: ts.Scene, out: str | Path, *, quick: bool = False,
         "seconds": time.perf_counter() - t_start,
         "date": time.strftime("%Y-%m-%d"),
     }
-    (out / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2) + "\n")
-    (out / "levels.csv").write_text(_csv(results))
+    atomic_write_text(out / "summary.json", json.dumps(plain(summary), indent=2) + "\n")
+    atomic_write_text(out / "levels.csv", _csv(results))
     if charts:
         front_chart(results, out / "front.png", title=f"{scene.name}: speed vs accuracy")
     (out / "report.md").write_text(report_markdown(summary, charts=charts))
     return summary
-
-
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {k: _jsonable(x) for k, x in v.items()}
-    if isinstance(v, list | tuple):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, float | np.floating):
-        return float(v) if np.isfinite(v) else None
-    if isinstance(v, np.integer):
-        return int(v)
-    return v
 
 
 CSV_COLUMNS = ("name", "stage", "frames", "setup_s", "physics_s", "render_s", "perception_s",

@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from ...dataset import plain
+
 # ---------------------------------------------------------------------------------------------
 # Results
 
@@ -107,18 +109,5 @@ def _row_boundary(xs: Sequence[Any], fail: np.ndarray, x_ref: Any) -> dict[str, 
 
 
 def _plain(obj: Any) -> Any:
-    """JSON-ready copy: arrays to lists, numpy scalars to floats, NaN to None."""
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
-    if isinstance(obj, np.bool_ | bool):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.floating | float):
-        v = float(obj)
-        return None if not np.isfinite(v) else round(v, 6)
-    return obj
+    """JSON-ready copy, floats to 6 decimals (the maps' values and axes)."""
+    return plain(obj, 6)
