@@ -168,7 +168,7 @@ def test_deep_presses_keep_every_tip_above_the_window(sim, pose):
 
 
 def test_force_rises_steeply_once_the_pins_hold(sim):
-    depths = [3.0, 3.25, 3.5, 3.75, 4.0]
+    depths = [3.0, 3.25, 3.5, 3.75]  # (the bundled mesh: pins held from 3.5 mm)
     states = [sim.press(ts.Pose(0, 0, d)) for d in depths]
     force = np.array([s.force_N for s in states])
     held = np.array([s.pins_on_window for s in states])
