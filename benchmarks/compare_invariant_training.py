@@ -2,7 +2,7 @@
 training-depth grid together, and without its shift input, scored on one finished
 calibration's test sets (docs/rig.md).
 
-    python benchmarks/compare_invariant_training.py DIR [DIR ...] [--bootstrap N]
+    python benchmarks/compare_invariant_training.py DIR [DIR ...] [--bootstrap N] [--pool]
 
 DIR: a `tactip calibrate ... --depth-invariant --out DIR` folder. Prints, per tip, order and
 test depth, the R² of both training sets, of the model without the array's shift (both grids)
@@ -10,7 +10,10 @@ and of the paper's one-depth growth-CoP model (fitted on the training grid alone
 same test samples, and the tip's depth signal (how much of the spread grid's depth the
 pressure inputs carry, `calibration.fit.depth_signal`). ``--bootstrap N`` adds, per order
 and depth, a paired bootstrap (N resamples of the test poses, seed 0) of the difference
-between the model on both grids and the paper's: its 95 % interval. Nothing is written.
+between the model on both grids and the paper's: its 95 % interval. ``--pool`` (with
+``--bootstrap``) ends with that difference averaged over every tip of every DIR, per order
+and depth, and its 95 % interval (each resample draws every run's test poses afresh, each run
+on its own): how the model does on a manufactured tip on average. Nothing is written.
 """
 
 from __future__ import annotations
@@ -64,7 +67,26 @@ def paired_interval(y, pred_a, pred_b, n: int, seed: int = 0) -> tuple[float, fl
     return float(lo), float(hi)
 
 
-def compare(folder: Path, bootstrap: int = 0) -> None:
+def pooled_interval(runs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], n: int,
+                    seed: int = 0) -> tuple[float, float, float]:
+    """The mean over ``runs`` (each ``(y, pred_a, pred_b)`` on its own test poses) of
+    R²(a) − R²(b), and its 95 % interval over ``n`` resamples of every run's rows."""
+    rng = np.random.default_rng(seed)
+    mean = float(np.mean([_r2(y, a) - _r2(y, b) for y, a, b in runs]))
+    draws = []
+    for _ in range(n):
+        diffs = []
+        for y, a, b in runs:
+            k = rng.integers(0, len(y), len(y))
+            diffs.append(_r2(y[k], a[k]) - _r2(y[k], b[k]))
+        draws.append(np.mean(diffs))
+    lo, hi = np.percentile(draws, [2.5, 97.5])
+    return mean, float(lo), float(hi)
+
+
+def compare(folder: Path, bootstrap: int = 0, pool: dict | None = None) -> None:
+    """Print the comparison for every tip of ``folder``; with ``pool``, add each order's and
+    depth's ``(y, invariant, paper's)`` predictions to ``pool[(order, offset)]``."""
     for tip_dir in sorted(folder.glob("tip_*")):
         tip = tip_dir.name.removeprefix("tip_")
         tests = sorted((p for p in tip_dir.glob("test*mm") if (p / "targets.csv").is_file()),
@@ -99,10 +121,12 @@ def compare(folder: Path, bootstrap: int = 0) -> None:
                 line = (f"{order:5d}  {offset:+9.1f}   {r2[0]:11.3f}   {r2[1]:13.3f}   "
                         f"{r2[2]:8.3f}   {r2[3]:.3f}")
                 if bootstrap:
-                    lo, hi = paired_interval(inv.angles_deg[in_inv],
-                                             models[1].predict(inv.cop_px[in_inv]),
-                                             models[3].predict(cop.cop_px[in_cop]), bootstrap)
+                    paired = (inv.angles_deg[in_inv], models[1].predict(inv.cop_px[in_inv]),
+                              models[3].predict(cop.cop_px[in_cop]))
+                    lo, hi = paired_interval(*paired, bootstrap)
                     line += f"   [{lo:+.3f}, {hi:+.3f}]"
+                    if pool is not None:
+                        pool.setdefault((order, offset), []).append(paired)
                 print(line)
 
 
@@ -114,11 +138,25 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--bootstrap", type=int, default=0, metavar="N",
                         help="paired bootstrap resamples for the difference from the paper's "
                         "model (0: none)")
+    parser.add_argument("--pool", action="store_true",
+                        help="end with the difference averaged over every tip of every folder "
+                        "(needs --bootstrap)")
     args = parser.parse_args(argv)
     if args.bootstrap < 0:
         parser.error(f"--bootstrap={args.bootstrap} must be >= 0")
+    if args.pool and not args.bootstrap:
+        parser.error("--pool needs --bootstrap N (N >= 1)")
+    pool: dict | None = {} if args.pool else None
     for folder in args.folders:
-        compare(folder, args.bootstrap)
+        compare(folder, args.bootstrap, pool)
+    if pool:
+        print(f"\npooled: the depth-invariant model (both grids) minus the paper's, averaged "
+              f"over the runs' tips, 95 % interval ({args.bootstrap} resamples)")
+        print("order  test depth   runs   mean difference   interval")
+        for (order, offset), runs in sorted(pool.items()):
+            mean, lo, hi = pooled_interval(runs, args.bootstrap)
+            print(f"{order:5d}  {offset:+9.1f}   {len(runs):4d}   {mean:+15.3f}   "
+                  f"[{lo:+.3f}, {hi:+.3f}]")
 
 
 if __name__ == "__main__":
