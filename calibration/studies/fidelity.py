@@ -385,7 +385,7 @@ def run_fidelity_study(scene: ts.Scene, out: str | Path, *, quick: bool = False,
     atomic_write_text(out / "levels.csv", _csv(results))
     if charts:
         front_chart(results, out / "front.png", title=f"{scene.name}: speed vs accuracy")
-    (out / "report.md").write_text(report_markdown(summary, charts=charts))
+    atomic_write_text(out / "report.md", report_markdown(summary, charts=charts))
     return summary
 
 
