@@ -12,8 +12,9 @@ pressure inputs carry, `calibration.fit.depth_signal`). ``--bootstrap N`` adds, 
 and depth, a paired bootstrap (N resamples of the test poses, seed 0) of the difference
 between the model on both grids and the paper's: its 95 % interval. ``--pool`` (with
 ``--bootstrap``) ends with that difference averaged over every tip of every DIR, per order
-and depth, and its 95 % interval (each resample draws every run's test poses afresh, each run
-on its own): how the model does on a manufactured tip on average. Nothing is written.
+and depth, and its 95 % interval (each resample draws the tips with replacement, then each
+drawn tip's test poses): how the model does on a manufactured tip on average, the tips
+taken as a sample of the manufacturing. Nothing is written.
 """
 
 from __future__ import annotations
@@ -70,13 +71,15 @@ def paired_interval(y, pred_a, pred_b, n: int, seed: int = 0) -> tuple[float, fl
 def pooled_interval(runs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], n: int,
                     seed: int = 0) -> tuple[float, float, float]:
     """The mean over ``runs`` (each ``(y, pred_a, pred_b)`` on its own test poses) of
-    R²(a) − R²(b), and its 95 % interval over ``n`` resamples of every run's rows."""
+    R²(a) − R²(b), and its 95 % interval from a two-level bootstrap: ``n`` resamples that draw
+    the runs (tips) with replacement, then each drawn run's rows."""
     rng = np.random.default_rng(seed)
     mean = float(np.mean([_r2(y, a) - _r2(y, b) for y, a, b in runs]))
     draws = []
     for _ in range(n):
         diffs = []
-        for y, a, b in runs:
+        for r in rng.integers(0, len(runs), len(runs)):
+            y, a, b = runs[r]
             k = rng.integers(0, len(y), len(y))
             diffs.append(_r2(y[k], a[k]) - _r2(y[k], b[k]))
         draws.append(np.mean(diffs))
@@ -151,7 +154,8 @@ def main(argv: list[str] | None = None) -> None:
         compare(folder, args.bootstrap, pool)
     if pool:
         print(f"\npooled: the depth-invariant model (both grids) minus the paper's, averaged "
-              f"over the runs' tips, 95 % interval ({args.bootstrap} resamples)")
+              f"over the runs' tips, 95 % interval ({args.bootstrap} resamples of the tips, then of "
+              "each tip's test poses)")
         print("order  test depth   runs   mean difference   interval")
         for (order, offset), runs in sorted(pool.items()):
             mean, lo, hi = pooled_interval(runs, args.bootstrap)
