@@ -154,8 +154,8 @@ def main(argv: list[str] | None = None) -> None:
         compare(folder, args.bootstrap, pool)
     if pool:
         print(f"\npooled: the depth-invariant model (both grids) minus the paper's, averaged "
-              f"over the runs' tips, 95 % interval ({args.bootstrap} resamples of the tips, then of "
-              "each tip's test poses)")
+              f"over the runs' tips, 95 % interval ({args.bootstrap} resamples of the tips, "
+              "then of each tip's test poses)")
         print("order  test depth   runs   mean difference   interval")
         for (order, offset), runs in sorted(pool.items()):
             mean, lo, hi = pooled_interval(runs, args.bootstrap)
