@@ -113,8 +113,7 @@ def _cmd_press(args: argparse.Namespace) -> int:
     if path == "direct" and mu != 0:
         raise ValueError(f"--path direct is frictionless: friction={mu:g} needs --path tap "
                          "or reorient (allowed friction for direct: 0)")
-    if path != "direct":
-        check_steps(args.steps, "--steps")
+    steps = check_steps(args.steps, "--steps") if path != "direct" else args.steps
     sim = Simulator(scene, solver=args.solver)
     sim.warn_under_resolved = False  # this command prints its own warning below
     total_s = time.perf_counter()
@@ -125,7 +124,7 @@ def _cmd_press(args: argparse.Namespace) -> int:
             start = None if path == "tap" else Pose(
                 args.start[0], args.start[1], depth, offset_mm=tuple(args.offset),
                 yaw_deg=args.yaw)
-            state = _press_path(sim, pose, indenter, start, args.steps, mu)
+            state = _press_path(sim, pose, indenter, start, steps, mu)
     except ContactError as exc:
         raise RuntimeError(str(exc)) from exc
     total_s = time.perf_counter() - total_s
@@ -169,12 +168,11 @@ def _cmd_press(args: argparse.Namespace) -> int:
     return 0
 
 
-def _press_path(sim, pose, indenter, start, steps, mu):
+def _press_path(sim, pose, indenter, start, steps: int, mu):
+    """The load path's last state, with a progress bar; ``steps`` already checked."""
     from tqdm import tqdm
 
-    from ..fem.loadpath import check_steps
-
-    total = check_steps(steps, "--steps") * (1 if start is None else 2)
+    total = steps * (1 if start is None else 2)
     with tqdm(total=total, desc="load steps", unit="step", leave=False) as bar:
         states = sim.press_path(pose, indenter, start=start, steps=steps, friction=mu,
                                 progress=lambda k: bar.update(1))
