@@ -8,6 +8,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from .dataset import DatasetError, atomic_write_text, json_default, safe_name
 from .executor import close_client, open_client
 from .fit import (
     DEFAULT_FEATURE,
+    DEFORMATION,
     DEPTH_SIGNAL_LOW,
     DEPTH_SIGNAL_ORDER,
     FEATURES,
@@ -125,6 +127,7 @@ def calibrate(
     models_dir.mkdir(exist_ok=True)
     tip_info = {}
     depth_signals: dict[str, float | None] = {}  # --depth-invariant: depth its inputs tell
+    deformation_kept: dict[str, dict[int, bool]] = {}  # its model's choice, by tip and order
     detection: dict[str, dict[str, float]] = {}  # markers the detector found, per tip
     sets = [training_set(scene), *evaluation_sets(scene)]
     tests = sets[1:]
@@ -166,10 +169,12 @@ def calibrate(
                     depth_signals[tip] = depth_signal(pressure_part(span))
                 except DatasetError:  # a spread grid too small to tell: reported, not fatal
                     depth_signals[tip] = None
-                _fit_and_score(rows[INVARIANT], models_dir / INVARIANT, tip, train,
-                               _test_tables(results, tests, invariant_features),
-                               fit_invariant, INVARIANT,
-                               {**stamp, "data": [f"tip_{tip}/train", f"tip_{tip}/train_span"]})
+                models = _fit_and_score(
+                    rows[INVARIANT], models_dir / INVARIANT, tip, train,
+                    _test_tables(results, tests, invariant_features), fit_invariant, INVARIANT,
+                    {**stamp, "data": [f"tip_{tip}/train", f"tip_{tip}/train_span"]})
+                deformation_kept[tip] = {o: DEFORMATION not in m.unused_inputs
+                                         for o, m in models.items()}
             timings[f"tip_{tip}_s"] = time.perf_counter() - t_tip
             tip_info[tip] = make_tip(scene, tip).draws
             if charts:
@@ -194,7 +199,8 @@ def calibrate(
                           r2_table_markdown(rows[other], feature=other)
                           + (beside_paper(other) if other != INVARIANT else "")
                           + (invariant_gain_note(rows["growth"], rows[INVARIANT])
-                             + depth_signal_note(depth_signals) if other == INVARIANT else "")
+                             + depth_signal_note(depth_signals)
+                             + deformation_note(deformation_kept) if other == INVARIANT else "")
                           + (detection_note(detection) if other == "hull" else ""))
     seconds = time.perf_counter() - t_start
     log.finish()
@@ -215,6 +221,8 @@ def calibrate(
         "rig": rig.record(),
         "depth_invariant": depth_invariant,
         "invariant_depth_signal": depth_signals,  # leave-one-out R² (fit.depth_signal)
+        # per tip and order: whether the invariant model kept the deformation's terms
+        "invariant_deformation_kept": deformation_kept,
         "markers_detected": detection,  # per frame, over every sample of each tip
         "seed": scene.protocol.seed,
         "pose_sets": {s.name: len(s) for s in sets},
@@ -251,10 +259,23 @@ def depth_signal_note(signals: dict[str, float | None]) -> str:
     low = [t for t, v in signals.items() if v is not None and v < DEPTH_SIGNAL_LOW]
     if low:
         text += (f"\n**Warning**: below {DEPTH_SIGNAL_LOW} for tip {', '.join(low)}: the "
-                 "perceived deformation tells the depth too poorly for the model to follow it, "
-                 "and off the training depth it may do worse than the paper's one-depth model "
+                 "perceived deformation tells the depth too poorly for the model to follow it "
                  "(docs/rig.md).\n")
     return text
+
+
+def deformation_note(kept: dict[str, dict[int, bool]]) -> str:
+    """The depth-invariant table's note on which of its models kept the deformation's terms
+    (:func:`calibration.fit.fit_invariant`: kept where they lower the leave-one-out error on
+    the training data)."""
+    if not kept:
+        return ""
+    cells = "; ".join(f"tip {t}: " + ", ".join(f"order {o} {'kept' if k else 'dropped'}"
+                                               for o, k in sorted(orders.items()))
+                      for t, orders in kept.items())
+    return ("\nThe deformation's terms (kept only where they lower the model's leave-one-out "
+            f"error on the training grids; dropped, the model is the growth CoP and the shift): "
+            f"{cells}.\n")
 
 
 def invariant_gain_note(one_depth: list[ScoreRow], invariant: list[ScoreRow]) -> str:
@@ -308,16 +329,19 @@ def _test_tables(results: dict, tests: list, table: Callable
 
 def _fit_and_score(rows: list[ScoreRow], folder: Path, tip: str, train: FeatureTable,
                    tests: list[tuple[float, FeatureTable]], fit: Callable, feature: str,
-                   fitted_on: dict) -> None:
+                   fitted_on: dict) -> dict[int, Any]:
     """Fit every order of ``ORDERS`` on ``train`` with ``fit(train, order)``, save each model
-    in ``folder`` and append its score on each (depth offset, test table) to ``rows``."""
+    in ``folder`` and append its score on each (depth offset, test table) to ``rows``. Returns
+    the models by order."""
     folder.mkdir(exist_ok=True)
+    models = {}
     for order in ORDERS:
-        model = fit(train, order)
+        model = models[order] = fit(train, order)
         save_model(model, folder / f"tip_{tip}_order{order}.json", feature=feature,
                    fitted_on=fitted_on)
         for offset, test in tests:
             rows.append(score(model, test, tip=tip, depth_offset_mm=offset))
+    return models
 
 
 def _check_previous(out: Path, feature: str) -> None:

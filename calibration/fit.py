@@ -65,12 +65,14 @@ INVARIANT = "invariant"
 PRESSURE_INPUTS = ("cop_growth_x_px", "cop_growth_y_px", "deformation_px")
 """The depth-invariant model's polynomial inputs: the growth CoP and the perceived deformation
 (mean marker displacement magnitude, recorded by the sweep), which carries the press depth."""
+DEFORMATION = PRESSURE_INPUTS[2]
 INVARIANT_INPUTS = (*PRESSURE_INPUTS, *SHIFT_INPUTS)
 """Every input of the depth-invariant model: :data:`PRESSURE_INPUTS`, then the marker array's
 mean shift (:func:`calibration.frames.array_shift`), which enters linearly."""
 SWEEP_FEATURES = {**FOLDER_FEATURES, INVARIANT:
                   "the depth-invariant estimate: a polynomial in the growth CoP and the "
-                  "perceived deformation (mean marker displacement), plus linear terms in the "
+                  "perceived deformation (mean marker displacement; kept where it lowers the "
+                  "leave-one-out error on the training data), plus linear terms in the "
                   "marker array's mean shift, fitted on the training grid and the grid spread "
                   "over the test depths (tactip calibrate --depth-invariant; docs/rig.md)"}
 """Every feature a saved model may name (the invariant one is made and scored by
@@ -153,25 +155,42 @@ def join_tables(*tables: FeatureTable) -> FeatureTable:
                         np.concatenate([t.dropped for t in tables]), tables[0].image_size)
 
 
-def fit_invariant(train: FeatureTable, order: int, *, shift: bool = True):
+def fit_invariant(train: FeatureTable, order: int, *, shift: bool = True,
+                  deformation: bool | None = None):
     """The depth-invariant model of ``order``: a :class:`VectorRegressor` on
     :data:`INVARIANT_INPUTS`, a polynomial of ``order`` in :data:`PRESSURE_INPUTS` plus one
     linear term per shift component, fitted on ``train`` (:func:`invariant_features`).
-    ``shift=False``: the model without the shift, on :data:`PRESSURE_INPUTS` alone (predict
-    from :func:`pressure_part` tables; for comparison, docs/rig.md)."""
+
+    ``deformation=None`` (the default) keeps the deformation's terms only if they lower the
+    model's leave-one-out error on ``train`` (:meth:`VectorRegressor.loo_mse`, both angles):
+    where the perceived deformation does not tell the depth (every rig source on,
+    docs/rig.md), its terms fit noise, and the model is then the polynomial in the growth CoP
+    plus the shift (the deformation named in ``unused_inputs``). That question needs a
+    training set spread over depths (the training grid and ``train_span``); on one pressed at
+    a single depth the terms are kept, unasked. ``True``/``False`` force the choice. ``shift=False``: the model without the shift, on :data:`PRESSURE_INPUTS` alone,
+    the deformation always in (predict from :func:`pressure_part` tables; for comparison,
+    docs/rig.md)."""
     from perception.vector_regression import VectorRegressor
 
-    if shift:
-        model = VectorRegressor(order, input_names=INVARIANT_INPUTS,
-                                image_size=train.image_size, linear_inputs=SHIFT_INPUTS)
-    else:
-        model = VectorRegressor(order, input_names=PRESSURE_INPUTS, image_size=train.image_size)
+    if not shift:
+        candidates = [VectorRegressor(order, input_names=PRESSURE_INPUTS,
+                                      image_size=train.image_size)]
         train = pressure_part(train)
-    n_coef = len(model.powers_) + 1
+    else:
+        if deformation is None and np.ptp(train.depth_mm) == 0:
+            deformation = True  # one depth: nothing to tell the deformation's worth by
+        kept = {True: [()], False: [(DEFORMATION,)], None: [(), (DEFORMATION,)]}[deformation]
+        candidates = [VectorRegressor(order, input_names=INVARIANT_INPUTS,
+                                      image_size=train.image_size, linear_inputs=SHIFT_INPUTS,
+                                      unused_inputs=unused) for unused in kept]
+    n_coef = len(candidates[0].powers_) + 1
     if len(train.cop_px) < max(3 * (order + 1), n_coef):
         raise DatasetError(f"only {len(train.cop_px)} usable training samples for an order-"
                            f"{order} depth-invariant model ({n_coef} coefficients)")
-    return model.fit(train.cop_px, train.angles_deg)
+    if len(candidates) == 1:
+        return candidates[0].fit(train.cop_px, train.angles_deg)
+    errors = [m.loo_mse(train.cop_px, train.angles_deg) for m in candidates]  # fits each
+    return candidates[int(np.argmin(errors))]  # the first (with it) on a tie
 
 
 def pressure_part(table: FeatureTable) -> FeatureTable:
@@ -204,7 +223,7 @@ def depth_signal(table: FeatureTable, order: int = DEPTH_SIGNAL_ORDER) -> float:
     DatasetError
         Fewer samples than coefficients + 1, or a table whose depth does not vary.
     """
-    from perception.vector_regression import monomials, vector_powers
+    from perception.vector_regression import loo_residuals, monomials, vector_powers
 
     x = np.asarray(table.cop_px, dtype=np.float64)
     y = np.asarray(table.depth_mm, dtype=np.float64)
@@ -219,12 +238,7 @@ def depth_signal(table: FeatureTable, order: int = DEPTH_SIGNAL_ORDER) -> float:
     sd = x.std(axis=0)
     z = (x - x.mean(axis=0)) / np.where(sd > 0, sd, 1.0)
     a = np.hstack([np.ones((len(z), 1)), monomials(z, powers)])
-    u, sv, _ = np.linalg.svd(a, full_matrices=False)
-    q = u[:, sv > sv[0] * len(a) * np.finfo(float).eps]  # the columns' span, rank-revealing
-    hat = np.einsum("ij,ij->i", q, q)
-    resid = y - q @ (q.T @ y)
-    loo = resid / np.maximum(1.0 - hat, 1e-12)
-    return float(1.0 - np.sum(loo ** 2) / total)
+    return float(1.0 - np.sum(loo_residuals(a, y) ** 2) / total)
 
 
 def fit_model(train: FeatureTable, order: int, feature: str = DEFAULT_FEATURE):

@@ -4,7 +4,9 @@ and pitch, by polynomial least squares.
 The same model as :class:`perception.PoseRegressor` (a multivariate polynomial of order 1-3,
 ordinary least squares, one output per angle) for d inputs instead of the two CoP
 coordinates. Inputs named in ``linear_inputs`` enter at degree 1 only (no powers, no
-products): the polynomial spans the other inputs, and each linear input adds one term. Each
+products): the polynomial spans the other inputs, and each linear input adds one term. Inputs
+named in ``unused_inputs`` get no term: the model reads the same feature vector but leaves
+them out (e.g. an input that its training data showed not to help). Each
 input is standardised with the training mean and standard deviation
 (``z_k = (x_k - mean_k) / std_k``) before the monomials are formed, so that inputs in px and
 in px/px enter on one scale and the design matrix stays well conditioned. A saved model is
@@ -21,7 +23,7 @@ import numpy as np
 from .errors import ModelError, PerceptionError
 from .regression import RegressionScore, _check_size, model_json, score_predictions
 
-__all__ = ["VectorRegressor", "monomials", "structured_powers", "vector_powers"]
+__all__ = ["VectorRegressor", "loo_residuals", "monomials", "structured_powers", "vector_powers"]
 
 _FORMAT = "perception.VectorRegressor"
 _FORMAT_VERSION = 1
@@ -37,11 +39,13 @@ def vector_powers(order: int, n_inputs: int) -> np.ndarray:
     return np.array(rows, dtype=np.int64).reshape(-1, n_inputs)
 
 
-def structured_powers(order: int, n_inputs: int, linear: tuple[int, ...] = ()) -> np.ndarray:
-    """(n_features, n_inputs) int: the monomials of degree 1..order of the inputs not in
-    ``linear`` (:func:`vector_powers`' order), then degree 1 of each input in ``linear`` (in the
-    order given). With ``linear`` empty it is :func:`vector_powers`."""
-    poly = [k for k in range(n_inputs) if k not in linear]
+def structured_powers(order: int, n_inputs: int, linear: tuple[int, ...] = (),
+                      unused: tuple[int, ...] = ()) -> np.ndarray:
+    """(n_features, n_inputs) int: the monomials of degree 1..order of the inputs in neither
+    ``linear`` nor ``unused`` (:func:`vector_powers`' order), then degree 1 of each input in
+    ``linear`` (in the order given); inputs in ``unused`` appear in no monomial. With both
+    empty it is :func:`vector_powers`."""
+    poly = [k for k in range(n_inputs) if k not in linear and k not in unused]
     rows = np.zeros((0, n_inputs), dtype=np.int64)
     if poly:
         sub = vector_powers(order, len(poly))
@@ -55,6 +59,19 @@ def monomials(z: np.ndarray, powers: np.ndarray) -> np.ndarray:
     """(n, n_features): the monomials ``prod_k z_k ** powers[f, k]`` of the rows of ``z``
     (n, d), for exponents ``powers`` (n_features, d) from :func:`vector_powers`."""
     return np.prod(z[:, None, :] ** powers[None], axis=2)
+
+
+def loo_residuals(a: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Leave-one-out residuals of the least-squares fit of ``y`` (n,) or (n, k) on the design
+    ``a`` (n, p): each row's residual when the fit leaves that row out, ``e_i / (1 - h_ii)``
+    from the hat matrix (exact for least squares, no refit). Columns that repeat one another
+    (a rank-deficient design) are fitted on the span they have."""
+    u, sv, _ = np.linalg.svd(a, full_matrices=False)
+    q = u[:, sv > sv[0] * len(a) * np.finfo(float).eps]  # the columns' span, rank-revealing
+    hat = np.einsum("ij,ij->i", q, q)
+    resid = y - q @ (q.T @ y)
+    scale = np.maximum(1.0 - hat, 1e-12)
+    return resid / (scale if resid.ndim == 1 else scale[:, None])
 
 
 class VectorRegressor:
@@ -71,6 +88,9 @@ class VectorRegressor:
     linear_inputs : sequence of str, optional
         Inputs (by name) that enter at degree 1 only; the polynomial of ``order`` spans the
         others (default: none, the full polynomial in every input).
+    unused_inputs : sequence of str, optional
+        Inputs (by name) given no term at all (default: none). They stay in ``input_names``,
+        so the model takes the same feature vector as one that uses them.
 
     Attributes
     ----------
@@ -84,7 +104,8 @@ class VectorRegressor:
     def __init__(self, order: int = 2, *, input_names: tuple[str, ...] | list[str],
                  image_size: tuple[int, int] | None = None,
                  angle_names: tuple[str, str] = ("roll_deg", "pitch_deg"),
-                 linear_inputs: tuple[str, ...] | list[str] = ()) -> None:
+                 linear_inputs: tuple[str, ...] | list[str] = (),
+                 unused_inputs: tuple[str, ...] | list[str] = ()) -> None:
         if isinstance(order, bool) or order not in (1, 2, 3):
             raise PerceptionError(f"order={order!r} must be 1, 2 or 3")
         names = tuple(str(n) for n in input_names)
@@ -100,8 +121,16 @@ class VectorRegressor:
             raise PerceptionError(f"linear_inputs={list(linear)!r} must name distinct inputs "
                                   f"among input_names ({', '.join(names)})")
         self.linear_inputs = linear
+        unused = tuple(str(n) for n in unused_inputs)
+        bad = [n for n in unused if n not in names or n in linear]
+        if bad or len(set(unused)) != len(unused) or len(unused) == len(names):
+            raise PerceptionError(f"unused_inputs={list(unused)!r} must name distinct inputs "
+                                  f"among input_names ({', '.join(names)}), none of them in "
+                                  "linear_inputs, and leave at least one input used")
+        self.unused_inputs = unused
         self.powers_ = structured_powers(self.order, len(names),
-                                         tuple(names.index(n) for n in linear))
+                                         tuple(names.index(n) for n in linear),
+                                         tuple(names.index(n) for n in unused))
         self.coef_: np.ndarray | None = None
         self.intercept_: np.ndarray | None = None
         self.mean_: np.ndarray | None = None
@@ -164,6 +193,15 @@ class VectorRegressor:
         self.coef_ = np.ascontiguousarray(sol[1:].T)
         return self
 
+    def loo_mse(self, x: np.ndarray, angles_deg: np.ndarray) -> float:
+        """Mean squared leave-one-out error (deg², both angles) of this model's form on
+        ``(x, angles_deg)``: what it would miss on a sample it was not fitted on
+        (:func:`loo_residuals`; standardised with all rows, as :meth:`fit` does). Fits the
+        model on every row as a side effect."""
+        self.fit(x, angles_deg)
+        a = np.hstack([np.ones((len(x), 1)), self.design(x)])
+        return float(np.mean(loo_residuals(a, np.asarray(angles_deg, dtype=np.float64)) ** 2))
+
     def predict(self, x: np.ndarray) -> np.ndarray:
         """(n, 2) predicted angles, degrees."""
         self._check_fitted()
@@ -184,6 +222,7 @@ class VectorRegressor:
                 "angle_names": list(self.angle_names), "input_names": list(self.input_names),
                 "image_size": None if self.image_size is None else list(self.image_size),
                 "linear_inputs": list(self.linear_inputs),
+                "unused_inputs": list(self.unused_inputs),
                 "normalisation": {"mean": self.mean_.tolist(), "std": self.std_.tolist(),
                                   "formula": "z_k = (x_k - mean[k]) / std[k]"},
                 "powers": self.powers_.tolist(), "coef": self.coef_.tolist(),
@@ -202,7 +241,8 @@ class VectorRegressor:
         try:
             model = cls(int(data["order"]), input_names=data["input_names"],
                         image_size=data["image_size"], angle_names=tuple(data["angle_names"]),
-                        linear_inputs=data.get("linear_inputs", ()))
+                        linear_inputs=data.get("linear_inputs", ()),
+                        unused_inputs=data.get("unused_inputs", ()))
             powers = np.asarray(data["powers"], dtype=np.int64)
             coef = np.asarray(data["coef"], dtype=np.float64)
             intercept = np.asarray(data["intercept"], dtype=np.float64)
@@ -213,7 +253,8 @@ class VectorRegressor:
         d, nf = model.n_inputs, len(model.powers_)
         if not np.array_equal(powers, model.powers_):
             raise ModelError(f"powers do not match an order-{model.order} model of {d} inputs "
-                             f"(linear in {list(model.linear_inputs)})")
+                             f"(linear in {list(model.linear_inputs)}, unused "
+                             f"{list(model.unused_inputs)})")
         if coef.shape != (2, nf) or intercept.shape != (2,) or mean.shape != (d,) \
                 or std.shape != (d,):
             raise ModelError("coefficient, intercept or normalisation arrays have the wrong "
@@ -231,5 +272,5 @@ class VectorRegressor:
     def __repr__(self) -> str:
         state = "fitted" if self.coef_ is not None else "unfitted"
         return (f"VectorRegressor(order={self.order}, inputs={self.n_inputs}, "
-                f"linear={len(self.linear_inputs)}, "
+                f"linear={len(self.linear_inputs)}, unused={len(self.unused_inputs)}, "
                 f"image_size={self.image_size}, {state})")

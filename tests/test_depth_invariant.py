@@ -11,6 +11,7 @@ import pytest
 import tactip_sim as ts
 from calibration.calibrate import (
     calibrate,
+    deformation_note,
     depth_signal_note,
     detection_note,
     detection_summary,
@@ -18,11 +19,13 @@ from calibration.calibrate import (
 )
 from calibration.dataset import Dataset, DatasetError
 from calibration.fit import (
+    DEFORMATION,
     DEPTH_SIGNAL_LOW,
     INVARIANT_INPUTS,
     SHIFT_INPUTS,
     FeatureTable,
     depth_signal,
+    fit_invariant,
     invariant_features,
     join_tables,
     load_any_model,
@@ -80,6 +83,11 @@ def test_calibrate_with_the_depth_invariant_model(cal):
     assert manifest["invariant_depth_signal"]["A"] > DEPTH_SIGNAL_LOW
     note = (out / "r2_table_invariant.md").read_text()
     assert "Depth signal" in note and "Warning" not in note
+    # which models kept the deformation's terms: in the manifest, the note and the model
+    kept = manifest["invariant_deformation_kept"]["A"]
+    assert sorted(kept) == ["1", "2", "3"]
+    assert (DEFORMATION in model.unused_inputs) == (not kept["2"])
+    assert "The deformation's terms" in note and "tip A: order 1 " in note
     assert "Against the one-depth growth-CoP model" in note
     # each feature's table against the paper's Table I (the invariant one is compared with the
     # one-depth model instead)
@@ -258,3 +266,55 @@ def test_the_gain_over_the_one_depth_model_is_per_cell():
     note = invariant_gain_note(one, inv)
     assert "| A | 2 | +0.040 | -0.010 | +0.160 |" in note
     assert invariant_gain_note(one, []) == ""
+
+
+def _synthetic_invariant_table(rng, n, told: bool) -> FeatureTable:
+    """Inputs as the invariant model reads them (CoP px, deformation px, shift px) and angles
+    that depend on the deformation (``told``) or not (then it is noise beside them)."""
+    cop = rng.normal(size=(n, 2)) * [30.0, 20.0] + [320.0, 240.0]
+    deform = rng.uniform(3.0, 7.0, n)
+    shift = rng.normal(0.0, 1.0, (n, 2))
+    cx, cy, d = cop[:, 0] - 320.0, cop[:, 1] - 240.0, deform - 5.0
+    roll = 0.1 * cx + 0.3 * shift[:, 0] + (0.05 * cx * d if told else 0.0)
+    pitch = 0.1 * cy - 0.2 * shift[:, 1] + (0.8 * d + 0.6 * d ** 2 if told else 0.0)
+    angles = np.column_stack([roll, pitch]) + rng.normal(0.0, 0.4, (n, 2))
+    return FeatureTable(np.column_stack([cop, deform, shift]), angles,
+                        rng.uniform(0.5, 1.5, n), np.zeros(0, int), (640, 480))
+
+
+def test_the_deformation_is_kept_only_where_it_lowers_the_leave_one_out_error():
+    rng = np.random.default_rng(2026)
+    # angles that depend on the deformation: its terms are kept, at every order
+    for order in (1, 2, 3):
+        told = fit_invariant(_synthetic_invariant_table(rng, 60, True), order)
+        assert DEFORMATION not in told.unused_inputs
+    # a deformation that tells nothing about the angles: its terms fit noise and are dropped
+    # (a property of the expected error, so asked of 40 independent draws: ~95 % of draws
+    # drop them, so 34 or more is expected but for a ~4-sd fluke)
+    dropped = [DEFORMATION in fit_invariant(_synthetic_invariant_table(rng, 60, False),
+                                            2).unused_inputs for _ in range(40)]
+    assert sum(dropped) >= 34
+    # pressed at one depth, a table cannot tell what the deformation is worth: kept, unasked
+    flat = _synthetic_invariant_table(rng, 60, False)
+    flat = FeatureTable(flat.cop_px, flat.angles_deg, np.full(60, 1.0), flat.dropped,
+                        flat.image_size)
+    assert fit_invariant(flat, 2).unused_inputs == ()
+    # the choice is the lower leave-one-out error of the two forms, and can be forced
+    table = _synthetic_invariant_table(rng, 60, False)
+    with_it = fit_invariant(table, 2, deformation=True)
+    without = fit_invariant(table, 2, deformation=False)
+    assert DEFORMATION not in with_it.unused_inputs and without.unused_inputs == (DEFORMATION,)
+    errors = [m.loo_mse(table.cop_px, table.angles_deg) for m in (with_it, without)]
+    chosen = fit_invariant(table, 2)
+    assert chosen.unused_inputs == ((DEFORMATION,) if errors[1] < errors[0] else ())
+    np.testing.assert_allclose(chosen.predict(table.cop_px),
+                               (without if errors[1] < errors[0] else with_it)
+                               .predict(table.cop_px), rtol=0, atol=1e-9)
+
+
+def test_the_deformation_choice_is_reported_per_tip_and_order():
+    note = deformation_note({"A": {1: True, 2: False, 3: False}, "B": {1: True, 2: True,
+                                                                       3: True}})
+    assert "tip A: order 1 kept, order 2 dropped, order 3 dropped" in note
+    assert "tip B: order 1 kept, order 2 kept, order 3 kept" in note
+    assert deformation_note({}) == ""

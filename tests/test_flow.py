@@ -201,6 +201,40 @@ def test_linear_inputs_enter_at_degree_one_only(tmp_path):
         VectorRegressor(2, input_names=names, linear_inputs=("c", "c"))
 
 
+def test_unused_inputs_get_no_term_and_leave_one_out_is_a_refit_without_each_sample(tmp_path):
+    import json
+
+    rng = np.random.default_rng(17)
+    names = ("a", "b", "c", "d")
+    x, y = _partly_linear(50, rng)
+    y = y + rng.normal(0, 0.3, y.shape)
+    m = VectorRegressor(2, input_names=names, linear_inputs=("d",), unused_inputs=("c",))
+    # a quadratic in a, b (5 monomials) and d linear: c appears in no monomial
+    assert len(m.powers_) == 6 and not m.powers_[:, 2].any()
+    m.fit(x, y)
+    xt, _ = _partly_linear(10, rng)
+    moved = xt.copy()
+    moved[:, 2] += rng.normal(0, 50.0, len(xt))  # c changed wildly: the answer does not move
+    np.testing.assert_allclose(m.predict(moved), m.predict(xt), rtol=0, atol=1e-12)
+    back = VectorRegressor.from_dict(json.loads(m.to_json()))
+    assert back.unused_inputs == ("c",) and back.input_names == names
+    np.testing.assert_allclose(back.predict(xt), m.predict(xt), rtol=0, atol=1e-12)
+    # the hat-matrix shortcut against the definition: refit without each sample (a second
+    # method), mean squared miss over both angles
+    misses = []
+    for i in range(len(x)):
+        keep = np.arange(len(x)) != i
+        other = VectorRegressor(2, input_names=names, linear_inputs=("d",),
+                                unused_inputs=("c",)).fit(x[keep], y[keep])
+        misses.append(y[i] - other.predict(x[i:i + 1])[0])
+    # standardisation: the shortcut standardises with every row, a refit without one; the
+    # model (a polynomial with a constant) spans the same functions either way
+    assert m.loo_mse(x, y) == pytest.approx(float(np.mean(np.square(misses))), rel=1e-9)
+    for bad in (("e",), ("d",), ("c", "c"), names):
+        with pytest.raises(PerceptionError, match="unused_inputs"):
+            VectorRegressor(2, input_names=names, linear_inputs=("d",), unused_inputs=bad)
+
+
 def test_vector_regressor_errors_name_the_problem():
     m = VectorRegressor(2, input_names=("a", "b"))
     with pytest.raises(ModelError, match="not fitted"):
