@@ -62,7 +62,7 @@ def case_name(size: float, depth: float, pose: tuple[float, float], instance: in
 
 
 def solve_size(scene, size: float, cases: list[tuple[float, tuple[float, float]]],
-               instance: int, out: Path, bar, skin_layers: int = 0) -> None:
+               instance: int, out: Path, bar) -> None:
     """Press every (depth, pose) of ``cases`` on the mesh of edge ``size`` (``instance`` > 0: a
     freshly built pytetwild mesh rather than the bundled or cached one), skipping stored ones."""
     import tactip_sim as ts
@@ -74,8 +74,7 @@ def solve_size(scene, size: float, cases: list[tuple[float, tuple[float, float]]
     if not todo:
         return
     sized = ts.replace_in(scene, fidelity={"mesh_edge_mm": size, "element_order": 2,
-                                           "material_model": "neo_hookean",
-                                           "skin_layers": skin_layers})
+                                           "material_model": "neo_hookean"})
     mesh = tetrahedralise(sized, use_cache=instance == 0)
     sim = ts.Simulator(sized, mesh=mesh)
     for depth, pose in todo:
@@ -204,9 +203,6 @@ def main() -> None:
                     help="agreement of successive sizes that counts as converged (0.01)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "convergence",
                     help="output folder (default docs/convergence)")
-    ap.add_argument("--skin-layers", type=scene_key_type("fidelity.skin_layers"), default=0,
-                    help="0: the skin meshed by pytetwild (default); N: the skin extruded in N "
-                         "structured layers (fidelity.skin_layers)")
     ap.add_argument("--no-solve", action="store_true",
                     help="only summarise the presses already stored in OUT/cases")
     a = ap.parse_args()
@@ -226,9 +222,9 @@ def main() -> None:
     with tqdm(total=0 if a.no_solve else total, desc="presses", unit="press",
               disable=a.no_solve or None) as bar:
         for h in [] if a.no_solve else sizes:
-            solve_size(scene, h, cases, 0, cases_dir, bar, a.skin_layers)
+            solve_size(scene, h, cases, 0, cases_dir, bar)
         for i in range(1, 0 if a.no_solve else a.instances + 1):
-            solve_size(scene, sizes[-1], cases, i, cases_dir, bar, a.skin_layers)
+            solve_size(scene, sizes[-1], cases, i, cases_dir, bar)
     summary = summarise(sizes, depths, a.poses, cases_dir, a.tolerance_mm)
     if not summary["cases"]:
         ap.error(f"no stored presses of these sizes, depths and poses in {cases_dir}")

@@ -27,9 +27,7 @@ from ..scene import Scene
 from .topology import REGION_GEL, REGION_SKIN, boundary_faces, tet_volumes
 
 
-def onto_dome(points: np.ndarray, shape: DomeShape) -> np.ndarray:
-    """(n, 3): points moved onto ``shape`` (the dome by scaling about ``(0, 0, wall)``, the
-    wall, at or below its height, by scaling radially)."""
+def _onto_dome(points: np.ndarray, shape: DomeShape) -> np.ndarray:
     p = points.copy()
     on_dome = p[:, 2] > shape.wall
     d = p[on_dome]
@@ -92,14 +90,14 @@ def snap_nodes(nodes: np.ndarray, tets: np.ndarray, regions: np.ndarray, scene: 
         outer_shape, inner_shape = dome_shapes(scene)
         ids = np.unique(outer)
         ids = ids[movable[ids]]
-        nodes[ids] = onto_dome(nodes[ids], outer_shape)
+        nodes[ids] = _onto_dome(nodes[ids], outer_shape)
         regions = np.asarray(regions)
         skin = np.zeros(len(nodes), dtype=bool)
         gel = np.zeros(len(nodes), dtype=bool)
         skin[tets[regions == REGION_SKIN].ravel()] = True
         gel[tets[regions == REGION_GEL].ravel()] = True
         iface = np.setdiff1d(np.flatnonzero(skin & gel & movable), ids)
-        nodes[iface] = onto_dome(nodes[iface], inner_shape)
+        nodes[iface] = _onto_dome(nodes[iface], inner_shape)
     vol = tet_volumes(nodes, tets)
     if vol.min() <= 0:
         raise ValueError(

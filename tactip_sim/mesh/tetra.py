@@ -22,7 +22,6 @@ from .. import cache
 from ..geometry import build_pad
 from ..progress import clock
 from ..scene import Scene
-from .layers import extrude_skin
 from .snap import snap_nodes
 from .topology import REGION_GEL, REGION_SKIN, TET_FACES, tet_volumes
 
@@ -186,8 +185,6 @@ def mesh_key(scene: Scene) -> str:
         f.refine_edge_mm, f.refine_radius_mm if f.refine_edge_mm else 0.0,
         MESHER_VERSION, version("pytetwild"),
     )
-    if f.skin_layers and not scene.is_block:  # appended: the keys of pytetwild's skin stay
-        shape += ("skin_layers", f.skin_layers)
     return hashlib.sha256(repr(shape).encode()).hexdigest()[:16]
 
 
@@ -324,11 +321,7 @@ def _build(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mesh the pad with pytetwild: nodes (unreferenced ones dropped), positively oriented tets
     and their regions."""
     pad = build_pad(scene)
-    layers = 0 if pad.interface is None else scene.fidelity.skin_layers
-    if layers:  # the gel alone to pytetwild, the skin extruded from it (mesh/layers.py)
-        surfaces = [pad.interface]
-    else:
-        surfaces = [pad.surface] + ([pad.interface] if pad.interface is not None else [])
+    surfaces = [pad.surface] + ([pad.interface] if pad.interface is not None else [])
     offsets = np.cumsum([0] + [len(s.vertices) for s in surfaces])
     verts = np.concatenate([s.vertices for s in surfaces])
     faces = np.concatenate([s.faces + o for s, o in zip(surfaces, offsets, strict=False)])
@@ -352,8 +345,6 @@ def _build(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     nodes, tets = nodes[used], inverse.reshape(tets.shape)
     neg = tet_volumes(nodes, tets) < 0
     tets[neg] = tets[neg][:, [0, 2, 1, 3]]
-    if layers:
-        return extrude_skin(nodes, tets, pad.inner, pad.outer, layers, scene.pad.height_mm)
     if pad.inner is None:
         regions = np.full(len(tets), REGION_GEL, dtype=np.int8)
     else:

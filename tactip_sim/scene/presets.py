@@ -27,8 +27,7 @@ from .schema import SECTIONS
 
 PRESET_KEYS: dict[str, tuple[str, ...]] = {
     "fidelity": ("mesh_edge_mm", "tetwild_epsilon", "surface_resolution", "refine_edge_mm",
-                 "refine_radius_mm", "skin_layers", "element_order", "material_model",
-                 "contact_solver"),
+                 "refine_radius_mm", "element_order", "material_model", "contact_solver"),
     "pins": ("model",),
     "imaging": ("spp", "refraction", "shading"),
     "camera": ("resolution", "pixel_pitch_um"),

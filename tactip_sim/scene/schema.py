@@ -214,9 +214,6 @@ class Fidelity:
     )
     refine_radius_mm: float = nonneg(3.0, "radius of the refined zone around the top centre",
                                      hi=500)
-    skin_layers: int = spec(
-        0, "int", "0 = the skin meshed by pytetwild with the gel; N = the gel alone by pytetwild "
-        "and the skin extruded from it in N structured layers (docs/convergence.md)", lo=0, hi=8)
     element_order: int = spec(2, "int", "1 = linear P1 tets, 2 = quadratic P2 tets", lo=1, hi=2)
     material_model: str = spec("linear", "str", "constitutive law", choices=MATERIAL_MODELS)
     contact_solver: str = spec("reduced", "str", "contact solve", choices=CONTACT_SOLVERS)
