@@ -7,9 +7,10 @@ calibration's test sets (docs/rig.md).
 DIR: a `tactip calibrate ... --depth-invariant --out DIR` folder. Prints, per tip, order and
 test depth, the R² of both training sets, of the model without the array's shift (both grids)
 and of the paper's one-depth growth-CoP model (fitted on the training grid alone), all on the
-same test samples, and the tip's depth signal (how much of the spread grid's depth the
-pressure inputs carry, `calibration.fit.depth_signal`). ``--bootstrap N`` adds, per order
-and depth, a paired bootstrap (N resamples of the test poses, seed 0) of the difference
+same test samples, the tip's depth signal (how much of the spread grid's depth the pressure
+inputs carry, `calibration.fit.depth_signal`) and the orders at which the model on both grids
+kept the deformation's terms (`calibration.fit.fit_invariant`). ``--bootstrap N`` adds, per
+order and depth, a paired bootstrap (N resamples of the test poses, seed 0) of the difference
 between the model on both grids and the paper's: its 95 % interval. ``--pool`` (with
 ``--bootstrap``) ends with that difference averaged over every tip of every DIR, per order
 and depth, and its 95 % interval (each resample draws the tips with replacement, then each
@@ -24,8 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.calibrate import deformation_note
 from calibration.dataset import Dataset
 from calibration.fit import (
+    DEFORMATION,
     depth_signal,
     features,
     fit_invariant,
@@ -115,9 +118,11 @@ def compare(folder: Path, bootstrap: int = 0, pool: dict | None = None) -> None:
             both_kept = np.intersect1d(kept_inv, kept_cop)
             rows = (np.isin(kept_inv, both_kept), np.isin(kept_cop, both_kept))
             test_tables.append((_offset(t), inv, cop, rows))
+        kept = {}
         for order in ORDERS:
             models = (fit_invariant(span, order), fit_invariant(both, order),
                       fit_invariant(both, order, shift=False), fit_model(paper_train, order))
+            kept[order] = DEFORMATION not in models[1].unused_inputs
             for offset, inv, cop, (in_inv, in_cop) in test_tables:
                 r2 = [score(m, t, tip=tip, depth_offset_mm=offset).r2
                       for m, t in zip(models, (inv, inv, pressure_part(inv), cop), strict=True)]
@@ -131,6 +136,7 @@ def compare(folder: Path, bootstrap: int = 0, pool: dict | None = None) -> None:
                     if pool is not None:
                         pool.setdefault((order, offset), []).append(paired)
                 print(line)
+        print(deformation_note({tip: kept}).strip())
 
 
 def main(argv: list[str] | None = None) -> None:
