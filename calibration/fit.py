@@ -167,9 +167,11 @@ def fit_invariant(train: FeatureTable, order: int, *, shift: bool = True,
     docs/rig.md), its terms fit noise, and the model is then the polynomial in the growth CoP
     plus the shift (the deformation named in ``unused_inputs``). That question needs a
     training set spread over depths (the training grid and ``train_span``); on one pressed at
-    a single depth the terms are kept, unasked. ``True``/``False`` force the choice. ``shift=False``: the model without the shift, on :data:`PRESSURE_INPUTS` alone,
-    the deformation always in (predict from :func:`pressure_part` tables; for comparison,
-    docs/rig.md)."""
+    a single depth the terms are kept, unasked. ``True``/``False`` force the choice.
+
+    ``shift=False``: the model without the shift, on :data:`PRESSURE_INPUTS` alone, the
+    deformation always in (``deformation`` does not apply; predict from :func:`pressure_part`
+    tables; for comparison, docs/rig.md)."""
     from perception.vector_regression import VectorRegressor
 
     if not shift:
