@@ -233,6 +233,8 @@ def test_unused_inputs_get_no_term_and_leave_one_out_is_a_refit_without_each_sam
     for bad in (("e",), ("d",), ("c", "c"), names):
         with pytest.raises(PerceptionError, match="unused_inputs"):
             VectorRegressor(2, input_names=names, linear_inputs=("d",), unused_inputs=bad)
+    with pytest.raises(PerceptionError, match="at least one input used"):
+        VectorRegressor(2, input_names=("a", "b"), unused_inputs=("a", "b"))
 
 
 def test_vector_regressor_errors_name_the_problem():
