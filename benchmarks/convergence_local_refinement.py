@@ -23,11 +23,11 @@ markers, the force and the tet counts.
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
 import numpy as np
+from convergence_rod_quadrature import pose_parser
 
 from tactip_sim.commands.args import float_in
 
@@ -106,15 +106,7 @@ def solve(label: str, instance: int, refined: bool, pose, a, out: Path) -> Path:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", type=Path, required=True, help="folder for the presses")
-    ap.add_argument("--roll", type=float_in(-30.0, 30.0), default=12.0,
-                    help="plate roll in degrees (default: the corner pose, 12)")
-    ap.add_argument("--pitch", type=float_in(-30.0, 30.0), default=-8.8,
-                    help="plate pitch in degrees (default: the corner pose, -8.8)")
-    ap.add_argument("--depth", type=float_in(0.05, 4.0), default=1.0,
-                    help="press depth in mm (default: the training depth, 1)")
+    ap = pose_parser(__doc__)
     ap.add_argument("--pins", type=int, nargs="+", default=list(LEAD_PINS),
                     help=f"pins whose roots the refinement surrounds (default {LEAD_PINS})")
     ap.add_argument("--edge", type=float_in(0.1, 1.0), default=0.6,

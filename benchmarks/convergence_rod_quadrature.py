@@ -123,8 +123,10 @@ def markers_by_rule(size: float, instance: int, out: Path) -> dict[str, np.ndarr
     return result
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+def pose_parser(doc: str) -> argparse.ArgumentParser:
+    """A parser with ``--out`` and the pressed pose (``--roll``, ``--pitch``, ``--depth``;
+    default: the corner pose at the training depth), shared by the convergence studies."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, required=True, help="folder for the presses")
     ap.add_argument("--roll", type=float_in(-30.0, 30.0), default=12.0,
@@ -133,6 +135,11 @@ def main() -> None:
                     help="plate pitch in degrees (default: the corner pose, -8.8)")
     ap.add_argument("--depth", type=float_in(0.05, 4.0), default=1.0,
                     help="press depth in mm (default: the training depth, 1)")
+    return ap
+
+
+def main() -> None:
+    ap = pose_parser(__doc__)
     ap.add_argument("--no-solve", action="store_true", help="only compare stored presses")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
