@@ -7,13 +7,15 @@ by 0.006-0.014 mm, so it is the field there, not the rods' rule. This study refi
 only around the leading pins (conforming longest-edge bisection,
 :func:`tactip_sim.mesh.local.bisect_to_size`, then snapped onto the pad's surfaces as every
 mesh is): every tet within ``--radius`` of a listed pin's root gets edges of at most
-``--edge``, growing by :data:`~tactip_sim.mesh.local.GRADING` mm per mm outside. It presses
+``--edges``, growing by :data:`~tactip_sim.mesh.local.GRADING` mm per mm outside. It presses
 the pad (P2, neo-Hookean, rods stopped by the window) on the bundled 1 mm mesh and on a freshly
 built second 1 mm mesh, each as built and refined, and compares the markers.
 
 Usage::
 
     python benchmarks/convergence_local_refinement.py --out /tmp/localref       # 4 presses
+    python benchmarks/convergence_local_refinement.py --out /tmp/localref --edges 0.6 0.45 \\
+        --radius 1.5 --instances 0                                            # 3 presses
     python benchmarks/convergence_local_refinement.py --out /tmp/localref --no-solve
 
 Each press is stored in ``OUT`` as it finishes (the fresh mesh too); a rerun solves only the
@@ -36,8 +38,13 @@ SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
 # the markers that lead the 1 mm meshes' differences at the corner pose (docs/convergence.md:
 # 1.25 -> 1 mm, 1 -> 0.8 mm and two 1 mm meshes), all on the pressed side's outer ring
 LEAD_PINS = (2, 3, 9, 10, 12, 19)
-CASES = (("1 mm", 0, False), ("1 mm refined", 0, True),
-         ("second 1 mm", 1, False), ("second 1 mm refined", 1, True))
+MESHES = ("1 mm", "second 1 mm")  # instance 0: the bundled mesh; 1: a fresh pytetwild build
+
+
+def cases(edges, radius: float, instances) -> list[tuple[str, int, float | None]]:
+    """(label, instance, refined edge or None) for every mesh of the study."""
+    return [(MESHES[i] + ("" if e is None else f" refined {e:g}/{radius:g}"), i, e)
+            for i in instances for e in (None, *edges)]
 
 
 def _scene():
@@ -83,17 +90,21 @@ def refine(mesh, roots: np.ndarray, edge_mm: float, radius_mm: float):
                    mesher_nodes=raw)
 
 
-def solve(label: str, instance: int, refined: bool, pose, a, out: Path) -> Path:
+def case_path(out: Path, label: str) -> Path:
+    return out / f"{label.replace(' ', '_').replace('/', '_r')}.npz"
+
+
+def solve(label: str, instance: int, edge: float | None, pose, a, out: Path) -> Path:
     import tactip_sim as ts
 
-    path = out / f"{label.replace(' ', '_')}.npz"
+    path = case_path(out, label)
     if path.is_file():
         return path
     scene = _scene()
     mesh = base_mesh(instance, out)
-    if refined:
+    if edge is not None:
         roots = ts.Simulator(scene, mesh=mesh).body.markers.roots_mm[list(a.pins)]
-        mesh = refine(mesh, roots, a.edge, a.radius)
+        mesh = refine(mesh, roots, edge, a.radius)
     sim = ts.Simulator(scene, mesh=mesh)
     t0 = time.perf_counter()
     state = sim.press(ts.Pose(*pose))
@@ -109,41 +120,44 @@ def main() -> None:
     ap = pose_parser(__doc__)
     ap.add_argument("--pins", type=int, nargs="+", default=list(LEAD_PINS),
                     help=f"pins whose roots the refinement surrounds (default {LEAD_PINS})")
-    ap.add_argument("--edge", type=float_in(0.1, 1.0), default=0.6,
-                    help="largest edge near the pins, mm (default 0.6)")
+    ap.add_argument("--edges", type=float_in(0.1, 1.0), nargs="+", default=[0.6],
+                    help="largest edge near the pins, mm, one refined mesh each (default 0.6)")
+    ap.add_argument("--instances", type=int, nargs="+", choices=(0, 1), default=[0, 1],
+                    help="meshes: 0 the bundled 1 mm, 1 a fresh 1 mm build (default both)")
     ap.add_argument("--radius", type=float_in(0.5, 10.0), default=2.5,
-                    help="radius around each pin's root meshed at --edge, mm (default 2.5)")
+                    help="radius around each pin's root meshed at --edges, mm (default 2.5)")
     ap.add_argument("--no-solve", action="store_true", help="only compare stored presses")
     a = ap.parse_args()
     if any(not 0 <= p < 97 for p in a.pins):
         ap.error(f"--pins {a.pins}: allowed 0-96")
     a.out.mkdir(parents=True, exist_ok=True)
     pose = (a.roll, a.pitch, a.depth)
+    study = cases(sorted(a.edges, reverse=True), a.radius, sorted(set(a.instances)))
     if not a.no_solve:
         from tqdm import tqdm
 
-        for label, instance, refined in tqdm(CASES, desc="presses", unit="press"):
-            solve(label, instance, refined, pose, a, a.out)
+        for label, instance, edge in tqdm(study, desc="presses", unit="press"):
+            solve(label, instance, edge, pose, a, a.out)
     runs = {}
-    for label, _, _ in CASES:
-        path = a.out / f"{label.replace(' ', '_')}.npz"
-        if path.is_file():
-            with np.load(path) as z:
+    for label, _, _ in study:
+        if case_path(a.out, label).is_file():
+            with np.load(case_path(a.out, label)) as z:
                 runs[label] = {k: z[k] for k in z.files}
-    print(f"pose {a.roll:g} / {a.pitch:g} deg, {a.depth:g} mm; refined within {a.radius:g} mm "
-          f"of pins {a.pins} to {a.edge:g} mm")
+    print(f"pose {a.roll:g} / {a.pitch:g} deg, {a.depth:g} mm; 'refined E/R': every tet within "
+          f"R mm of pins {a.pins}' roots bisected to edges of at most E mm")
     for label, r in runs.items():
-        print(f"  {label:<22} {int(r['tets']):7d} tets {int(r['dofs']):8d} dofs "
+        print(f"  {label:<28} {int(r['tets']):7d} tets {int(r['dofs']):8d} dofs "
               f"{float(r['force']):8.4f} N {float(r['seconds']):7.1f} s")
-    pairs = [("1 mm", "second 1 mm"), ("1 mm refined", "second 1 mm refined"),
-             ("1 mm", "1 mm refined"), ("second 1 mm", "second 1 mm refined")]
+    same_level = [(p, q) for p, i, e in study for q, j, f in study if i == 0 < j and e == f]
+    successive = [(p, q) for (p, i, _), (q, j, _) in zip(study, study[1:], strict=False)
+                  if i == j]
     print("largest / mean marker difference (mm), the three leading markers, force change")
-    for p, q in pairs:
+    for p, q in same_level + successive:
         if p not in runs or q not in runs:
             continue
         d = np.linalg.norm(runs[p]["markers"] - runs[q]["markers"], axis=1)
         lead = ", ".join(f"#{i} {d[i]:.4f}" for i in np.argsort(d)[::-1][:3])
-        print(f"  {p:>12} -> {q:<20} {d.max():.4f} / {d.mean():.4f}  ({lead}), force "
+        print(f"  {p:>28} -> {q:<28} {d.max():.4f} / {d.mean():.4f}  ({lead}), force "
               f"{100 * (float(runs[q]['force']) / float(runs[p]['force']) - 1):+.2f} %")
 
 
