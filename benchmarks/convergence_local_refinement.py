@@ -100,6 +100,7 @@ def case_path(out: Path, label: str) -> Path:
 
 def solve(label: str, instance: int, edge: float | None, pose, a, out: Path) -> Path:
     import tactip_sim as ts
+    from tactip_sim.geometry import build_pad
 
     path = case_path(out, label)
     pins = list(a.pins) if edge is not None else []
@@ -113,9 +114,8 @@ def solve(label: str, instance: int, edge: float | None, pose, a, out: Path) -> 
         return path
     scene = _scene()
     mesh = base_mesh(instance, out)
-    if edge is not None:
-        roots = ts.Simulator(scene, mesh=mesh).body.markers.roots_mm[list(a.pins)]
-        mesh = refine(mesh, roots, edge, a.radius)
+    if edge is not None:  # the pins' roots are the pad's, whatever the mesh
+        mesh = refine(mesh, build_pad(scene).pins.roots[pins], edge, a.radius)
     sim = ts.Simulator(scene, mesh=mesh)
     t0 = time.perf_counter()
     state = sim.press(ts.Pose(*pose))
