@@ -5,7 +5,7 @@ pytetwild meshes of 1 mm differ by 0.016-0.018 mm on single markers (the outer r
 side the plate presses), and 0.8 mm everywhere does not bring that down; the roots alone differ
 by 0.006-0.014 mm, so it is the field there, not the rods' rule. This study refines each mesh
 only around the leading pins (conforming longest-edge bisection,
-:func:`tactip_sim.mesh.local.bisect_to_size`, then snapped onto the pad's surfaces as every
+:func:`tactip_sim.mesh.local.refined_mesh`, then snapped onto the pad's surfaces as every
 mesh is): every tet within ``--radius`` of a listed pin's root gets edges of at most
 ``--edges``, growing by :data:`~tactip_sim.mesh.local.GRADING` mm per mm outside. It presses
 the pad (P2, neo-Hookean, rods stopped by the window) on the bundled 1 mm mesh and on a freshly
@@ -75,23 +75,12 @@ def base_mesh(instance: int, out: Path):
 
 def refine(mesh, roots: np.ndarray, edge_mm: float, radius_mm: float):
     """``mesh`` bisected until every tet within ``radius_mm`` of a root has edges of at most
-    ``edge_mm`` (graded outside), snapped onto the pad's surfaces."""
-    from tactip_sim.mesh.local import GRADING, bisect_to_size
-    from tactip_sim.mesh.snap import snap_nodes
-    from tactip_sim.mesh.tetra import TetMesh
+    ``edge_mm`` (graded outside), snapped onto the pad's surfaces
+    (:func:`tactip_sim.mesh.local.refined_mesh`)."""
+    from tactip_sim.mesh.local import Refinement, refined_mesh
 
-    scene = _scene()
-    cap = scene.fidelity.mesh_edge_mm * 4.0
-
-    def target(points: np.ndarray) -> np.ndarray:
-        dist = np.min(np.linalg.norm(points[:, None, :] - roots[None], axis=2), axis=1)
-        return np.minimum(edge_mm + GRADING * np.maximum(dist - radius_mm, 0.0), cap)
-
-    t0 = time.perf_counter()
-    raw, tets, regions = bisect_to_size(mesh.stored_nodes, mesh.tets, mesh.regions, target)
-    nodes = snap_nodes(raw, tets, regions, scene, label="local refinement study")
-    return TetMesh(nodes, tets, regions, f"{mesh.key}-pins", time.perf_counter() - t0,
-                   mesher_nodes=raw)
+    return refined_mesh(_scene(), Refinement(tuple(map(tuple, roots)), edge_mm, radius_mm),
+                        base=mesh)
 
 
 def case_path(out: Path, label: str) -> Path:

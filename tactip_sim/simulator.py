@@ -28,6 +28,7 @@ from .fem.contact import ContactSolution, solve_contact
 from .fem.friction import FrictionHistory
 from .fem.full import FullOperator
 from .fem.indenters import Indenter, Plate, indenter_from_scene, place
+from .fem.marker_error import marker_error_estimate
 from .fem.model import ElasticBody
 from .fem.pose import Pose
 from .fem.reduced import ReducedModel
@@ -36,7 +37,7 @@ from .fem.state import ContactState
 from .fem.tolerances import TOL, Tolerances, single_threaded_blas
 from .fem.window import pin_forces, stop_at_window, window_generalised_forces
 from .geometry import Pad, build_pad
-from .mesh import TetMesh, tetrahedralise
+from .mesh import REGION_SKIN, TetMesh, tetrahedralise
 from .scene import Scene
 
 if TYPE_CHECKING:
@@ -70,6 +71,8 @@ class Simulator:
     under_resolved : presses so far whose estimated force error exceeded
         ``fidelity.contact_tolerance``; the first is logged as a warning, the others at DEBUG
         level (a sweep would otherwise repeat it for every pose)
+    markers_under_resolved : presses so far whose largest estimated marker error exceeded
+        ``fidelity.marker_tolerance_mm`` (full-field solves; reported the same way)
     warn_under_resolved : set False to log none of them as warnings (the caller reports them)
     """
 
@@ -95,8 +98,10 @@ class Simulator:
         self._reduced: ReducedModel | None = None
         self._renderer = None
         self._refiner = None
+        self._pin_refiner = None
         self.lean_full = False  # FullOperator(lean=True): set on refined meshes (fem.refine)
         self.under_resolved = 0
+        self.markers_under_resolved = 0
         self.warn_under_resolved = True
         self._lean_op = None
 
@@ -106,6 +111,7 @@ class Simulator:
         state = self.__dict__.copy()
         state["_renderer"] = None
         state["_refiner"] = None
+        state["_pin_refiner"] = None
         state["_lean_op"] = None
         return state
 
@@ -163,21 +169,56 @@ class Simulator:
             state = dataclasses.replace(state, surface_displacements_mm=None)
         tolerance = self.scene.fidelity.contact_tolerance
         if state.error_estimate > tolerance:
-            self.under_resolved += 1
-            first = self.under_resolved == 1 and self.warn_under_resolved
-            log.log(logging.WARNING if first else logging.DEBUG,
-                    "%s: estimated discretisation error of the force %.1f %% exceeds "
-                    "fidelity.contact_tolerance = %.1f %% (node spacing %.3g mm at a "
-                    "contact of radius %.3g mm); refine the mesh there (fidelity."
-                    "contact_refinement = 'auto')%s", pose, 100 * state.error_estimate,
-                    100 * tolerance, state.node_spacing_mm,
-                    (state.contact_area_mm2 / np.pi) ** 0.5,
-                    "; further such poses of this simulator are counted in "
-                    "Simulator.under_resolved, not repeated" if first else "")
+            self._report("under_resolved",
+                         "%s: estimated discretisation error of the force %.1f %% exceeds "
+                         "fidelity.contact_tolerance = %.1f %% (node spacing %.3g mm at a "
+                         "contact of radius %.3g mm); refine the mesh there (fidelity."
+                         "contact_refinement = 'auto')", pose, 100 * state.error_estimate,
+                         100 * tolerance, state.node_spacing_mm,
+                         (state.contact_area_mm2 / np.pi) ** 0.5)
+        tolerance = self.scene.fidelity.marker_tolerance_mm
+        if state.marker_error_estimate_mm > tolerance:
+            self._report("markers_under_resolved",
+                         "%s: estimated discretisation error of marker %d, %.3g mm, exceeds "
+                         "fidelity.marker_tolerance_mm = %.3g mm (%d markers above it); mesh "
+                         "the skin around those pins finer (fidelity.pin_refinement = 'auto')",
+                         pose, int(np.argmax(state.marker_errors_mm)),
+                         state.marker_error_estimate_mm, tolerance,
+                         int(np.sum(state.marker_errors_mm > tolerance)))
         return state
+
+    def _report(self, counter: str, message: str, *args) -> None:
+        """Count an under-resolved press in the attribute ``counter`` and log it: the first of
+        its kind as a warning (unless :attr:`warn_under_resolved` is off), the others at DEBUG
+        level."""
+        count = getattr(self, counter) + 1
+        setattr(self, counter, count)
+        first = count == 1 and self.warn_under_resolved
+        log.log(logging.WARNING if first else logging.DEBUG, message + "%s", *args,
+                f"; further such poses of this simulator are counted in Simulator.{counter}, "
+                "not repeated" if first else "")
 
     def _press(self, pose: Pose, indenter: Indenter | None, solver: str | None,
                full_field: bool, surface: bool = True) -> ContactState:
+        t0 = time.perf_counter()
+        state = self._solve(pose, indenter, solver, full_field, surface)
+        tolerance = self.scene.fidelity.marker_tolerance_mm
+        if (self.scene.fidelity.pin_refinement == "auto"
+                and state.marker_error_estimate_mm > tolerance):
+            from .fem.refine import PinRefiner
+
+            if self._pin_refiner is None:
+                self._pin_refiner = PinRefiner(self, type(self))
+            indenter = self.indenter if indenter is None else indenter
+            refined, pins, edge = self._pin_refiner.press(pose, indenter, state.solver, state,
+                                                          tolerance)
+            state = dataclasses.replace(refined, refined_pins=pins, pin_edge_mm=edge,
+                                        seconds=time.perf_counter() - t0)
+        return state
+
+    def _solve(self, pose: Pose, indenter: Indenter | None, solver: str | None,
+               full_field: bool, surface: bool = True) -> ContactState:
+        """One solve on this simulator's mesh (or the contact's refined one)."""
         t0 = time.perf_counter()
         indenter = self.indenter if indenter is None else indenter
         solver = self.solver if solver is None else _check_solver(solver)
@@ -449,6 +490,10 @@ class Simulator:
         res = contact_resolution(space, self.body.order, self._cand_rest[sol.active],
                                  sol.pressures, area)
         nv = space.n_vertices
+        errors = None
+        if u is not None:
+            errors = marker_error_estimate(self.body.markers, space, u,
+                                           np.flatnonzero(self.mesh.regions == REGION_SKIN))
         return ContactState(
             pose=pose, indenter=indenter, solver=solver, markers_mm=markers,
             rest_markers_mm=self.body.markers.rest_mm, marker_directions=dirs,
@@ -463,7 +508,8 @@ class Simulator:
             complementarity=sol.complementarity, in_contact=len(nodes) > 0,
             iterations=iterations, seconds=time.perf_counter() - t0,
             window_forces_N=None if window is None else window / 1000.0,
-            error_estimate=res.error_estimate, node_spacing_mm=res.node_spacing_mm)
+            error_estimate=res.error_estimate, node_spacing_mm=res.node_spacing_mm,
+            marker_errors_mm=errors)
 
 
 def _check_solver(solver: str) -> str:

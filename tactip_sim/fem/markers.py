@@ -58,6 +58,10 @@ class Markers:
     end_radius_mm : radius of the rod's flat end (rod model; 0 for embedded tips, material
         points of the gel): the end is a disc normal to the rod, so a tilted rod's lowest point
         is the rim, ``end_radius_mm |d_xy|`` below the tip (:meth:`lowest_heights`)
+    base_elements, base_lam, base_weights : (p, k) elements and (p, k, 4) barycentric
+        coordinates of the quadrature points of each rod's base, and their (k,) weights (rods
+        averaged over a base; ``None`` otherwise): what
+        :func:`~tactip_sim.fem.marker_error.marker_error_estimate` reads
     """
 
     model: str
@@ -68,6 +72,9 @@ class Markers:
     operator: sp.csr_matrix
     gradient: sp.csr_matrix
     end_radius_mm: float = 0.0
+    base_elements: np.ndarray | None = None
+    base_lam: np.ndarray | None = None
+    base_weights: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.end_radius_mm < 0.0 or (self.model == "embedded" and self.end_radius_mm):
@@ -185,9 +192,11 @@ def _base_points(pad: Pad, radius_mm: float, thickness_mm: float
     return lay_on_skin(pad, ring, depth), weights
 
 
-def _mean_gradient(space: Space, points: np.ndarray, weights: np.ndarray) -> sp.csr_matrix:
+def _mean_gradient(space: Space, points: np.ndarray, weights: np.ndarray
+                   ) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
     """(9 p, n_dofs) operator of ``grad u`` averaged over each pin's quadrature points
-    ``points`` (p, k, 3) with ``weights`` (k,), in the skin's elements."""
+    ``points`` (p, k, 3) with ``weights`` (k,), in the skin's elements; and the points'
+    elements (p, k) and barycentric coordinates (p, k, 4)."""
     p, k = points.shape[:2]
     el, lam, _ = locate(space, points.reshape(-1, 3), region=REGION_SKIN)
     per_point = gradient_operator(space, el, lam)  # (9 p k, n_dofs), pin-major
@@ -195,7 +204,7 @@ def _mean_gradient(space: Space, points: np.ndarray, weights: np.ndarray) -> sp.
     cols = (9 * (np.arange(p)[:, None] * k + np.arange(k)))[:, :, None] + np.arange(9)
     vals = np.broadcast_to(np.asarray(weights)[None, :, None], (p, k, 9))
     average = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(9 * p, 9 * p * k))
-    return (average @ per_point).tocsr()
+    return (average @ per_point).tocsr(), el.reshape(p, k), lam.reshape(p, k, 4)
 
 
 def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: float,
@@ -224,11 +233,14 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
     length = float(np.mean(np.linalg.norm(pins.tips - pins.roots, axis=1)))
     root_el, root_lam, _ = locate(space, pins.roots)
     root_op = interpolation_operator(space, root_el, root_lam)
+    base_quad = None
     if model == "rod" and footprint_radius_mm > 0.0 and pad.inner is not None:
-        grad = _mean_gradient(space, *_base_points(pad, footprint_radius_mm, skin_thickness_mm))
+        points, weights = _base_points(pad, footprint_radius_mm, skin_thickness_mm)
+        grad, el, lam = _mean_gradient(space, points, weights)
+        base_quad = (el, lam, weights)
     else:  # at the point under the root, in the middle of the skin
         centre = pins.roots - 0.5 * skin_thickness_mm * pins.directions
-        grad = _mean_gradient(space, centre[:, None, :], np.ones(1))
+        grad = _mean_gradient(space, centre[:, None, :], np.ones(1))[0]
     if model == "embedded":
         tip_el, tip_lam, _ = locate(space, pins.tips)
         first = interpolation_operator(space, tip_el, tip_lam)
@@ -244,4 +256,5 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
     order = np.concatenate([np.arange(3 * p).reshape(p, 3), 3 * p + np.arange(3 * p).reshape(p, 3)],
                            axis=1).ravel()
     return Markers(model, pins.tips.copy(), pins.roots.copy(), pins.directions.copy(), length,
-                   stacked[order], grad, end_radius_mm if model == "rod" else 0.0)
+                   stacked[order], grad, end_radius_mm if model == "rod" else 0.0,
+                   *(base_quad or (None, None, None)))

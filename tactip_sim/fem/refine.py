@@ -8,6 +8,12 @@ the solved contact's own estimate still exceeds the tolerance.
 The refined zone's edge is a power-of-two fraction of ``fidelity.mesh_edge_mm`` and its centre
 is rounded to half that edge, so nearby presses of similar size share a mesh; refined meshes
 are cached on disk and the last few refined simulators (with their factorisations) in memory.
+
+Refinement around the pins (``fidelity.pin_refinement = "auto"``, :class:`PinRefiner`): after
+a full-field solve, each marker's error is estimated (:mod:`~tactip_sim.fem.marker_error`); if
+any exceeds ``fidelity.marker_tolerance_mm``, the pose is solved again on the mesh refined
+around those pins' roots, and again (a pin that joined the set, or one level finer) while the
+refined solve's own estimate still exceeds it.
 """
 
 from __future__ import annotations
@@ -16,6 +22,8 @@ import logging
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
+
+import numpy as np
 
 from .resolution import (
     ERROR_COEFF,
@@ -28,7 +36,7 @@ from .resolution import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["MAX_EXTRA_LEVELS", "ContactRefiner", "Plan", "plan"]
+__all__ = ["MAX_EXTRA_LEVELS", "MAX_PIN_LEVELS", "ContactRefiner", "PinRefiner", "Plan", "plan"]
 
 MAX_EXTRA_LEVELS = 2  # refinements beyond the first, when a refined solve still estimates high
 MEAN_TO_MAX_EDGE = 0.6  # bisected zones' mean surface edge over their largest (measured, fem.md)
@@ -90,7 +98,7 @@ class ContactRefiner:
             self._children.move_to_end(key)
             return self._children[key]
         sim = self.sim
-        ref = Refinement(centre_mm, edge_mm, radius_mm)
+        ref = Refinement.on_top(sim.mesh, centre_mm, edge_mm, radius_mm)
         mesh = refined_mesh(sim.scene, ref, base=sim.mesh, use_cache=sim.use_cache)
         scene = replace_in(sim.scene, fidelity={"contact_refinement": "off"})
         child = self.make(scene, pad=sim.pad, mesh=mesh, element_order=sim.body.order,
@@ -115,6 +123,74 @@ class ContactRefiner:
                 break
             edge /= 2.0
         return state, edge
+
+    def clear(self) -> None:
+        self._children.clear()
+
+
+# Refinement around the pins (fidelity.pin_refinement = "auto"), docs/convergence.md "Refined
+# around the leading pins": on the 1 mm mesh, E 0.6 mm within R 1.5 mm of the leading pins'
+# roots converged the corner pose's markers (E 0.6 -> 0.45: 0.0043 mm; R 2.5 -> 1.5: 0.0070 mm)
+PIN_EDGE_FRACTION = 0.6  # the refined skin's largest edge / fidelity.mesh_edge_mm
+PIN_RADIUS_MM = 1.5  # the balls around the flagged pins' roots
+PIN_LEVEL_FACTOR = 0.75  # the next level's edge, when refined pins still estimate high
+MAX_PIN_LEVELS = 2  # refined solves per press at most
+
+
+class PinRefiner:
+    """Solves poses again on meshes refined around the pins whose estimated marker error
+    exceeds ``fidelity.marker_tolerance_mm`` (:mod:`~tactip_sim.fem.marker_error`), for one
+    :class:`Simulator` (``sim``); ``make`` builds the refined simulators."""
+
+    def __init__(self, sim, make) -> None:
+        self.sim = sim
+        self.make = make
+        self._children: OrderedDict[tuple, object] = OrderedDict()
+
+    def child(self, pins: tuple[int, ...], edge_mm: float):
+        """The simulator on the mesh refined to ``edge_mm`` around ``pins``' roots."""
+        from ..mesh.local import Refinement, refined_mesh
+        from ..scene import replace_in
+
+        key = (pins, edge_mm)
+        if key in self._children:
+            self._children.move_to_end(key)
+            return self._children[key]
+        sim = self.sim
+        roots = sim.pad.pins.roots[list(pins)]
+        ref = Refinement(tuple(map(tuple, roots)), edge_mm, PIN_RADIUS_MM)
+        mesh = refined_mesh(sim.scene, ref, base=sim.mesh, use_cache=sim.use_cache)
+        scene = replace_in(sim.scene, fidelity={"pin_refinement": "off"})
+        child = self.make(scene, pad=sim.pad, mesh=mesh, element_order=sim.body.order,
+                          solver=sim.solver, use_cache=sim.use_cache, tol=sim.tol)
+        child.warn_under_resolved = False  # the parent reports the press
+        log.info("refined the skin around %d pins to %.3g mm edges: %d tets", len(pins),
+                 edge_mm, len(mesh.tets))
+        self._children[key] = child
+        while len(self._children) > KEEP:
+            self._children.popitem(last=False)
+        return child
+
+    def press(self, pose, indenter, solver: str, first, tolerance_mm: float):
+        """Solve ``pose`` again on meshes refined around the pins ``first`` (the state on the
+        scene's mesh) estimates above ``tolerance_mm``; a pin still above it after a refined
+        solve joins the set, or, when every such pin was refined already, the next level is
+        :data:`PIN_LEVEL_FACTOR` finer (at most :data:`MAX_PIN_LEVELS` refined solves).
+        Returns the last state, the pins refined and the edge."""
+        flagged = np.asarray(first.marker_errors_mm) > tolerance_mm
+        edge = PIN_EDGE_FRACTION * self.sim.scene.fidelity.mesh_edge_mm
+        state = first
+        for level in range(MAX_PIN_LEVELS):
+            pins = tuple(int(i) for i in np.flatnonzero(flagged))
+            state = self.child(pins, edge)._press(pose, indenter, solver, False)
+            high = np.asarray(state.marker_errors_mm) > tolerance_mm
+            if not high.any() or level == MAX_PIN_LEVELS - 1:
+                break
+            if (high & ~flagged).any():
+                flagged |= high
+            else:
+                edge *= PIN_LEVEL_FACTOR
+        return state, pins, edge
 
     def clear(self) -> None:
         self._children.clear()

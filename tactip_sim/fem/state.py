@@ -62,6 +62,12 @@ class ContactState:
     node_spacing_mm : that node spacing (NaN without contact)
     refined_edge_mm : largest edge of the zone the mesh was refined to around this contact
         (``fidelity.contact_refinement = "auto"``); 0 when solved on the scene's mesh
+    marker_errors_mm : (p,) estimated discretisation error of each marker (mm,
+        :mod:`~tactip_sim.fem.marker_error`), or ``None`` where the solve formed no full field
+        (the reduced solver without ``full_field``) or the pins are not rods with a base
+    refined_pins : pins around whose roots the mesh was refined for this solve
+        (``fidelity.pin_refinement = "auto"``); empty when solved on the scene's mesh
+    pin_edge_mm : largest edge of the skin around those pins (0 when none was refined)
     """
 
     pose: Pose
@@ -90,13 +96,16 @@ class ContactState:
     error_estimate: float = 0.0
     node_spacing_mm: float = float("nan")
     refined_edge_mm: float = 0.0
+    marker_errors_mm: np.ndarray | None = None
+    refined_pins: tuple[int, ...] = ()
+    pin_edge_mm: float = 0.0
 
     def __post_init__(self) -> None:
         if self.window_forces_N is None:
             object.__setattr__(self, "window_forces_N",
                                np.full(len(np.asarray(self.markers_mm)), np.nan))
         names = [n for n in _FLOAT_ARRAYS if n != "surface_displacements_mm"]
-        for name in ("surface_displacements_mm", "vertex_displacements_mm"):
+        for name in ("surface_displacements_mm", "vertex_displacements_mm", "marker_errors_mm"):
             if getattr(self, name) is not None:
                 names.append(name)
         for name in names:
@@ -108,8 +117,10 @@ class ContactState:
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
         for name in ("force_N", "contact_area_mm2", "max_penetration_mm", "complementarity",
-                     "seconds", "error_estimate", "node_spacing_mm", "refined_edge_mm"):
+                     "seconds", "error_estimate", "node_spacing_mm", "refined_edge_mm",
+                     "pin_edge_mm"):
             object.__setattr__(self, name, float(getattr(self, name)))
+        object.__setattr__(self, "refined_pins", tuple(int(i) for i in self.refined_pins))
         object.__setattr__(self, "in_contact", bool(self.in_contact))
         object.__setattr__(self, "iterations", int(self.iterations))
 
@@ -128,6 +139,13 @@ class ContactState:
         """Pin tips below the window's inner face (z < 0): possible only where the window is
         not modelled; their images are not physical (flag or refuse such samples)."""
         return int(np.sum(self.markers_mm[:, 2] < -WINDOW_SLACK_MM))
+
+    @property
+    def marker_error_estimate_mm(self) -> float:
+        """The largest estimated marker error (mm); NaN when not estimated."""
+        if self.marker_errors_mm is None or len(self.marker_errors_mm) == 0:
+            return float("nan")
+        return float(self.marker_errors_mm.max())
 
     @property
     def marker_displacements_mm(self) -> np.ndarray:
@@ -157,6 +175,10 @@ class ContactState:
             "error_estimate": self.error_estimate,
             "node_spacing_mm": None if np.isnan(self.node_spacing_mm) else self.node_spacing_mm,
             "refined_edge_mm": self.refined_edge_mm,
+            "marker_error_estimate_mm": (None if np.isnan(self.marker_error_estimate_mm)
+                                         else self.marker_error_estimate_mm),
+            "refined_pins": list(self.refined_pins),
+            "pin_edge_mm": self.pin_edge_mm,
             "window_modelled": self.window_modelled,
             "pins_on_window": self.pins_on_window,
             "window_force_N": float(np.nansum(self.window_forces_N)),

@@ -1,5 +1,6 @@
-"""Meshes refined where a contact is: the pad's mesh with its tets bisected, longest edge first,
-inside a zone of the top face (:func:`refined_mesh`), cached on disk like every mesh.
+"""Meshes refined where a contact or a pin is: the pad's mesh with its tets bisected, longest
+edge first, inside balls around chosen points (:func:`refined_mesh`), cached on disk like every
+mesh.
 
 pytetwild honours a sizing field only down to about an eighth of its ideal edge length (a
 0.075 mm target on the 2.5 mm Hertz block gave 0.3 mm edges; lowering the ideal length to
@@ -16,6 +17,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .. import cache
 from ..scene import Scene
@@ -26,21 +28,22 @@ from .topology import tet_volumes
 __all__ = ["GRADING", "Refinement", "bisect_to_size", "refined_mesh", "refinement_key"]
 
 GRADING = 0.5  # target edge growth, mm per mm away from the zone (a mesh-quality choice)
-LOCAL_VERSION = 1  # bump when the refinement recipe changes: invalidates cached meshes
+LOCAL_VERSION = 2  # bump when the refinement recipe changes: invalidates cached meshes
 _EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
 
 
 @dataclass(frozen=True)
 class Refinement:
-    """A zone of the pad's top face meshed finer.
+    """Zones of the pad meshed finer: balls around points.
 
-    centre_mm : (x, y) sensor frame; the zone is a ball around (x, y, top of the pad)
-    edge_mm : largest tet edge within the zone
-    radius_mm : the zone's radius; beyond it the allowed edge grows by :data:`GRADING` mm per
-        mm up to the base mesh's
+    centres_mm : ((x, y, z), ...) sensor frame, the balls' centres (a contact's: on the top
+        face, :meth:`on_top`; pins': their roots)
+    edge_mm : largest tet edge within the balls
+    radius_mm : the balls' radius; beyond it the allowed edge grows by :data:`GRADING` mm per
+        mm of distance to the nearest ball, up to the base mesh's
     """
 
-    centre_mm: tuple[float, float]
+    centres_mm: tuple[tuple[float, float, float], ...]
     edge_mm: float
     radius_mm: float
 
@@ -50,13 +53,22 @@ class Refinement:
             if not (v > 0 and np.isfinite(v)):
                 raise ValueError(f"{name}={getattr(self, name)!r} is out of range: allowed > 0")
             object.__setattr__(self, name, v)
-        object.__setattr__(self, "centre_mm", (float(self.centre_mm[0]),
-                                               float(self.centre_mm[1])))
+        c = np.asarray(self.centres_mm, dtype=np.float64)
+        if c.ndim != 2 or c.shape[1] != 3 or len(c) == 0 or not np.isfinite(c).all():
+            raise ValueError(f"centres_mm={self.centres_mm!r} is out of range: allowed one or "
+                             "more finite (x, y, z) points")
+        object.__setattr__(self, "centres_mm", tuple(tuple(map(float, p)) for p in c))
 
-    def target(self, points: np.ndarray, top_mm: float, cap_mm: float) -> np.ndarray:
+    @classmethod
+    def on_top(cls, mesh: TetMesh, centre_mm, edge_mm: float, radius_mm: float
+               ) -> Refinement:
+        """One ball centred at (x, y) = ``centre_mm`` on the top of ``mesh``."""
+        top = float(mesh.nodes[:, 2].max())
+        return cls(((float(centre_mm[0]), float(centre_mm[1]), top),), edge_mm, radius_mm)
+
+    def target(self, points: np.ndarray, cap_mm: float) -> np.ndarray:
         """(n,) mm: the largest edge allowed at ``points`` (n, 3)."""
-        c = np.array([*self.centre_mm, top_mm])
-        dist = np.linalg.norm(points - c, axis=1)
+        dist, _ = cKDTree(np.asarray(self.centres_mm)).query(points)
         return np.minimum(self.edge_mm + GRADING * np.maximum(dist - self.radius_mm, 0.0),
                           cap_mm)
 
@@ -128,7 +140,7 @@ def bisect_to_size(nodes: np.ndarray, tets: np.ndarray, regions: np.ndarray, tar
 
 def refinement_key(scene: Scene, refinement: Refinement, base_digest: str) -> str:
     """Hash of the base mesh's content and the zone (the refined mesh's cache key)."""
-    parts = (base_digest, refinement.centre_mm, refinement.edge_mm, refinement.radius_mm,
+    parts = (base_digest, refinement.centres_mm, refinement.edge_mm, refinement.radius_mm,
              GRADING, LOCAL_VERSION, scene.fidelity.mesh_edge_mm)
     return hashlib.sha256(repr(parts).encode()).hexdigest()[:16]
 
@@ -147,11 +159,10 @@ def refined_mesh(scene: Scene, refinement: Refinement, *, base: TetMesh | None =
     if from_cache:
         raw, tets, regions = data["nodes"], data["tets"], data["regions"]
     else:
-        top = float(base.nodes[:, 2].max())
         cap = scene.fidelity.mesh_edge_mm * 4.0  # never coarsens: only caps the field
 
         def target(points: np.ndarray) -> np.ndarray:
-            return refinement.target(points, top, cap)
+            return refinement.target(points, cap)
 
         raw, tets, regions = bisect_to_size(base.stored_nodes, base.tets, base.regions, target)
         if np.any(tet_volumes(raw, tets) <= 0):  # pragma: no cover - bisection keeps signs

@@ -270,7 +270,8 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
 _OMIT_AT_DEFAULT = (("pins", "layout"), ("pins", "rotation_deg"), ("pins", "mapping"),
                     ("fidelity", "contact_tolerance"), ("fidelity", "contact_refinement"),
                     ("indenter", "friction_coefficient"), ("imaging", "cap_layer"),
-                    ("protocol", "frame_average"))
+                    ("protocol", "frame_average"), ("fidelity", "marker_tolerance_mm"),
+                    ("fidelity", "pin_refinement"))
 
 
 def _default_of(section: str, key: str) -> Any:

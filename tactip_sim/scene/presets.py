@@ -27,7 +27,8 @@ from .schema import SECTIONS
 
 PRESET_KEYS: dict[str, tuple[str, ...]] = {
     "fidelity": ("mesh_edge_mm", "tetwild_epsilon", "surface_resolution", "refine_edge_mm",
-                 "refine_radius_mm", "element_order", "material_model", "contact_solver"),
+                 "refine_radius_mm", "element_order", "material_model", "contact_solver",
+                 "pin_refinement"),
     "pins": ("model",),
     "imaging": ("spp", "refraction", "shading"),
     "camera": ("resolution", "pixel_pitch_um"),
@@ -41,14 +42,16 @@ BUILTIN_PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     # every cheap choice that keeps the geometry right: linear P1 elements, tips embedded in
     # the gel, 1 sample per pixel, 8 frames averaged
     "fast": {
-        "fidelity": {"element_order": 1, "material_model": "linear", "contact_solver": "reduced"},
+        "fidelity": {"element_order": 1, "material_model": "linear", "contact_solver": "reduced",
+                     "pin_refinement": "off"},
         "pins": {"model": "embedded"},
         "imaging": {"spp": 1, "refraction": "analytic", "shading": "diffused"},
         "protocol": {"frames_per_sample": 8},
     },
     # the sweep default: quadratic elements (P1 locks), rod pins, analytic refraction
     "balanced": {
-        "fidelity": {"element_order": 2, "material_model": "linear", "contact_solver": "reduced"},
+        "fidelity": {"element_order": 2, "material_model": "linear", "contact_solver": "reduced",
+                     "pin_refinement": "off"},
         "pins": {"model": "rod"},
         "imaging": {"spp": 4, "refraction": "analytic", "shading": "diffused"},
         "protocol": {"frames_per_sample": 60},
@@ -57,12 +60,13 @@ BUILTIN_PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     # its own contact, so contact_solver does not apply) and caps shaded point by point at
     # 16 spp. Refraction stays analytic (ray bending checked against Mitsuba's dielectrics in
     # docs/optics.md): with the LEDs behind the window every light path is a caustic, and the
-    # path tracer does not converge at affordable spp. The 1 mm mesh of docs/convergence.md:
-    # at the training depth its markers are 0.008-0.018 mm from the 0.8 mm mesh's, as close
-    # as another 1 mm mesh's. Minutes per pose: studies, not sweeps.
+    # path tracer does not converge at affordable spp. The 1 mm mesh of docs/convergence.md,
+    # refined around the pins whose estimated marker error exceeds 0.01 mm and solved again
+    # (pin_refinement): at the corner pose the 1 mm mesh alone is 0.035 mm off at the rim
+    # pins. Many minutes per pose: studies, not sweeps.
     "reference": {
         "fidelity": {"mesh_edge_mm": 1.0, "element_order": 2, "material_model": "neo_hookean",
-                     "contact_solver": "reduced"},
+                     "contact_solver": "reduced", "pin_refinement": "auto"},
         "pins": {"model": "rod"},
         "imaging": {"spp": 16, "refraction": "analytic", "shading": "lambert"},
         "protocol": {"frames_per_sample": 60},

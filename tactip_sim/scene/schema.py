@@ -227,6 +227,18 @@ class Fidelity:
         "off", "str", "mesh the contact zone finer when the estimated error would exceed "
         "contact_tolerance (auto) or never (off)", choices=CONTACT_REFINEMENTS,
     )
+    # docs/convergence.md "An estimate per marker": 0.01 mm, the convergence criterion of the
+    # mesh study (issue 16), not a measured quantity
+    marker_tolerance_mm: float = spec(
+        0.01, "float", "estimated marker (pin tip) error a full-field solve may have before it "
+        "warns (and, with pin_refinement = 'auto', before the skin around those pins is meshed "
+        "finer), mm", lo=0, hi=10, lo_open=True,
+    )
+    pin_refinement: str = spec(
+        "off", "str", "mesh the skin around the pins whose estimated marker error exceeds "
+        "marker_tolerance_mm finer and solve again (auto; full-field solvers) or never (off)",
+        choices=CONTACT_REFINEMENTS,
+    )
 
 
 @dataclass(frozen=True)
