@@ -1,0 +1,162 @@
+"""The per-marker discretisation error estimate (fem.marker_error) and the refinement around
+the pins it drives (fidelity.pin_refinement = "auto")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import tactip_sim as ts
+from tactip_sim.fem.marker_error import marker_error_estimate, recovered_gradient
+from tactip_sim.fem.refine import MAX_PIN_LEVELS, PIN_EDGE_FRACTION, PIN_LEVEL_FACTOR
+from tactip_sim.mesh import REGION_SKIN
+from tactip_sim.scene import SceneError
+
+
+def _quadratic(x: np.ndarray) -> np.ndarray:
+    """A displacement field (mm) of degree 2 in x, y, z: held exactly by P2 elements."""
+    return 1e-3 * np.stack([x[:, 0] * x[:, 1] - 2 * x[:, 2], x[:, 2] ** 2 - x[:, 0],
+                            x[:, 1] * x[:, 2] + x[:, 0] ** 2], axis=1)
+
+
+def _smooth(x: np.ndarray) -> np.ndarray:
+    """A smooth field no polynomial space holds (mm; wavelength ~18 mm, with rotation)."""
+    k = 0.35
+    return 0.05 * np.stack([np.sin(k * x[:, 1]) * np.cos(k * x[:, 2]),
+                            np.sin(k * x[:, 0] + 0.3 * x[:, 2]),
+                            np.cos(k * x[:, 0]) * np.sin(k * x[:, 1])], axis=1)
+
+
+def _exact_markers(markers, space, f) -> np.ndarray:
+    """Rod tips from the analytic field ``f``: its value at the roots and its gradient (central
+    differences) averaged over the same base points, turned by the polar rotation."""
+    lam, el = markers.base_lam, markers.base_elements
+    pts = np.einsum("pki,pkij->pkj", lam, space.nodes[space.elements[el, :4]])
+    h = 1e-5
+    g = np.zeros(pts.shape[:2] + (3, 3))
+    for k in range(3):
+        dx = np.zeros(3)
+        dx[k] = h
+        g[..., :, k] = (f((pts + dx).reshape(-1, 3))
+                        - f((pts - dx).reshape(-1, 3))).reshape(pts.shape) / (2 * h)
+    mean = np.einsum("pkij,k->pij", g, markers.base_weights)
+    uu, _, vt = np.linalg.svd(np.eye(3) + mean)
+    dirs = np.einsum("pij,pj->pi", uu @ vt, markers.directions)
+    return markers.roots_mm + f(markers.roots_mm) + markers.length_mm * dirs
+
+
+def _body(scene, edge_mm: float):
+    sim = ts.Simulator(ts.replace_in(scene, fidelity={"mesh_edge_mm": edge_mm}))
+    return sim, np.flatnonzero(sim.mesh.regions == REGION_SKIN)
+
+
+def test_recovery_and_estimate_are_exact_for_fields_the_elements_hold(scene):
+    """P2 holds a quadratic field exactly: its gradient is continuous and linear, so the
+    recovered gradient equals it at every vertex and the estimate is zero."""
+    sim, skin = _body(scene, 2.0)
+    space = sim.body.space
+    u = _quadratic(space.nodes).ravel()
+    est = marker_error_estimate(sim.body.markers, space, u, skin)
+    assert est.shape == (97,) and est.max() < 1e-12
+    vertices = np.unique(space.elements[skin, :4])
+    x = space.nodes[vertices]
+    exact = 1e-3 * np.stack([  # d u_c / d x_k, row-major (3 c + k)
+        x[:, 1], x[:, 0], np.full(len(x), -2.0), np.full(len(x), -1.0), np.zeros(len(x)),
+        2 * x[:, 2], 2 * x[:, 0], x[:, 2], x[:, 1]], axis=1)
+    assert np.abs(recovered_gradient(space, u, skin)[vertices] - exact).max() < 1e-12
+
+
+def test_estimate_bounds_the_true_marker_error_and_falls_with_the_mesh(scene):
+    """A smooth field interpolated on the 2 mm and the 1 mm meshes: the estimate lies above
+    the interpolant's true marker error (against the analytic field's markers), within a
+    factor 10, and falls when the mesh is refined."""
+    largest = {}
+    for edge in (2.0, 1.0):
+        sim, skin = _body(scene, edge)
+        space, markers = sim.body.space, sim.body.markers
+        u = _smooth(space.nodes).ravel()
+        est = marker_error_estimate(markers, space, u, skin)
+        true = np.linalg.norm(markers.from_field(u, finite=True)[0]
+                              - _exact_markers(markers, space, _smooth), axis=1)
+        assert true.max() < est.max() < 10 * true.max(), (edge, est.max(), true.max())
+        largest[edge] = est.max()
+    assert largest[1.0] < 0.5 * largest[2.0]
+
+
+def test_estimate_needs_the_full_field(scene):
+    sim, skin = _body(scene, 2.0)
+    with pytest.raises(ValueError, match="one value per degree of freedom"):
+        marker_error_estimate(sim.body.markers, sim.body.space, np.zeros(5), skin)
+    embedded = ts.Simulator(ts.replace_in(scene, pins={"model": "embedded"}), mesh=sim.mesh)
+    u = np.zeros(embedded.body.space.n_dofs)
+    assert marker_error_estimate(embedded.body.markers, embedded.body.space, u, skin) is None
+
+
+def test_pin_refinement_refines_the_flagged_pins_until_their_estimate_falls(scene):
+    """Neo-Hookean P1 on the bundled 2 mm mesh at a corner pose: the pins the first solve
+    flags are refined (their estimates fall), the state says which and how fine, and the
+    unflagged press warns instead."""
+    base = ts.replace_in(scene, fidelity={"material_model": "neo_hookean", "element_order": 1,
+                                          "marker_tolerance_mm": 0.08})
+    pose = ts.Pose(12, -8.8, 1.0)
+    first = ts.Simulator(base).press(pose)
+    flagged = set(np.flatnonzero(first.marker_errors_mm > 0.08).tolist())
+    assert flagged and first.refined_pins == () and first.pin_edge_mm == 0.0
+    sim = ts.Simulator(ts.replace_in(base, fidelity={"pin_refinement": "auto"}))
+    state = sim.press(pose)
+    refined = list(state.refined_pins)
+    assert flagged <= set(refined)
+    assert np.all(state.marker_errors_mm[refined] < first.marker_errors_mm[refined])
+    edges = [PIN_EDGE_FRACTION * 2.0 * PIN_LEVEL_FACTOR**k for k in range(MAX_PIN_LEVELS)]
+    assert any(np.isclose(state.pin_edge_mm, e) for e in edges)
+    if state.marker_error_estimate_mm > 0.08:  # only after the last level
+        assert np.isclose(state.pin_edge_mm, edges[-1]) or set(refined) != flagged
+    # the same force within the estimate's scale, a plate over most of the pad
+    assert state.force_N == pytest.approx(first.force_N, rel=0.1)
+    assert state.summary()["refined_pins"] == refined
+
+
+@pytest.mark.parametrize("value", [0.0, -0.01])
+def test_marker_tolerance_must_be_positive(scene, value):
+    with pytest.raises(SceneError, match=r"fidelity.marker_tolerance_mm=.*allowed \(0, 10\]"):
+        ts.replace_in(scene, fidelity={"marker_tolerance_mm": value})
+
+
+def test_pin_refinement_is_auto_or_off(scene):
+    with pytest.raises(SceneError, match="pin_refinement"):
+        ts.replace_in(scene, fidelity={"pin_refinement": "always"})
+
+
+def test_refinement_around_several_pins_sizes_each_ball(scene, mesh, pad):
+    """A zone made of balls around two pins' roots, far apart: every tet whose centroid lies in
+    either ball has edges of at most the zone's edge; tets far from both keep the base
+    mesh's."""
+    from tactip_sim.mesh.local import Refinement, refined_mesh
+
+    roots = pad.pins.roots[[0, 96]]
+    ref = Refinement(tuple(map(tuple, roots)), 0.8, 1.5)
+    fine = refined_mesh(scene, ref, base=mesh, use_cache=False)
+    raw = fine.mesher_nodes[fine.tets]  # as bisected, before the nodes are snapped
+    centroids = raw.mean(axis=1)
+    edges = np.linalg.norm(raw[:, [0, 0, 0, 1, 1, 2]] - raw[:, [1, 2, 3, 2, 3, 3]],
+                           axis=2).max(axis=1)
+    dist = np.linalg.norm(centroids[:, None] - roots[None], axis=2)
+    assert edges[(dist < 1.5).any(axis=1)].max() <= 0.8 + 1e-9
+    for r in roots:
+        assert (np.linalg.norm(centroids - r, axis=1) < 1.5).sum() > 20
+    far = (dist > 1.5 + (4 * 2.0 - 0.8) / 0.5).all(axis=1)  # beyond the graded zone
+    base_centroids = mesh.mesher_nodes[mesh.tets].mean(axis=1)
+    base_far = (np.linalg.norm(base_centroids[:, None] - roots[None], axis=2)
+                > 1.5 + (4 * 2.0 - 0.8) / 0.5 + 2.0).all(axis=1)
+    assert far.sum() >= base_far.sum() > 0
+
+
+def test_refinement_needs_points():
+    from tactip_sim.mesh.local import Refinement
+
+    with pytest.raises(ValueError, match="centres_mm.*allowed one or more finite"):
+        Refinement((), 0.5, 1.0)
+    with pytest.raises(ValueError, match="centres_mm"):
+        Refinement(((0.0, 1.0),), 0.5, 1.0)
+    with pytest.raises(ValueError, match="radius_mm=0.*allowed > 0"):
+        Refinement(((0.0, 1.0, 2.0),), 0.5, 0.0)
