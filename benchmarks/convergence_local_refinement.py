@@ -17,13 +17,15 @@ Usage::
     python benchmarks/convergence_local_refinement.py --out /tmp/localref --edges 0.6 0.45 \\
         --radius 1.5 --instances 0                                            # 3 presses
     python benchmarks/convergence_local_refinement.py --out /tmp/localref --no-solve
+    python benchmarks/convergence_local_refinement.py --out /tmp/pinsA --roll -4.2 --pitch -8.8 \
+        --auto-pins --instances 0                            # the pins the estimate flags
 
 Each press is stored in ``OUT`` as it finishes (the fresh mesh too); a rerun solves only the
 missing ones. Prints the largest / mean marker difference of each pair (mm), the leading
 markers, the force and the tet counts; and, for each mesh as built, a hierarchical error
 indicator per marker (the marker from the solution's P2 field against the marker from its
-vertex values alone, interpolated linearly on the same mesh) beside how far the finest
-refinement moved it.
+vertex values alone, interpolated linearly on the same mesh) and the product's estimate
+(:mod:`tactip_sim.fem.marker_error`) beside how far the finest refinement moved each marker.
 """
 
 from __future__ import annotations
@@ -87,12 +89,23 @@ def case_path(out: Path, label: str) -> Path:
     return out / f"{label.replace(' ', '_').replace('/', '_r')}.npz"
 
 
-def solve(label: str, instance: int, edge: float | None, pose, a, out: Path) -> Path:
+def refined_pins(a, out: Path, instance: int, edges) -> list[int]:
+    """The pins to refine around: ``--pins``, or with ``--auto-pins`` those whose estimate on
+    the instance's unrefined press (solved first) exceeds ``--tolerance``."""
+    if not a.auto_pins:
+        return list(a.pins)
+    label = next(lab for lab, i, e in cases(edges, a.radius, [instance]) if e is None)
+    with np.load(case_path(out, label)) as z:
+        return np.flatnonzero(z["estimate"] > a.tolerance).tolist()
+
+
+def solve(label: str, instance: int, edge: float | None, pose, a, out: Path,
+          pins: list[int]) -> Path:
     import tactip_sim as ts
     from tactip_sim.geometry import build_pad
 
     path = case_path(out, label)
-    pins = list(a.pins) if edge is not None else []
+    pins = pins if edge is not None else []
     if path.is_file():
         with np.load(path) as z:  # a press of another study in the same folder is not reused
             if "pose" in z.files and not (np.allclose(z["pose"], pose)
@@ -116,7 +129,7 @@ def solve(label: str, instance: int, edge: float | None, pose, a, out: Path) -> 
                                             finite=True)[0]
     tmp = out / f".{path.name}"
     np.savez(tmp, markers=state.markers_mm, force=state.force_N, seconds=seconds,
-             p1_markers=p1_markers,
+             p1_markers=p1_markers, estimate=state.marker_errors_mm,
              tets=len(mesh.tets), dofs=sim.body.space.n_dofs, pose=np.array(pose),
              pins=np.array(pins, dtype=int))
     tmp.replace(path)
@@ -134,6 +147,13 @@ def main() -> None:
     ap.add_argument("--radius", type=float_in(0.5, 10.0), default=2.5,
                     help="radius around each pin's root meshed at --edges, mm (default 2.5)")
     ap.add_argument("--no-solve", action="store_true", help="only compare stored presses")
+    ap.add_argument("--tolerance", type=float_in(1e-4, 1.0), default=0.01,
+                    help="print the pins whose indicator exceeds this, mm (default 0.01, "
+                    "fidelity.marker_tolerance_mm's)")
+    ap.add_argument("--auto-pins", action="store_true",
+                    help="refine around the pins the product's estimate flags (above "
+                    "--tolerance) on the unrefined mesh of each instance, not --pins (what "
+                    "fidelity.pin_refinement = 'auto' does at its first level)")
     a = ap.parse_args()
     if any(not 0 <= p < 97 for p in a.pins):
         ap.error(f"--pins {a.pins}: allowed 0-96")
@@ -144,17 +164,19 @@ def main() -> None:
         from tqdm import tqdm
 
         for label, instance, edge in tqdm(study, desc="presses", unit="press"):
-            solve(label, instance, edge, pose, a, a.out)
+            pins = [] if edge is None else refined_pins(a, a.out, instance, a.edges)
+            solve(label, instance, edge, pose, a, a.out, pins)
     runs = {}
     for label, _, _ in study:
         if case_path(a.out, label).is_file():
             with np.load(case_path(a.out, label)) as z:
                 runs[label] = {k: z[k] for k in z.files}
     print(f"pose {a.roll:g} / {a.pitch:g} deg, {a.depth:g} mm; 'refined E/R': every tet within "
-          f"R mm of pins {a.pins}' roots bisected to edges of at most E mm")
+          "R mm of the listed pins' roots bisected to edges of at most E mm")
     for label, r in runs.items():
         print(f"  {label:<28} {int(r['tets']):7d} tets {int(r['dofs']):8d} dofs "
-              f"{float(r['force']):8.4f} N {float(r['seconds']):7.1f} s")
+              f"{float(r['force']):8.4f} N {float(r['seconds']):7.1f} s"
+              + (f"  pins {r['pins'].tolist()}" if r.get("pins", np.zeros(0)).size else ""))
     same_level = [(p, q) for p, i, e in study for q, j, f in study if i == 0 < j and e == f]
     successive = [(p, q) for (p, i, _), (q, j, _) in zip(study, study[1:], strict=False)
                   if i == j]
@@ -166,21 +188,31 @@ def main() -> None:
         lead = ", ".join(f"#{i} {d[i]:.4f}" for i in np.argsort(d)[::-1][:3])
         print(f"  {p:>28} -> {q:<28} {d.max():.4f} / {d.mean():.4f}  ({lead}), force "
               f"{100 * (float(runs[q]['force']) / float(runs[p]['force']) - 1):+.2f} %")
-    for label, instance, edge in study:  # the indicator against what refinement moved
-        if edge is not None or label not in runs or "p1_markers" not in runs[label]:
+    for label, instance, edge in study:  # the indicators against what refinement moved
+        if label not in runs:
             continue
         finest = [q for q, j, f in study if j == instance and f is not None][-1:] or [None]
         finest = finest[0]
-        ind = np.linalg.norm(runs[label]["markers"] - runs[label]["p1_markers"], axis=1)
-        top = np.argsort(ind)[::-1][:8]
-        print(f"{label}: |P2 - P1 of the same solution| at the markers, the largest: "
-              + ", ".join(f"#{i} {ind[i]:.3f}" for i in top))
-        if finest in runs:
+        indicators = {"the product's estimate (fem.marker_error)": runs[label].get("estimate")}
+        if "p1_markers" in runs[label] and edge is None:
+            indicators["|P2 - P1 of the same solution|"] = np.linalg.norm(
+                runs[label]["markers"] - runs[label]["p1_markers"], axis=1)
+        moved = None
+        if finest in runs and finest != label:
             moved = np.linalg.norm(runs[label]["markers"] - runs[finest]["markers"], axis=1)
-            rho = np.corrcoef(np.argsort(np.argsort(ind)), np.argsort(np.argsort(moved)))[0, 1]
-            print(f"  moved by refinement ({finest}), the largest: "
-                  + ", ".join(f"#{i} {moved[i]:.4f}" for i in np.argsort(moved)[::-1][:8])
-                  + f"; rank correlation with the indicator over the pins {rho:.2f}")
+            print(f"{label}: moved by refinement ({finest}), the largest: "
+                  + ", ".join(f"#{i} {moved[i]:.4f}" for i in np.argsort(moved)[::-1][:8]))
+        for name, ind in indicators.items():
+            if ind is None or ind.ndim == 0:
+                continue
+            top = np.argsort(ind)[::-1][:8]
+            line = (f"{label}: {name}, the largest: "
+                    + ", ".join(f"#{i} {ind[i]:.4f}" for i in top)
+                    + f"; above {a.tolerance:g} mm: {np.flatnonzero(ind > a.tolerance).tolist()}")
+            if moved is not None:
+                rho = np.corrcoef(np.argsort(np.argsort(ind)), np.argsort(np.argsort(moved)))[0, 1]
+                line += f"; rank correlation with what refinement moved {rho:.2f}"
+            print(line)
 
 
 if __name__ == "__main__":
