@@ -160,3 +160,24 @@ def test_refinement_needs_points():
         Refinement(((0.0, 1.0),), 0.5, 1.0)
     with pytest.raises(ValueError, match="radius_mm=0.*allowed > 0"):
         Refinement(((0.0, 1.0, 2.0),), 0.5, 0.0)
+
+
+def test_press_reports_the_marker_estimate_and_warns_above_the_tolerance(capsys, scene_path):
+    """``tactip press`` with a full-field solver prints the largest marker estimate and warns,
+    naming the key, when it exceeds the tolerance; the reduced solver forms no field and
+    reports none."""
+    import json
+
+    from tactip_sim.commands import main
+
+    args = ["press", str(scene_path), "--set", "fidelity.element_order=1", "--roll", "12",
+            "--pitch", "-8.8", "--depth", "1", "--solver", "full"]
+    assert main([*args, "--set", "fidelity.marker_tolerance_mm=0.02"]) == 0
+    out, err = capsys.readouterr()
+    assert "estimated marker error" in out and "tolerance 0.02 mm" in out
+    assert "fidelity.marker_tolerance_mm = 0.02 mm" in err and "pin_refinement" in err
+    assert main([*args, "--set", "fidelity.marker_tolerance_mm=5", "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert 0.02 < json.loads(out)["marker_error_estimate_mm"] < 5 and "marker" not in err
+    assert main(["press", str(scene_path), "--depth", "1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["marker_error_estimate_mm"] is None

@@ -24,7 +24,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "reduced solver, the surface compliance (tens of seconds at P2). Every solve "
             "reports its estimated discretisation error of the force and warns when it exceeds "
             "the scene's fidelity.contact_tolerance; with fidelity.contact_refinement = 'auto' "
-            "the contact zone is meshed finer first (minutes on a first press). With "
+            "the contact zone is meshed finer first (minutes on a first press). Full-field "
+            "solves (full, neo_hookean) also estimate each marker's error and warn above "
+            "fidelity.marker_tolerance_mm; with fidelity.pin_refinement = 'auto' the skin "
+            "around those pins is meshed finer and the pose solved again. With "
             "--friction > 0 the pose is reached along a load path (--path, --steps; "
             "docs/fem.md, Friction)."
         ),
@@ -97,6 +100,8 @@ def _indenter(args: argparse.Namespace, scene):
 
 
 def _cmd_press(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from ..fem.contact import ContactError
     from ..fem.loadpath import check_friction, check_steps
     from ..fem.pose import Pose
@@ -136,6 +141,14 @@ def _cmd_press(args: argparse.Namespace) -> int:
               f"{100 * tolerance:g} %: the mesh (node spacing {state.node_spacing_mm:.3g} mm) "
               f"under-resolves this contact; set fidelity.contact_refinement = 'auto' to mesh "
               f"it finer", file=sys.stderr)
+    marker_tol = scene.fidelity.marker_tolerance_mm
+    if state.marker_error_estimate_mm > marker_tol:
+        print(f"warning: the estimated discretisation error of marker "
+              f"{int(np.argmax(state.marker_errors_mm))}, {state.marker_error_estimate_mm:.3g} "
+              f"mm, exceeds fidelity.marker_tolerance_mm = {marker_tol:g} mm "
+              f"({int(np.sum(state.marker_errors_mm > marker_tol))} markers above it); set "
+              "fidelity.pin_refinement = 'auto' to mesh the skin around those pins finer",
+              file=sys.stderr)
     if path != "direct":
         summary["load_path"] = {"path": path, "steps": args.steps, "friction": mu,
                                 "seconds": total_s,
@@ -162,6 +175,12 @@ def _cmd_press(args: argparse.Namespace) -> int:
                  if state.refined_edge_mm else "on the scene's mesh")
         print(f"  estimated force error {100 * state.error_estimate:.2f} % (tolerance "
               f"{100 * tolerance:g} %), node spacing {state.node_spacing_mm:.3g} mm, {where}")
+    if not np.isnan(state.marker_error_estimate_mm):
+        where = (f"on the skin refined to {state.pin_edge_mm:.3g} mm edges around "
+                 f"{len(state.refined_pins)} pins" if state.refined_pins
+                 else "on the scene's mesh")
+        print(f"  estimated marker error {state.marker_error_estimate_mm:.4f} mm, largest "
+              f"(tolerance {marker_tol:g} mm), {where}")
     if path != "direct":
         print(f"  load path {path}, {args.steps} steps, friction {mu:g} (time: the last step; "
               f"whole path {total_s:.2f} s)")
