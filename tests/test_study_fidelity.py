@@ -147,9 +147,12 @@ def test_sweep_with_fidelity_auto_uses_and_records_the_choice(study, scene_path,
         argv += [a for k, v in kv.items() for a in ("--set", f"{sec}.{k}={json.dumps(v)}")]
     assert main(argv) == 0
     manifest = json.loads((ds / "manifest.json").read_text())
+    from tactip_sim.scene import scene_from_dict
+
+    recorded = scene_from_dict(manifest["scene"])  # (the dict omits some keys at default)
     for sec, kv in choice["settings"].items():
         for k, v in kv.items():
-            assert manifest["scene"][sec][k] == v, (sec, k)
+            assert getattr(getattr(recorded, sec), k) == v, (sec, k)
     # a study of another scene is refused
     bad = argv[:argv.index("--set")] + ["--set", "imaging.spp=5"]
     assert main(bad) == 1

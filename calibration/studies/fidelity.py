@@ -182,6 +182,10 @@ class LevelRun:
     cop_px: list[np.ndarray] = field(default_factory=list)  # (2,) in reference px
     timings: dict[str, float] = field(default_factory=dict)
     n: int = 0
+    # the FEM's own estimate of each marker's discretisation error (NaN where the solver
+    # forms no full field) and the pins refined around (fidelity.pin_refinement)
+    marker_errors_mm: list[np.ndarray] = field(default_factory=list)
+    refined_pins: list[list[int]] = field(default_factory=list)
 
 
 class LevelRunner:
@@ -223,6 +227,10 @@ class LevelRunner:
             out.markers_mm.append(np.asarray(s.state.markers_mm, float))
             out.pins_px.append(self.ref_px(s.pins_px))
             out.cop_px.append(self.ref_px(s.perceived.cop_growth))
+            est = s.state.marker_errors_mm
+            out.marker_errors_mm.append(np.full(len(s.state.markers_mm), np.nan) if est is None
+                                        else np.asarray(est, float))
+            out.refined_pins.append(list(s.state.refined_pins))
             out.n += 1
             if bar is not None:
                 bar.update(1)
@@ -378,10 +386,20 @@ def run_fidelity_study(scene: ts.Scene, out: str | Path, *, quick: bool = False,
                  "frames_cap": grid.frames_cap},
         "levels": [{**asdict(r), "speedup_vs_reference": ref_time / r.sample_s
                     if r.sample_s > 0 else np.nan} for r in results],
+        # the reference's own estimated marker error (largest per accuracy pose, mm; NaN
+        # where its solver forms no full field) and the pins it refined around
+        "reference_marker_error_mm": [float(np.max(e)) if np.isfinite(e).any() else np.nan
+                                      for e in ref_run.marker_errors_mm] if ref_run else [],
+        "reference_refined_pins": ref_run.refined_pins if ref_run else [],
         "seconds": time.perf_counter() - t_start,
         "date": time.strftime("%Y-%m-%d"),
     }
     atomic_write_text(out / "summary.json", json.dumps(plain(summary), indent=2) + "\n")
+    if ref_run is not None:  # the reference's markers, for checks against other meshes
+        tmp = out / ".reference_markers.npz"
+        np.savez(tmp, poses=grid.accuracy, markers_mm=np.array(ref_run.markers_mm),
+                 marker_errors_mm=np.array(ref_run.marker_errors_mm))
+        tmp.replace(out / "reference_markers.npz")
     atomic_write_text(out / "levels.csv", _csv(results))
     if charts:
         front_chart(results, out / "front.png", title=f"{scene.name}: speed vs accuracy")
@@ -458,6 +476,14 @@ def report_markdown(summary: dict[str, Any], *, charts: bool = True) -> str:
                  f"fitted on {summary['grid']['n_train']} training poses, scored on "
                  f"{summary['grid']['n_test']} test poses. Study time "
                  f"{summary['seconds']:.0f} s ({summary['date']}).")
+    est = summary.get("reference_marker_error_mm", [])
+    if est and np.isfinite(est).any():
+        pins = summary.get("reference_refined_pins", [])
+        lines.append("")
+        lines.append("The reference's own estimate of its marker error (fem.marker_error), the "
+                     "largest per accuracy pose: " + ", ".join(
+                         f"{e:.4f} mm" + (f" (refined around {len(p)} pins)" if p else "")
+                         for e, p in zip(est, pins or [[]] * len(est), strict=False)) + ".")
     if summary["quick"]:
         lines.append("")
         lines.append("**Quick mode**: tiny grids and frames capped at "
