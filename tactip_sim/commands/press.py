@@ -135,20 +135,23 @@ def _cmd_press(args: argparse.Namespace) -> int:
     total_s = time.perf_counter() - total_s
     summary = state.summary()
     tolerance = scene.fidelity.contact_tolerance
-    if state.error_estimate > tolerance:
-        print(f"warning: the estimated discretisation error of the force, "
-              f"{100 * state.error_estimate:.1f} %, exceeds fidelity.contact_tolerance = "
-              f"{100 * tolerance:g} %: the mesh (node spacing {state.node_spacing_mm:.3g} mm) "
-              f"under-resolves this contact; set fidelity.contact_refinement = 'auto' to mesh "
-              f"it finer", file=sys.stderr)
     marker_tol = scene.fidelity.marker_tolerance_mm
+    warnings = []
+    if state.error_estimate > tolerance:
+        warnings.append(
+            f"the estimated discretisation error of the force, {100 * state.error_estimate:.1f}"
+            f" %, exceeds fidelity.contact_tolerance = {100 * tolerance:g} %: the mesh (node "
+            f"spacing {state.node_spacing_mm:.3g} mm) under-resolves this contact; set "
+            "fidelity.contact_refinement = 'auto' to mesh it finer")
     if state.marker_error_estimate_mm > marker_tol:
-        print(f"warning: the estimated discretisation error of marker "
-              f"{int(np.argmax(state.marker_errors_mm))}, {state.marker_error_estimate_mm:.3g} "
-              f"mm, exceeds fidelity.marker_tolerance_mm = {marker_tol:g} mm "
-              f"({int(np.sum(state.marker_errors_mm > marker_tol))} markers above it); set "
-              "fidelity.pin_refinement = 'auto' to mesh the skin around those pins finer",
-              file=sys.stderr)
+        warnings.append(
+            f"the estimated discretisation error of marker "
+            f"{int(np.argmax(state.marker_errors_mm))}, {state.marker_error_estimate_mm:.3g} mm, "
+            f"exceeds fidelity.marker_tolerance_mm = {marker_tol:g} mm "
+            f"({int(np.sum(state.marker_errors_mm > marker_tol))} markers above it); set "
+            "fidelity.pin_refinement = 'auto' to mesh the skin around those pins finer")
+    for text in warnings:
+        print(f"warning: {text}", file=sys.stderr)
     if path != "direct":
         summary["load_path"] = {"path": path, "steps": args.steps, "friction": mu,
                                 "seconds": total_s,
