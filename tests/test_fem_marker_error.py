@@ -181,3 +181,21 @@ def test_press_reports_the_marker_estimate_and_warns_above_the_tolerance(capsys,
     assert 0.02 < json.loads(out)["marker_error_estimate_mm"] < 5 and "marker" not in err
     assert main(["press", str(scene_path), "--depth", "1", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["marker_error_estimate_mm"] is None
+
+
+def test_refinement_with_one_edge_per_ball(scene, mesh, pad):
+    """Two balls with different edges: each is meshed to its own."""
+    from tactip_sim.mesh.local import Refinement, refined_mesh
+
+    roots = pad.pins.roots[[0, 96]]
+    fine = refined_mesh(scene, Refinement(tuple(map(tuple, roots)), (0.6, 1.2), 1.5),
+                        base=mesh, use_cache=False)
+    raw = fine.mesher_nodes[fine.tets]
+    centroids = raw.mean(axis=1)
+    edges = np.linalg.norm(raw[:, [0, 0, 0, 1, 1, 2]] - raw[:, [1, 2, 3, 2, 3, 3]],
+                           axis=2).max(axis=1)
+    near = [np.linalg.norm(centroids - r, axis=1) < 1.5 for r in roots]
+    assert edges[near[0]].max() <= 0.6 + 1e-9 and edges[near[1]].max() <= 1.2 + 1e-9
+    assert edges[near[1]].max() > 0.6  # the coarser ball is not meshed to the finer edge
+    with pytest.raises(ValueError, match=r"edge_mm=\(0.6, 1.2, 1.0\) is out of range.*one per"):
+        Refinement(tuple(map(tuple, roots)), (0.6, 1.2, 1.0), 1.5)

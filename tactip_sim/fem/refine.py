@@ -12,8 +12,8 @@ are cached on disk and the last few refined simulators (with their factorisation
 Refinement around the pins (``fidelity.pin_refinement = "auto"``, :class:`PinRefiner`): after
 a full-field solve, each marker's error is estimated (:mod:`~tactip_sim.fem.marker_error`); if
 any exceeds ``fidelity.marker_tolerance_mm``, the pose is solved again on the mesh refined
-around those pins' roots, and again (a pin that joined the set, or one level finer) while the
-refined solve's own estimate still exceeds it.
+around those pins' roots, and again while the refined solve's own estimate still exceeds it
+(a pin newly above it joins the set; one refined already is meshed finer, the others stay).
 """
 
 from __future__ import annotations
@@ -147,25 +147,27 @@ class PinRefiner:
         self.make = make
         self._children: OrderedDict[tuple, object] = OrderedDict()
 
-    def child(self, pins: tuple[int, ...], edge_mm: float):
-        """The simulator on the mesh refined to ``edge_mm`` around ``pins``' roots."""
+    def child(self, edges: dict[int, float]):
+        """The simulator on the mesh refined around the pins of ``edges`` (pin -> largest edge
+        within :data:`PIN_RADIUS_MM` of its root)."""
         from ..mesh.local import Refinement, refined_mesh
         from ..scene import replace_in
 
-        key = (pins, edge_mm)
+        key = tuple(sorted(edges.items()))
         if key in self._children:
             self._children.move_to_end(key)
             return self._children[key]
         sim = self.sim
-        roots = sim.pad.pins.roots[list(pins)]
-        ref = Refinement(tuple(map(tuple, roots)), edge_mm, PIN_RADIUS_MM)
+        pins = [p for p, _ in key]
+        roots = sim.pad.pins.roots[pins]
+        ref = Refinement(tuple(map(tuple, roots)), tuple(e for _, e in key), PIN_RADIUS_MM)
         mesh = refined_mesh(sim.scene, ref, base=sim.mesh, use_cache=sim.use_cache)
         scene = replace_in(sim.scene, fidelity={"pin_refinement": "off"})
         child = self.make(scene, pad=sim.pad, mesh=mesh, element_order=sim.body.order,
                           solver=sim.solver, use_cache=sim.use_cache, tol=sim.tol)
         child.warn_under_resolved = False  # the parent reports the press
-        log.info("refined the skin around %d pins to %.3g mm edges: %d tets", len(pins),
-                 edge_mm, len(mesh.tets))
+        log.info("refined the skin around %d pins to %.3g-%.3g mm edges: %d tets", len(pins),
+                 min(ref.edge_mm), max(ref.edge_mm), len(mesh.tets))
         self._children[key] = child
         while len(self._children) > KEEP:
             self._children.popitem(last=False)
@@ -173,24 +175,21 @@ class PinRefiner:
 
     def press(self, pose, indenter, solver: str, first, tolerance_mm: float):
         """Solve ``pose`` again on meshes refined around the pins ``first`` (the state on the
-        scene's mesh) estimates above ``tolerance_mm``; a pin still above it after a refined
-        solve joins the set, or, when every such pin was refined already, the next level is
+        scene's mesh) estimates above ``tolerance_mm``; after a refined solve, a pin still
+        above it joins the set, or, if it was refined already, its zone is made
         :data:`PIN_LEVEL_FACTOR` finer (at most :data:`MAX_PIN_LEVELS` refined solves).
-        Returns the last state, the pins refined and the edge."""
-        flagged = np.asarray(first.marker_errors_mm) > tolerance_mm
+        Returns the last state, the pins refined and the finest zone's edge."""
         edge = PIN_EDGE_FRACTION * self.sim.scene.fidelity.mesh_edge_mm
+        edges = {int(p): edge for p in np.flatnonzero(first.marker_errors_mm > tolerance_mm)}
         state = first
         for level in range(MAX_PIN_LEVELS):
-            pins = tuple(int(i) for i in np.flatnonzero(flagged))
-            state = self.child(pins, edge)._press(pose, indenter, solver, False)
-            high = np.asarray(state.marker_errors_mm) > tolerance_mm
-            if not high.any() or level == MAX_PIN_LEVELS - 1:
+            state = self.child(edges)._press(pose, indenter, solver, False)
+            high = np.flatnonzero(np.asarray(state.marker_errors_mm) > tolerance_mm)
+            if len(high) == 0 or level == MAX_PIN_LEVELS - 1:
                 break
-            if (high & ~flagged).any():
-                flagged |= high
-            else:
-                edge *= PIN_LEVEL_FACTOR
-        return state, pins, edge
+            for p in map(int, high):
+                edges[p] = edges[p] * PIN_LEVEL_FACTOR if p in edges else edge
+        return state, tuple(sorted(edges)), min(edges.values())
 
     def clear(self) -> None:
         self._children.clear()

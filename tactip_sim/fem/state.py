@@ -67,7 +67,7 @@ class ContactState:
         (the reduced solver without ``full_field``) or the pins are not rods with a base
     refined_pins : pins around whose roots the mesh was refined for this solve
         (``fidelity.pin_refinement = "auto"``); empty when solved on the scene's mesh
-    pin_edge_mm : largest edge of the skin around those pins (0 when none was refined)
+    pin_edge_mm : largest edge of the finest zone around those pins (0 when none was refined)
     """
 
     pose: Pose

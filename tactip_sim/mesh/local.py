@@ -38,26 +38,32 @@ class Refinement:
 
     centres_mm : ((x, y, z), ...) sensor frame, the balls' centres (a contact's: on the top
         face, :meth:`on_top`; pins': their roots)
-    edge_mm : largest tet edge within the balls
+    edge_mm : largest tet edge within the balls: one for all, or one per ball (a tuple)
     radius_mm : the balls' radius; beyond it the allowed edge grows by :data:`GRADING` mm per
-        mm of distance to the nearest ball, up to the base mesh's
+        mm of distance to a ball, up to the base mesh's (the smallest over the balls)
     """
 
     centres_mm: tuple[tuple[float, float, float], ...]
-    edge_mm: float
+    edge_mm: float | tuple[float, ...]
     radius_mm: float
 
     def __post_init__(self) -> None:
-        for name in ("edge_mm", "radius_mm"):
-            v = float(getattr(self, name))
-            if not (v > 0 and np.isfinite(v)):
-                raise ValueError(f"{name}={getattr(self, name)!r} is out of range: allowed > 0")
-            object.__setattr__(self, name, v)
         c = np.asarray(self.centres_mm, dtype=np.float64)
         if c.ndim != 2 or c.shape[1] != 3 or len(c) == 0 or not np.isfinite(c).all():
             raise ValueError(f"centres_mm={self.centres_mm!r} is out of range: allowed one or "
                              "more finite (x, y, z) points")
         object.__setattr__(self, "centres_mm", tuple(tuple(map(float, p)) for p in c))
+        edges = np.atleast_1d(np.asarray(self.edge_mm, dtype=np.float64))
+        if (edges.ndim != 1 or len(edges) not in (1, len(c)) or not np.isfinite(edges).all()
+                or (edges <= 0).any()):
+            raise ValueError(f"edge_mm={self.edge_mm!r} is out of range: allowed > 0, one "
+                             f"value or one per centre ({len(c)})")
+        object.__setattr__(self, "edge_mm", float(edges[0]) if np.ndim(self.edge_mm) == 0
+                           else tuple(map(float, edges)))
+        v = float(self.radius_mm)
+        if not (v > 0 and np.isfinite(v)):
+            raise ValueError(f"radius_mm={self.radius_mm!r} is out of range: allowed > 0")
+        object.__setattr__(self, "radius_mm", v)
 
     @classmethod
     def on_top(cls, mesh: TetMesh, centre_mm, edge_mm: float, radius_mm: float
@@ -68,9 +74,13 @@ class Refinement:
 
     def target(self, points: np.ndarray, cap_mm: float) -> np.ndarray:
         """(n,) mm: the largest edge allowed at ``points`` (n, 3)."""
-        dist, _ = cKDTree(np.asarray(self.centres_mm)).query(points)
-        return np.minimum(self.edge_mm + GRADING * np.maximum(dist - self.radius_mm, 0.0),
-                          cap_mm)
+        centres = np.asarray(self.centres_mm)
+        edges = np.broadcast_to(np.asarray(self.edge_mm, dtype=np.float64), (len(centres),))
+        out = np.full(len(points), float(cap_mm))
+        for edge in np.unique(edges):  # one KD-tree per edge value
+            dist, _ = cKDTree(centres[edges == edge]).query(points)
+            np.minimum(out, edge + GRADING * np.maximum(dist - self.radius_mm, 0.0), out=out)
+        return out
 
 
 def bisect_to_size(nodes: np.ndarray, tets: np.ndarray, regions: np.ndarray, target,
