@@ -131,7 +131,7 @@ def test_refinement_around_several_pins_sizes_each_ball(scene, mesh, pad):
     """A zone made of balls around two pins' roots, far apart: every tet whose centroid lies in
     either ball has edges of at most the zone's edge; tets far from both keep the base
     mesh's."""
-    from tactip_sim.mesh.local import Refinement, refined_mesh
+    from tactip_sim.mesh.local import GRADING, Refinement, refined_mesh
 
     roots = pad.pins.roots[[0, 96]]
     ref = Refinement(tuple(map(tuple, roots)), 0.8, 1.5)
@@ -144,11 +144,16 @@ def test_refinement_around_several_pins_sizes_each_ball(scene, mesh, pad):
     assert edges[(dist < 1.5).any(axis=1)].max() <= 0.8 + 1e-9
     for r in roots:
         assert (np.linalg.norm(centroids - r, axis=1) < 1.5).sum() > 20
-    far = (dist > 1.5 + (4 * 2.0 - 0.8) / 0.5).all(axis=1)  # beyond the graded zone
-    base_centroids = mesh.mesher_nodes[mesh.tets].mean(axis=1)
-    base_far = (np.linalg.norm(base_centroids[:, None] - roots[None], axis=2)
-                > 1.5 + (4 * 2.0 - 0.8) / 0.5 + 2.0).all(axis=1)
-    assert far.sum() >= base_far.sum() > 0
+    # where the allowed edge exceeds the base mesh's longest (plus two of them for the
+    # conforming closure) no tet is split: every tet there is one of the base mesh's, on the
+    # same nodes (bisection keeps the original nodes first)
+    base_raw = mesh.mesher_nodes[mesh.tets]
+    longest = np.linalg.norm(base_raw[:, [0, 0, 0, 1, 1, 2]] - base_raw[:, [1, 2, 3, 2, 3, 3]],
+                             axis=2).max()
+    far = (dist > 1.5 + (longest - 0.8) / GRADING + 2 * longest).all(axis=1)
+    base = {tuple(t) for t in np.sort(mesh.tets, axis=1).tolist()}
+    kept = [tuple(t) in base for t in np.sort(fine.tets[far], axis=1).tolist()]
+    assert far.sum() > 100 and all(kept)
 
 
 def test_refinement_needs_points():
