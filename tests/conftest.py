@@ -48,25 +48,29 @@ def sigint_as_at_a_terminal() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def rod_end_heights(markers, u):
-    """(p, n) heights of the rods' end points at the nodal displacements ``u``, written out
-    here from the definition (root + R m_k, R the polar rotation of the base's mean
-    F = I + grad u), not with the solver's own kinematics: a second method for its
-    derivatives and forces."""
+def rod_end_points(markers, u):
+    """(p, n, 3) the rods' end points at the nodal displacements ``u``, written out here from
+    the definition (root + R m_k, R the polar rotation of the base's mean F = I + grad u),
+    not with the solver's own kinematics: a second method for its derivatives and forces."""
     import numpy as np
 
     f = np.eye(3) + (markers.gradient @ u).reshape(-1, 3, 3)
     left, _, right = np.linalg.svd(f)
     root = markers.roots_mm + (markers.operator @ u).reshape(-1, 2, 3)[:, 0]
-    return root[:, None, 2] + np.einsum("pij,pkj->pki", left @ right,
-                                        markers.end_offsets)[..., 2]
+    return root[:, None, :] + np.einsum("pij,pkj->pki", left @ right, markers.end_offsets)
 
 
-def virtual_work_error(body, u, contact, end_forces, seed=5):
+def rod_end_heights(markers, u):
+    """(p, n) heights of the rods' end points (:func:`rod_end_points`)."""
+    return rod_end_points(markers, u)[..., 2]
+
+
+def virtual_work_error(body, u, contact, end_forces, seed=5, end_tangential=None):
     """Relative difference between the virtual work of the out-of-balance force (internal
-    minus the indenter's contact forces) and the window's forces ``end_forces`` (p, n) along
-    a random direction of the free dofs (heights by central differences of
-    :func:`rod_end_heights`): 0 when the pad balances the window."""
+    minus the indenter's contact forces) and the window's forces ``end_forces`` (p, n) (and
+    its friction ``end_tangential`` (p, n, 2), if given) along a random direction of the free
+    dofs (the end points' motion by central differences of :func:`rod_end_points`): 0 when
+    the pad balances the window."""
     import numpy as np
 
     from tactip_sim.fem.neohookean import NeoHookeanBody
@@ -77,7 +81,9 @@ def virtual_work_error(body, u, contact, end_forces, seed=5):
     v = np.zeros_like(f_int)
     v[body.free] = np.random.default_rng(seed).standard_normal(len(body.free))
     h = 1e-6
-    dz = (rod_end_heights(body.markers, u + h * v)
-          - rod_end_heights(body.markers, u - h * v)) / (2 * h)
-    window = np.sum(end_forces * dz)
+    dx = (rod_end_points(body.markers, u + h * v)
+          - rod_end_points(body.markers, u - h * v)) / (2 * h)
+    window = np.sum(end_forces * dx[..., 2])
+    if end_tangential is not None:
+        window += np.sum(end_tangential * dx[..., :2])
     return abs((f_int - ext.ravel()) @ v - window) / abs(window)

@@ -55,11 +55,13 @@ from .nh_friction import (
     PENALTY,
     SLIP_ROUNDS,
     PenaltyFriction,
+    WindowFrictionState,
     coulomb_return_mapping,
     normal_basis,
     tangential_part,
+    window_return_mapping,
 )
-from .nh_tips import LinearisedWindow, RodTips
+from .nh_tips import LinearisedWindow, RodTips, local_frames
 from .pose import Pose
 from .tolerances import TOL, Tolerances, single_threaded_blas
 
@@ -82,6 +84,9 @@ class NeoHookeanResult:
     end_forces: np.ndarray | None = None
     """(p, n) mN, the window's force on each end point of each pin (the rims' vertices,
     :attr:`~.markers.Markers.end_offsets`), whose sums are ``window_forces``."""
+    end_tangential: np.ndarray | None = None
+    """(p, n, 2) mN, the window's friction force (x, y) on each end point (None when the
+    window is frictionless)."""
 
 
 @dataclass(frozen=True)
@@ -97,6 +102,8 @@ class NeoHookeanHistory:
     tangential : (k, 3) mN, the tangential parts of their forces (sensor frame)
     window : (p n,) mN or None, the window's force on each end point of the pins
         (:class:`~.nh_tips.RodTips`)
+    window_friction : the window's friction on the end points (forces and penalties), or
+        None
     """
 
     placement: Placement
@@ -106,6 +113,7 @@ class NeoHookeanHistory:
     pressures: np.ndarray
     tangential: np.ndarray
     window: np.ndarray | None = None
+    window_friction: WindowFrictionState | None = None
 
     @classmethod
     def at_rest(cls, placement: Placement, pose: Pose, n_dofs: int) -> NeoHookeanHistory:
@@ -175,7 +183,8 @@ class NeoHookeanBody:
 def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, *,
                       label: str = "", tol: Tolerances = TOL,
                       load_step_mm: float | None = None,
-                      markers: Markers | None = None) -> NeoHookeanResult:
+                      markers: Markers | None = None,
+                      window_mu: float = 0.0) -> NeoHookeanResult:
     """Press the neo-Hookean pad with a placed indenter (load-stepped Newton).
 
     Parameters
@@ -191,23 +200,37 @@ def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, 
     markers : the pins; given, their tips stop at the window's inner face (unilateral
         contact, the tip heights under the finite rod rotation linearised in each Newton
         iteration like the indenter's gaps); None leaves the pins out of the solve
+    window_mu : Coulomb friction between the pins' ends and the window, in [0, 10] (0:
+        frictionless), or ``inf``: an end sticks where it touched. Friction depends on the
+        path: with ``window_mu > 0`` a load step in which a pin's end first touches the
+        window is halved down to :data:`WINDOW_TOUCH_STEP_MM` (:class:`_WindowFriction` says
+        where a point is anchored), and with a finite ``window_mu`` the press is walked in
+        load steps of ``load_step_mm`` (default :data:`WINDOW_FRICTION_STEP_MM`). (An end
+        that sticks is a spring to its anchor, so between touches the stick press does not
+        depend on the path: its steps are as long as Newton converges.)
 
     Raises
     ------
+    ValueError
+        ``window_mu`` out of range.
     ContactError
         Newton did not converge even with ``tol.max_load_steps`` load steps.
     """
+    window_mu = _check_window_mu(window_mu)
+    if 0 < window_mu < np.inf and load_step_mm is None:
+        load_step_mm = WINDOW_FRICTION_STEP_MM
     with single_threaded_blas():  # threaded BLAS on a busy machine: factorisations ~10x slower
         tips = None if markers is None or markers.count == 0 else RodTips(markers)
         return _load_steps(NeoHookeanBody(body), placement, depth_mm, label, tol, load_step_mm,
-                           tips)
+                           tips, window_mu)
 
 
 def neo_hookean_path(body: ElasticBody, poses: list[Pose],
                      placer: Callable[[Pose], Placement], *, mu: float,
                      markers: Markers | None = None, tol: Tolerances = TOL,
                      history: NeoHookeanHistory | None = None,
-                     progress: Callable[[int], None] | None = None) -> list[NeoHookeanResult]:
+                     progress: Callable[[int], None] | None = None,
+                     window_mu: float = 0.0) -> list[NeoHookeanResult]:
     """The neo-Hookean pad along a load path with Coulomb friction (the large-deformation
     counterpart of :func:`~.loadpath.run_path`): one result per pose of ``poses`` (from
     :func:`~.loadpath.path_poses`), each a load step from the last.
@@ -228,11 +251,13 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
     history : where the path starts (an earlier path's last ``history``, in contact); by
         default the pad at rest with the indenter touching at ``poses[0]``'s orientation
     progress : called with the number of steps done after each
+    window_mu : Coulomb friction between the pins' ends and the window, in [0, 10], or
+        ``inf`` (stick)
 
     Raises
     ------
     ValueError
-        ``mu`` out of range.
+        ``mu`` or ``window_mu`` out of range.
     LoadPathError
         A step after the first carries no contact force (the path left contact).
     ContactError
@@ -241,6 +266,7 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
     from .loadpath import check_in_contact, check_path, interpolate, touching
 
     mu = check_path(poses, mu)
+    window_mu = _check_window_mu(window_mu)
     nh = NeoHookeanBody(body)
     space = body.space
     rest = space.nodes[space.candidates]
@@ -259,7 +285,7 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
                 target = pending[-1]
                 try:
                     res = _friction_step(nh, rest, history, target, placer(target), mu, tips,
-                                         tol)
+                                         tol, window_mu)
                 except _NoConvergence:
                     splits += 1
                     if splits > tol.max_load_steps:
@@ -280,7 +306,7 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
 
 def _friction_step(nh: NeoHookeanBody, rest: np.ndarray, history: NeoHookeanHistory,
                    pose: Pose, placement: Placement, mu: float, tips: RodTips | None,
-                   tol: Tolerances) -> NeoHookeanResult:
+                   tol: Tolerances, window_mu: float = 0.0) -> NeoHookeanResult:
     """One load step with friction from ``history`` to ``placement`` (raises _NoConvergence)."""
     s = len(rest)
     pressures, tangential = np.zeros(s), np.zeros((s, 3))
@@ -288,37 +314,44 @@ def _friction_step(nh: NeoHookeanBody, rest: np.ndarray, history: NeoHookeanHist
     tangential[history.active] = history.tangential
     x0 = rest + history.u.reshape(-1, 3)[nh.body.space.candidates]
     fr = PenaltyFriction(mu, history.placement, x0, pressures, tangential)
-    u, contact, window, its, (stick, tang) = _newton(nh, placement, history.u, history.active,
-                                                     tips, history.window, tol, fr)
+    u, contact, window, its, (stick, tang), wt = _newton(
+        nh, placement, history.u, history.active, tips, history.window, tol, fr, window_mu,
+        history.window_friction)
     nxt = NeoHookeanHistory(placement, pose, u, contact.active, contact.pressures, tang,
-                            window)
+                            window, wt)
     return NeoHookeanResult(u, contact, its, 1, _per_pin(tips, window), stick, nxt,
-                            _per_point(tips, window))
+                            _per_point(tips, window), _per_point_xy(tips, wt))
 
 
 def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label: str,
-                tol: Tolerances, load_step_mm: float | None, tips: RodTips | None
-                ) -> NeoHookeanResult:
+                tol: Tolerances, load_step_mm: float | None, tips: RodTips | None,
+                window_mu: float = 0.0) -> NeoHookeanResult:
     body = nh.body
     m = placement.approach
     origin_first = placement.origin_mm + depth_mm * m  # the indenter at first contact
     u = np.zeros(body.space.n_dofs)
     active = np.zeros(0, dtype=np.int64)
     window = None if tips is None else np.zeros(tips.count)
+    window_t = None  # the window's friction (WindowFrictionState), with window_mu > 0
     contact = None
     first = depth_mm if load_step_mm is None else load_step_mm
     if not first > 0:
         raise ValueError(f"load_step_mm={load_step_mm!r} is not allowed: it must be > 0 mm")
     done, step, iterations, steps = 0.0, min(depth_mm, first), 0, 0
+    # with window friction: the accepted (depth, each pin's lowest end height), last two
+    accepted = [] if tips is None else [(0.0, _lowest(tips, u))]
     while done < depth_mm - 1e-12:
         target = min(depth_mm, done + step)
+        if window_mu > 0:
+            target = _approach(accepted, target)
         trial = Placement(placement.indenter, placement.rotation, origin_first - target * m,
                           placement.contact_point_mm, placement.max_depth_mm)
         try:
-            u_new, contact_new, window_new, its, _ = _newton(nh, trial, u, active, tips,
-                                                             window, tol)
+            u_new, contact_new, window_new, its, _, window_t_new = _newton(
+                nh, trial, u, active, tips, window, tol, window_mu=window_mu,
+                window_t0=window_t)
         except _NoConvergence:
-            step /= 2
+            step = (target - done) / 2
             steps += 1
             if steps > tol.max_load_steps:
                 raise ContactError(
@@ -328,16 +361,69 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
             continue
         iterations += its
         steps += 1
+        if window_mu > 0 and target - done > WINDOW_TOUCH_STEP_MM * (1 + 1e-9) \
+                and _touched(tips, window, window_new):
+            step = (target - done) / 2  # an end touched the window: walk this more finely
+            continue
         u, contact, done = u_new, contact_new, target
         active = contact.active
-        window = window_new
+        window, window_t = window_new, window_t_new
+        if window_mu > 0:
+            accepted = [accepted[-1], (done, _lowest(tips, u))]
+            step = min(first, 2 * step)
     if contact is None:  # depth 0: touching, no force
         cand = body.space.candidates
         g, _ = placement.gap(body.space.nodes[cand])
         contact = ContactSolution(np.zeros((len(cand), 3)), np.zeros(0, dtype=np.int64),
                                   np.zeros((0, 3)), np.zeros(0), g, 0.0, 0, 0)
     return NeoHookeanResult(u, contact, iterations, steps, _per_pin(tips, window),
-                            end_forces=_per_point(tips, window))
+                            end_forces=_per_point(tips, window),
+                            end_tangential=_per_point_xy(tips, window_t))
+
+
+def _lowest(tips: RodTips, u: np.ndarray) -> np.ndarray:
+    """(p,) mm, the lowest end point of each pin above the window."""
+    return tips.heights(u).reshape(tips.pins, -1).min(axis=1)
+
+
+def _approach(accepted: list[tuple[float, np.ndarray]], target: float) -> float:
+    """The next load step's end with the window's friction on, from the last two accepted
+    states ``accepted`` (depth, :func:`_lowest`): where the ends still clear of the window
+    would first touch it, extrapolated linearly in the depth, the step stops
+    :data:`WINDOW_TOUCH_STEP_MM`/2 short of that; when that is nearer than one touch step,
+    it crosses in one touch step. So a touch costs about two solves; where the guess is
+    wrong, :func:`_touched` halves the step."""
+    if len(accepted) < 2:
+        return target
+    (d0, z0), (d1, z1) = accepted[-2], accepted[-1]
+    rate = (z0 - z1) / (d1 - d0)  # mm of height lost per mm of depth
+    clear = (z1 > 0) & (rate > 0)
+    if not clear.any():
+        return target
+    touch = d1 + float((z1[clear] / rate[clear]).min())
+    if touch - d1 > WINDOW_TOUCH_STEP_MM:
+        return min(target, touch - WINDOW_TOUCH_STEP_MM / 2)
+    return min(target, d1 + WINDOW_TOUCH_STEP_MM)
+
+
+def _touched(tips: RodTips, before: np.ndarray, after: np.ndarray) -> bool:
+    """Whether a pin whose end was clear of the window (``before``, forces on the end points)
+    has an end point held ``after``."""
+    held = lambda q: (np.asarray(q).reshape(tips.pins, -1) > 0).any(axis=1)  # noqa: E731
+    return bool(np.any(held(after) & ~held(before)))
+
+
+def _check_window_mu(mu: float) -> float:
+    """``mu`` in [0, 10], or ``inf`` (the pins' ends stick where they touch), else
+    :class:`ValueError` naming ``window_mu``."""
+    from .loadpath import check_friction
+
+    if isinstance(mu, (int, float)) and mu == np.inf:
+        return np.inf
+    try:
+        return check_friction(mu, "window_mu")
+    except ValueError as err:
+        raise ValueError(f"{err} or inf (stick)") from None
 
 
 def _per_pin(tips: RodTips | None, window: np.ndarray | None) -> np.ndarray | None:
@@ -348,6 +434,20 @@ def _per_pin(tips: RodTips | None, window: np.ndarray | None) -> np.ndarray | No
 def _per_point(tips: RodTips | None, window: np.ndarray | None) -> np.ndarray | None:
     """The window's forces on the end points, (p, n) (None without pins)."""
     return None if tips is None or window is None else window.reshape(tips.pins, -1)
+
+
+def _per_point_xy(tips: RodTips | None, state: WindowFrictionState | None
+                  ) -> np.ndarray | None:
+    """The window's friction forces on the end points, (p, n, 2) (None without them)."""
+    return None if tips is None or state is None else state.forces.reshape(tips.pins, -1, 2)
+
+
+# with Coulomb friction on the window, a press is walked in load steps of this (mm): where
+# the ends slip, the answer depends on the path (docs/fem.md, "Pins that stick to the window")
+WINDOW_FRICTION_STEP_MM = 0.25
+# ... and a step in which a pin's end first touches is halved down to this (mm): its anchor's
+# error is of the order of that step's motion (docs/fem.md, "Pins that stick to the window")
+WINDOW_TOUCH_STEP_MM = 1 / 32
 
 
 # stabiliser weights tried (each 10x the last, from the curvature term's scale) before the
@@ -369,9 +469,10 @@ def _tangent_blocks(nh: NeoHookeanBody, pattern: BlockPattern, u: np.ndarray
 
 def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: np.ndarray,
             tips: RodTips | None, window0: np.ndarray | None, tol: Tolerances,
-            friction: PenaltyFriction | None = None
+            friction: PenaltyFriction | None = None, window_mu: float = 0.0,
+            window_t0: WindowFrictionState | None = None
             ) -> tuple[np.ndarray, ContactSolution, np.ndarray | None, int,
-                       tuple[np.ndarray, np.ndarray] | None]:
+                       tuple[np.ndarray, np.ndarray] | None, WindowFrictionState | None]:
     """Semi-smooth Newton on equilibrium and the contact conditions together.
 
     Each iteration linearises both: the active candidates' normal gaps close exactly
@@ -396,6 +497,12 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     ``tol.newton_rtol`` of the largest normal force. At ``mu = 0`` every node slips with zero
     force: the frictionless iteration. Returns also, with friction, the stick mask and the
     tangential forces (k, 3) of the final contact nodes (None without friction).
+
+    With ``window_mu > 0`` the pins' end points held on the window carry Coulomb friction
+    along it by the same penalty law (:class:`_WindowFriction`; ``window_t0`` their tangential
+    forces and penalties at the step's start), their slip magnitudes ``mu q`` following the
+    window's normal forces in the same fixed point. Returns last the window's friction at
+    the end (None without window friction).
     """
     body = nh.body
     space = body.space
@@ -415,6 +522,8 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         held = np.flatnonzero(window0 > 0) if window0 is not None else held
         held = np.union1d(held, tips.entering(tips.heights(u), held, tol.gap_mm))
         last_q = np.zeros(tips.count) if window0 is None else window0.copy()
+    wf = None if tips is None or not window_mu > 0 else \
+        _WindowFriction(tips, window_mu, u0, window_t0)
     if friction is not None:
         # where each candidate's anchor is at the end of the step
         anchor = friction.x0 + indenter_motion(friction.start, placement, friction.x0)
@@ -456,6 +565,8 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             blocks = blocks.copy()
             blocks[pattern.diag[nodes_a]] += k_fric
             f_ext[nodes_a] = f_fric
+        if wf is not None:
+            blocks = wf.linearise(u, held, last_q[held], blocks, pattern, it == 1)
         basis = np.broadcast_to(np.eye(3), (space.n_nodes, 3, 3)).copy()
         moved = np.zeros(space.n_nodes, dtype=bool)
         basis[nodes_a] = normal_basis(nu[active])
@@ -497,22 +608,34 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
                                                               solve, tol.gap_mm)
         linear = _Linearised(pattern, rot, basis, f_int, fixed, a_fixed, solve, nodes_a,
                              window)
-        a, q, r, react = linear.step(f_ext)
-        if friction is not None and friction.mu > 0 and np.any(~stick):
-            # the slip forces' magnitudes mu p follow the pressures they produce: a fixed point
-            # on this linearisation, one solve with the same factor per round
+        a, q, r, react = linear.step(_external(f_ext, wf, space.n_nodes))
+        sliding = friction is not None and friction.mu > 0 and np.any(~stick)
+        if sliding:
             sl = np.flatnonzero(~stick & (np.abs(f_fric).max(axis=1) > 0))
             direction = f_fric[sl] / np.linalg.norm(f_fric[sl], axis=1)[:, None]
+        if sliding or (wf is not None and len(held)):
+            # the slip forces' magnitudes mu p (mu q on the window) follow the normal forces
+            # they produce: a fixed point on this linearisation, one solve with the same
+            # factor per round
             for _ in range(SLIP_ROUNDS):
-                f_new = friction.mu * np.maximum(react[sl, 0], 0.0)[:, None] * direction
-                if np.abs(f_new - f_fric[sl]).max(initial=0.0) <= 1e-12 * max(
-                        float(np.abs(react[:, 0]).max(initial=0.0)), 1e-300):
+                scale = float(np.abs(react[:, 0]).max(initial=0.0))
+                done = True
+                if sliding:
+                    f_new = friction.mu * np.maximum(react[sl, 0], 0.0)[:, None] * direction
+                    if np.abs(f_new - f_fric[sl]).max(initial=0.0) > 1e-12 * max(scale,
+                                                                                  1e-300):
+                        done = False
+                        f_fric = f_fric.copy()
+                        f_fric[sl] = f_new
+                        f_ext[nodes_a] = f_fric
+                if wf is not None:
+                    q_h = _at_held(window, held, q)
+                    done = wf.slip_round(q_h, max(scale, float(q_h.max(initial=0.0)))) and done
+                if done:
                     break
-                f_fric = f_fric.copy()
-                f_fric[sl] = f_new
-                f_ext[nodes_a] = f_fric
-                a, q, r, react = linear.step(f_ext)
+                a, q, r, react = linear.step(_external(f_ext, wf, space.n_nodes))
         pressures = react[:, 0]
+        u_prev = u
         du = np.einsum("nij,nj->ni", basis, a).ravel()
         alpha = 1.0
         while nh.min_jacobian(u + alpha * du) <= 0:
@@ -557,6 +680,12 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
                 flipped = stick_new != stick
                 allowed[flipped] += k_pen[active[flipped]] * max(tol.geometry_mm, 1e-9)
                 same = bool(np.all(moved <= allowed))
+        if wf is not None:
+            wf.learn(u_prev, linear)
+            q_h = _at_held(window, held, q)
+            allowed = tol.newton_rtol * max(float(pressures.max(initial=0.0)),
+                                            float(q_h.max(initial=0.0)), 1e-300)
+            same = wf.settled(u, alpha * du, q_h, allowed, tol.geometry_mm) and same
         if tips is not None:
             pushed = np.zeros(0, dtype=np.int64) if window is None else window.points[q > 0]
             new_held = np.union1d(pushed, tips.entering(tips.heights(u), pushed, tol.gap_mm))
@@ -571,7 +700,8 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
                 ends = np.zeros(tips.count)
                 if window is not None:
                     ends[window.points] = q
-            return u, final, ends, it, (None if friction is None else (stick, tangential))
+            return (u, final, ends, it, (None if friction is None else (stick, tangential)),
+                    None if wf is None else wf.state())
         active = new_active
         if tips is not None:
             last_q = np.zeros(tips.count)
@@ -579,6 +709,184 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
                 last_q[window.points] = q
             held = new_held
     raise _NoConvergence
+
+
+def _external(f_ext: np.ndarray, wf: _WindowFriction | None, n_nodes: int) -> np.ndarray:
+    """The external nodal forces: ``f_ext`` plus the window's friction on the pins' ends."""
+    return f_ext if wf is None else f_ext + wf.nodal(n_nodes)
+
+
+def _at_held(window: LinearisedWindow | None, held: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The window's normal forces ``q`` (on its candidate points) at the points ``held``."""
+    if window is None:
+        return np.zeros(len(held))
+    return q[np.searchsorted(window.points, held)]
+
+
+class _WindowFriction:
+    """Coulomb friction between the pins' end points and the window over one load step (the
+    penalty law of :func:`~.nh_friction.window_return_mapping`, as the indenter's). A point
+    held at the step's start is anchored where it was then, with its force then; a point
+    that reaches the window during the step is anchored where it crossed the window's plane
+    between the Newton iterate before it was held and the iterate that first held it
+    (linear interpolation of its height): the first iterate from a converged state is the
+    elastic predictor, so in small load steps that is where it touched (a path walked in
+    finer steps anchors it closer). The points' positions along the window and their
+    Jacobian come from :class:`~.nh_tips.RodTips`; the force's stiffness enters the tangent
+    (without the term of the rod's turn: a modified Newton step).
+
+    A pin's stick penalty is :data:`~.nh_friction.PENALTY` over the compliance along the
+    window of its end's first held point (the mean of the x and y diagonal of ``J K^-1 J'``,
+    with the factor of the first iteration that holds it, :meth:`learn`), so a stuck end stays
+    within 1e-3 of the slip its own compliance would allow it; until then it carries no
+    friction. Every point of an end shares it. (A node's
+    stiffness, the indenter's scale, is 1e4 times a rod end's: the linearisation's error in
+    the end's position then became forces that flipped it between stick and slip.)"""
+
+    def __init__(self, tips: RodTips, mu: float, u0: np.ndarray,
+                 start: WindowFrictionState | None) -> None:
+        self.tips, self.mu = tips, mu
+        self.t0 = np.zeros((tips.count, 2)) if start is None else start.forces
+        self.k_pen = np.full(tips.count, np.nan) if start is None else start.penalty.copy()
+        self.prev_xy, self.prev_z = tips.positions(u0), tips.heights(u0)
+        self.anchor = np.full((tips.count, 2), np.nan)
+        carried = np.flatnonzero(np.abs(self.t0).max(axis=1) > 0)
+        self.anchor[carried] = self.prev_xy[carried]
+        self.last = np.zeros((tips.count, 2))  # the last iterate's force on slipping points
+        self.decided: tuple | None = None
+        self.points = np.zeros(0, dtype=np.int64)
+        self.stick = np.zeros(0, dtype=bool)
+        self.force = np.zeros((0, 2))
+        self.jac = None
+        self.slip = np.zeros((0, 2))
+
+    def linearise(self, u: np.ndarray, held: np.ndarray, q_held: np.ndarray,
+                  blocks: np.ndarray, pattern: BlockPattern, first: bool) -> np.ndarray:
+        """The forces and stiffness of the points ``held`` (normal forces ``q_held``, the last
+        iterate's) at ``u``; returns ``blocks`` with the stiffness added."""
+        self.points = held = np.asarray(held, dtype=np.int64)
+        if not len(held):
+            self.stick, self.force, self.jac = np.zeros(0, dtype=bool), np.zeros((0, 2)), None
+            return blocks
+        xy, z = self.tips.positions(u), self.tips.heights(u)
+        fresh = held[np.isnan(self.anchor[held, 0])]
+        if len(fresh):  # where each crossed the window's plane since the last iterate
+            drop = self.prev_z[fresh] - z[fresh]
+            t = np.where(drop > 0, self.prev_z[fresh] / np.where(drop > 0, drop, 1.0), 0.0)
+            t = np.clip(t, 0.0, 1.0)[:, None]
+            self.anchor[fresh] = self.prev_xy[fresh] + t * (xy[fresh] - self.prev_xy[fresh])
+        self.prev_xy, self.prev_z = xy, z
+        self.jac = self.tips.position_jacobian(u, held)
+        self.slip = xy[held] - self.anchor[held]
+        if self.decided is not None and np.array_equal(self.decided[0], held):
+            self.stick, self.force, stiff = self.decided[1:]
+        else:  # as the indenter's: the step's first iterate is the elastic predictor
+            over = np.einsum("ki,ki->k", self.slip, self.last[held]) > 0
+            self.stick, self.force, stiff = self._law(q_held, held, self.slip, over | first)
+        self._relax, self._last_change = 1.0, np.inf  # slip_round's, on this linearisation
+        k = len(held)
+        block = sp.bsr_matrix((stiff, np.arange(k), np.arange(k + 1)), shape=(2 * k, 2 * k))
+        extra = (self.jac.T @ block @ self.jac).tocoo()
+        return pattern.add_dofs(blocks, extra.row, extra.col, extra.data)
+
+    def nodal(self, n_nodes: int) -> np.ndarray:
+        """(n_nodes, 3) the points' tangential forces on the nodes (global frame)."""
+        if self.jac is None:
+            return np.zeros((n_nodes, 3))
+        return np.asarray(self.jac.T @ self.force.ravel()).reshape(n_nodes, 3)
+
+    def slip_round(self, q_held: np.ndarray, scale: float) -> bool:
+        """One round of the slipping points' magnitudes ``mu q`` under the normal forces
+        ``q_held`` the last solve gave; True when none moved by more than ``1e-12 scale``.
+
+        A rod's end dragged along the window turns the rod, which can lift the end: its
+        normal force then falls as its friction grows, and the plain fixed point ``f <- mu
+        q(f)`` alternates between the full force and none. So the step is relaxed, halved
+        whenever a round's change does not fall below the last one's (the map is monotone
+        decreasing there, so the relaxed iteration converges to its fixed point)."""
+        sl = np.flatnonzero(~self.stick & (np.abs(self.force).max(axis=1, initial=0.0) > 0))
+        if not len(sl):
+            return True
+        direction = self.force[sl] / np.linalg.norm(self.force[sl], axis=1)[:, None]
+        new = self.mu * np.maximum(q_held[sl], 0.0)[:, None] * direction
+        change = float(np.abs(new - self.force[sl]).max())
+        if change <= 1e-12 * max(scale, 1e-300):
+            return True
+        if change >= self._last_change:
+            self._relax /= 2
+        self._last_change = change
+        self.force = self.force.copy()
+        self.force[sl] += self._relax * (new - self.force[sl])
+        return False
+
+    def settled(self, u: np.ndarray, du: np.ndarray, q_held: np.ndarray, rtol_force: float,
+                geometry_mm: float) -> bool:
+        """Judges the law at the new iterate ``u`` (increment ``du``, the points' new normal
+        forces ``q_held``) as the indenter's nodes are (:func:`_newton`): a stuck point by
+        the linear model's slip; True when every force moved by less than its allowance."""
+        held = self.points
+        last = np.zeros_like(self.last)
+        last[held[~self.stick]] = self.force[~self.stick]
+        self.last = last
+        if not len(held):
+            self.decided = None
+            return True
+        slip_lin = self.slip + np.asarray(self.jac @ du).reshape(-1, 2)
+        slip_new = self.tips.positions(u)[held] - self.anchor[held]
+        slip_new = np.where(self.stick[:, None], slip_lin, slip_new)
+        over = np.einsum("ki,ki->k", slip_new, self.last[held]) > 0
+        stick_new, f_new, k_new = self._law(q_held, held, slip_new, over)
+        self.decided = (held, stick_new, f_new, k_new)
+        moved = np.linalg.norm(f_new - self.force, axis=1)
+        allowed = rtol_force + np.where(self.stick | stick_new, self._penalty(held), 0.0) \
+            * max(geometry_mm, 1e-9)
+        return bool(np.all(moved <= allowed))
+
+    def learn(self, u: np.ndarray, linear: _Linearised) -> None:
+        """Sets the penalty of the held points that have none from their compliance along
+        the window on this linearisation (two solves a point with its factor)."""
+        new = self.points[np.isnan(self.k_pen[self.points])]
+        if not len(new):
+            return
+        n = self.tips.per_pin
+        pins = np.unique(new // n)
+        known = self.k_pen.reshape(-1, n)[pins]
+        # one penalty a pin: a point of an end that is already held is nearly immovable
+        # (the end is rigid), so its own compliance would give it a penalty without bound
+        fresh = pins[np.isnan(known).all(axis=1)]
+        if len(fresh):
+            first = np.array([new[new // n == j][0] for j in fresh])
+            jac = self.tips.position_jacobian(u, first) @ local_frames(linear.basis)
+            free = (jac @ sp.diags((~linear.fixed).ravel().astype(np.float64))).tocsr()
+            w = np.asarray(linear.solve(np.ascontiguousarray(free.T.toarray())))
+            w = w.reshape(free.shape[1], -1)
+            compliance = np.einsum("ij,ji->i", free.toarray(), w).reshape(-1, 2).mean(axis=1)
+            self.k_pen.reshape(-1, n)[fresh] = (PENALTY / np.maximum(compliance, 1e-300)
+                                                )[:, None]
+        for j in np.setdiff1d(pins, fresh):
+            row = self.k_pen.reshape(-1, n)[j]
+            row[np.isnan(row)] = np.nanmax(row)
+
+    def state(self) -> WindowFrictionState:
+        """The forces on every end point and the penalties, for the next step."""
+        out = np.zeros((self.tips.count, 2))
+        out[self.points] = self.force
+        return WindowFrictionState(out, self.k_pen.copy())
+
+    def _law(self, q: np.ndarray, points: np.ndarray, slip: np.ndarray, over: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Stick mask, tangential forces and their stiffness of ``points`` (normal forces
+        ``q``, slips ``slip``): Coulomb's law, or with ``mu = inf`` the stick law alone."""
+        k_pen = self._penalty(points)
+        if np.isinf(self.mu):
+            stiff = k_pen[:, None, None] * np.eye(2)
+            return (np.ones(len(points), dtype=bool), self.t0[points] - k_pen[:, None] * slip,
+                    stiff)
+        return window_return_mapping(self.mu, q, self.t0[points], slip, k_pen, over)
+
+    def _penalty(self, points: np.ndarray) -> np.ndarray:
+        """The points' penalties, 0 where not yet learnt (no friction)."""
+        return np.nan_to_num(self.k_pen[points], nan=0.0)
 
 
 class _Linearised:

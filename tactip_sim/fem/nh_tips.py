@@ -17,7 +17,8 @@ from .contact import solve_lcp
 from .markers import Markers
 from .window import END_COMPLIANCE, WINDOW_Z_MM, entering_points, pin_forces
 
-__all__ = ["LinearisedWindow", "RodTips", "point_height_gradient", "rod_pairs"]
+__all__ = ["LinearisedWindow", "RodTips", "local_frames", "point_height_gradient",
+           "point_position_gradient", "rod_pairs"]
 
 
 class RodTips:
@@ -34,6 +35,8 @@ class RodTips:
         self.count = self.pins * self.per_pin
         op = markers.operator.tocsr()
         self.pin_z = op[6 * np.arange(self.pins) + 2]  # root z (rod) or tip z (embedded)
+        # root (tip) x and y, rows 2 j and 2 j + 1
+        self.root_xy = op[(6 * np.arange(self.pins)[:, None] + np.arange(2)).ravel()]
         self.gradient = markers.gradient.tocsr()
         # rows a pin in pin_rows: its root's (tip's) z and, for rods, its 3 turn rows
         self.rows_per_pin = 4 if markers.model == "rod" else 1
@@ -51,6 +54,37 @@ class RodTips:
         root_z = m.roots_mm[:, 2] + self.pin_z @ u
         turned = np.einsum("pij,pkj->pki", self._rotations(u), m.end_offsets)[..., 2]
         return (root_z[:, None] + turned - WINDOW_Z_MM).ravel()
+
+    def positions(self, u: np.ndarray) -> np.ndarray:
+        """(count, 2) mm, every end point's position along the window (x, y): the plane in
+        which the window's friction acts."""
+        m = self.markers
+        if m.model != "rod":
+            return m.from_field(u, finite=True)[0][:, :2]
+        root = m.roots_mm[:, :2] + (self.root_xy @ u).reshape(self.pins, 2)
+        turned = np.einsum("pij,pkj->pki", self._rotations(u)[:, :2], m.end_offsets)
+        return (root[:, None, :] + turned).reshape(-1, 2)
+
+    def position_jacobian(self, u: np.ndarray, points: np.ndarray) -> sp.csr_matrix:
+        """(2 len(points), n_dofs): the derivative of the points' (x, y) (:meth:`positions`)
+        with respect to the nodal displacements at ``u``, rows ``2 i`` (x) and ``2 i + 1``
+        (y) for point ``points[i]``: the root's (tip's) displacement and, for a rod, the turn
+        of its end offset (:func:`point_position_gradient`)."""
+        points = np.asarray(points, dtype=np.int64)
+        pin, k = np.divmod(points, self.per_pin)
+        rows_xy = self.root_xy[np.column_stack([2 * pin, 2 * pin + 1]).ravel()]
+        if self.markers.model != "rod" or len(points) == 0:
+            return rows_xy.tocsr()
+        grad = (self.gradient @ u).reshape(self.pins, 9)[pin]
+        offsets = self.markers.end_offsets[pin, k]
+        d = np.stack([point_position_gradient(grad, offsets, c) for c in (0, 1)], axis=1)
+        shape = (len(points), 2, 9)  # (point, x/y, gradient row)
+        rows = np.broadcast_to(2 * np.arange(len(points))[:, None, None]
+                               + np.arange(2)[None, :, None], shape)
+        cols = np.broadcast_to(9 * pin[:, None, None] + np.arange(9)[None, None, :], shape)
+        mix = sp.csr_matrix((d.ravel(), (rows.ravel(), cols.ravel())),
+                            shape=(2 * len(points), 9 * self.pins))
+        return (rows_xy + mix @ self.gradient).tocsr()
 
     def entering(self, z: np.ndarray, held: np.ndarray, tol: float) -> np.ndarray:
         """Points to add to ``held``: each pin's lowest point below ``-tol`` not yet held."""
@@ -182,11 +216,7 @@ class LinearisedWindow:
         self.pins = np.unique(np.asarray(held, dtype=np.int64) // n)
         self.points = (self.pins[:, None] * n + np.arange(n)).ravel()
         nodes = len(basis)
-        rotation = sp.csr_matrix((basis.ravel(), (
-            np.repeat(np.arange(3 * nodes), 3),
-            (3 * np.arange(nodes)[:, None, None] + np.zeros((1, 3, 1), dtype=np.int64)
-             + np.arange(3)[None, None, :]).ravel())), shape=(3 * nodes, 3 * nodes))
-        self.rows = (tips.pin_rows(u, self.pins) @ rotation).tocsr()  # B, in the local bases
+        self.rows = (tips.pin_rows(u, self.pins) @ local_frames(basis)).tocsr()  # B, local
         free = self.rows @ sp.diags((~fixed).ravel().astype(np.float64))
         self.w = np.asarray(solve(np.ascontiguousarray(free.T.toarray())))  # K^-1 B'
         self.w = self.w.reshape(3 * nodes, -1)
@@ -225,6 +255,16 @@ class LinearisedWindow:
                 np.asarray(self.rows.T @ g).reshape(-1, 3))
 
 
+def local_frames(basis: np.ndarray) -> sp.csr_matrix:
+    """(3 n, 3 n) the map from displacements in the nodes' local bases ``basis`` (n, 3, 3;
+    columns the local axes) to the global frame."""
+    nodes = len(basis)
+    return sp.csr_matrix((basis.ravel(), (
+        np.repeat(np.arange(3 * nodes), 3),
+        (3 * np.arange(nodes)[:, None, None] + np.zeros((1, 3, 1), dtype=np.int64)
+         + np.arange(3)[None, None, :]).ravel())), shape=(3 * nodes, 3 * nodes))
+
+
 def point_height_gradient(grad: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """(k, 9) derivative of the height ``(R m)_z`` of a rod's point at rest offset ``m`` (k, 3)
     from its root with respect to the displacement gradient ``H`` (k, 9; ``F = I + H``, ``R``
@@ -234,19 +274,29 @@ def point_height_gradient(grad: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     ``A = tr(U) I - U``; so ``d(R m)_z = b . axial(R' dF - dF' R)`` with
     ``b = A^-1 (m x R' e_z)``, i.e. ``d(R m)_z / dF = R [b]x``.
     """
-    rot, b = _turn_weights(grad, offsets)
+    return point_position_gradient(grad, offsets, 2)
+
+
+def point_position_gradient(grad: np.ndarray, offsets: np.ndarray, component: int
+                            ) -> np.ndarray:
+    """(k, 9) derivative of the coordinate ``component`` (0 x, 1 y, 2 z) of ``R m``, a rod's
+    point at rest offset ``m`` (k, 3) from its root, with respect to the displacement
+    gradient ``H`` (k, 9): ``R [b]x`` with ``b = A^-1 (m x R' e_c)``
+    (:func:`point_height_gradient` for ``c = z``)."""
+    rot, b = _turn_weights(grad, offsets, component)
     return (rot @ _skew(b)).reshape(-1, 9)
 
 
-def _turn_weights(grad: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _turn_weights(grad: np.ndarray, offsets: np.ndarray, component: int = 2
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """(k, 3, 3) polar rotations ``R`` of ``F = I + grad`` (k, 9) and (k, 3) the weights
-    ``b = A^-1 (m x R' e_z)`` of :func:`point_height_gradient` for the offsets ``m``."""
+    ``b = A^-1 (m x R' e_c)`` of :func:`point_position_gradient` for the offsets ``m``."""
     f = np.eye(3) + grad.reshape(-1, 3, 3)
     w, sig, vt = np.linalg.svd(f)
     rot = w @ vt
     stretch = np.einsum("kji,kj,kjl->kil", vt, sig, vt)  # V diag(s) V'
     a = np.trace(stretch, axis1=1, axis2=2)[:, None, None] * np.eye(3) - stretch
-    return rot, np.linalg.solve(a, np.cross(offsets, rot[:, 2, :])[..., None])[..., 0]
+    return rot, np.linalg.solve(a, np.cross(offsets, rot[:, component, :])[..., None])[..., 0]
 
 
 def _skew(b: np.ndarray) -> np.ndarray:

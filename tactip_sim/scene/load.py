@@ -271,7 +271,7 @@ _OMIT_AT_DEFAULT = (("pins", "layout"), ("pins", "rotation_deg"), ("pins", "mapp
                     ("fidelity", "contact_tolerance"), ("fidelity", "contact_refinement"),
                     ("indenter", "friction_coefficient"), ("imaging", "cap_layer"),
                     ("protocol", "frame_average"), ("fidelity", "marker_tolerance_mm"),
-                    ("fidelity", "pin_refinement"))
+                    ("fidelity", "pin_refinement"), ("window", "pin_friction"))
 
 
 def _default_of(section: str, key: str) -> Any:

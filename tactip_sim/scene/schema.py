@@ -21,6 +21,7 @@ REFRACTION = ("none", "analytic", "path")
 MATERIAL_MODELS = ("linear", "neo_hookean")
 CONTACT_SOLVERS = ("reduced", "full")
 CONTACT_REFINEMENTS = ("off", "auto")
+PIN_FRICTIONS = ("none", "stick")
 SHADINGS = ("diffused", "lambert")
 CAP_LAYERS = ("mitsuba", "raster")
 
@@ -105,6 +106,13 @@ class Window:
     thickness_mm: float = positive(2.0, "acrylic thickness", hi=50)
     refractive_index: float = spec(1.49, "float", "refractive index", lo=1.0, hi=3.0)
     rim_width_mm: float = nonneg(2.0, "rim width around the footprint", hi=100)
+    # docs/fem.md "Pins that stick to the window": the model bonds the gel to the window's
+    # inner face, so a pin's end pressed through it onto the window cannot slide on a free
+    # surface; no friction coefficient of a cap on acrylic through silicone was found
+    pin_friction: str = spec(
+        "none", "str", "a pin's end on the window's inner face slides freely (none) or sticks "
+        "where it touched (stick; the neo-Hookean solver only)", choices=PIN_FRICTIONS,
+    )
 
 
 @dataclass(frozen=True)

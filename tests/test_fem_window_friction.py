@@ -1,0 +1,139 @@
+"""Pins' ends that stick to the window (``window.pin_friction = "stick"``, the neo-Hookean
+solver; docs/fem.md, "Pins that stick to the window").
+
+Checks against independent answers:
+
+* the Jacobian of the end points' positions along the window against central differences of
+  the end points written out in the tests (conftest's ``rod_end_points``);
+* a deep press at the corner pose on the bundled mesh (P1): no end below the window, and the
+  pad balances the plate's and the window's normal and tangential forces (virtual work along
+  a random direction, the points' motion by finite differences of that kinematics);
+* the stick law itself: an end held on the window at 2 mm stays where it is when the path
+  goes on to 2.3 mm (to a 1e-3 fraction of what its own compliance would let it slide), while
+  on the frictionless window the same ends slide (slow);
+* the path's discretisation: touch steps of 1/32 and 1/128 mm give the same markers within
+  0.01 mm (slow);
+* bad input named.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tactip_sim as ts
+from tactip_sim.fem.indenters import place
+from tactip_sim.fem.loadpath import path_poses
+from tactip_sim.fem.neohookean import neo_hookean_path, solve_neo_hookean
+from tactip_sim.fem.nh_tips import RodTips
+
+from .conftest import rod_end_heights, rod_end_points, virtual_work_error
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
+CORNER = ts.Pose(12, -8.8, 2.0)  # three pins' ends reach the window (docs/convergence.md)
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return ts.Simulator(ts.load_scene(SCENE), element_order=1)  # P1, the bundled 2 mm mesh
+
+
+def _placer(sim):
+    body = sim.body
+    rest = body.space.nodes[body.space.candidates]
+    return lambda p: place(ts.Plate(), p, rest, skin_thickness_mm=body.skin_thickness_mm)
+
+
+@pytest.fixture(scope="module")
+def stuck(sim):
+    """The corner pose pressed to 2 mm with the ends sticking (the press's own steps)."""
+    return solve_neo_hookean(sim.body, _placer(sim)(CORNER), CORNER.depth_mm,
+                             markers=sim.body.markers, window_mu=np.inf)
+
+
+def test_position_jacobian_is_the_derivative_of_the_end_points(sim):
+    body = sim.body
+    rng = np.random.default_rng(11)
+    u = np.zeros(body.space.n_dofs)
+    u[body.free] = 0.05 * rng.standard_normal(len(body.free))  # a rough deformed state
+    tips = RodTips(body.markers)
+    points = rng.choice(tips.count, 40, replace=False)
+    v = np.zeros_like(u)
+    v[body.free] = rng.standard_normal(len(body.free))
+    h = 1e-6
+    fd = (rod_end_points(body.markers, u + h * v) - rod_end_points(body.markers, u - h * v)) \
+        / (2 * h)
+    expected = fd.reshape(-1, 3)[points, :2]
+    got = (tips.position_jacobian(u, points) @ v).reshape(-1, 2)
+    np.testing.assert_allclose(got, expected, rtol=1e-6, atol=1e-8 * np.abs(expected).max())
+    np.testing.assert_allclose(tips.positions(u)[points],
+                               rod_end_points(body.markers, u).reshape(-1, 3)[points, :2],
+                               atol=1e-12)
+
+
+def test_a_deep_press_with_stuck_ends_balances(sim, stuck):
+    body = sim.body
+    assert (stuck.window_forces > 0).sum() >= 2
+    assert rod_end_heights(body.markers, stuck.u).min() >= -1e-6
+    t = stuck.end_tangential
+    assert t is not None and np.abs(t).max() > 1.0  # the window holds them along it (mN)
+    assert np.all(t[stuck.end_forces == 0] == 0)  # no friction without a normal force
+    assert virtual_work_error(body, stuck.u, stuck.contact, stuck.end_forces,
+                              end_tangential=t) < 1e-5
+
+
+@pytest.mark.slow
+def test_stuck_ends_stay_put_and_free_ones_slide(sim):
+    """Tapped to 2 mm in 8 steps, then 0.3 mm deeper in 3: every end point held at 2 mm
+    (and still held) stays where it was, within 1e-3 of what its own compliance would let
+    the force on it move it; on the frictionless window the same ends slide."""
+    body = sim.body
+    placer = _placer(sim)
+    tips = RodTips(body.markers)
+    tapped = neo_hookean_path(body, path_poses(CORNER, steps=8), placer, mu=0.0,
+                              markers=body.markers, window_mu=np.inf)[-1]
+    before = tips.positions(tapped.u)
+    held0 = np.flatnonzero(tapped.end_forces.ravel() > 0)
+    poses = [ts.Pose(CORNER.roll_deg, CORNER.pitch_deg, d) for d in (2.1, 2.2, 2.3)]
+    res = neo_hookean_path(body, poses, placer, mu=0.0, markers=body.markers,
+                           history=tapped.history, window_mu=np.inf)[-1]
+    still = held0[res.end_forces.ravel()[held0] > 0]
+    assert len(still) >= 2
+    moved = np.linalg.norm(tips.positions(res.u)[still] - before[still], axis=1)
+    assert moved.max() < 2e-3, moved
+    free = solve_neo_hookean(body, placer(poses[-1]), 2.3, markers=body.markers)
+    pressed = solve_neo_hookean(body, placer(CORNER), 2.0, markers=body.markers)
+    slid = np.linalg.norm(tips.positions(free.u) - tips.positions(pressed.u), axis=1)
+    held_free = np.flatnonzero(pressed.end_forces.ravel() > 0)
+    assert slid[held_free].max() > 20 * moved.max()
+
+
+@pytest.mark.slow
+def test_finer_touch_steps_give_the_same_markers(sim, stuck, monkeypatch):
+    """Where an end first touches, the press walks steps of WINDOW_TOUCH_STEP_MM (1/32 mm):
+    with 1/128 mm the markers move by less than the convergence criterion (0.01 mm)."""
+    import tactip_sim.fem.neohookean as nh
+
+    monkeypatch.setattr(nh, "WINDOW_TOUCH_STEP_MM", 1 / 128)
+    body = sim.body
+    finer = solve_neo_hookean(body, _placer(sim)(CORNER), CORNER.depth_mm,
+                              markers=body.markers, window_mu=np.inf)
+    a = body.markers.from_field(stuck.u, finite=True)[0]
+    b = body.markers.from_field(finer.u, finite=True)[0]
+    assert np.linalg.norm(a - b, axis=1).max() < 0.01
+
+
+def test_bad_input_is_named(sim):
+    placer = _placer(sim)
+    with pytest.raises(ValueError, match="window_mu"):
+        solve_neo_hookean(sim.body, placer(CORNER), 2.0, markers=sim.body.markers,
+                          window_mu=-0.1)
+    with pytest.raises(ValueError, match=r"window\.pin_friction"):
+        ts.load_scene(SCENE, overrides={"window.pin_friction": "glue"})
+    stick = ts.load_scene(SCENE, overrides={"window.pin_friction": "stick"})
+    linear = ts.Simulator(stick, mesh=sim.mesh, element_order=1, solver="full")
+    with pytest.raises(ValueError, match=r"window\.pin_friction.*neo-Hookean"):
+        linear.press(ts.Pose(0, 0, 0.5))
