@@ -56,9 +56,11 @@ def _pose(text: str) -> tuple[float, float]:
     return roll, pitch
 
 
-def case_name(size: float, depth: float, pose: tuple[float, float], instance: int) -> str:
+def case_name(size: float, depth: float, pose: tuple[float, float], instance: int,
+              pin_friction: str = "none") -> str:
     return (f"h{size:g}_d{depth:g}_r{pose[0]:g}_p{pose[1]:g}"
-            + (f"_i{instance}" if instance else ""))
+            + (f"_i{instance}" if instance else "")
+            + ("" if pin_friction == "none" else f"_{pin_friction}"))
 
 
 def solve_size(scene, size: float, cases: list[tuple[float, tuple[float, float]]],
@@ -68,8 +70,12 @@ def solve_size(scene, size: float, cases: list[tuple[float, tuple[float, float]]
     import tactip_sim as ts
     from tactip_sim.mesh import tetrahedralise
 
-    todo = [(d, p) for d, p in cases
-            if not (out / f"{case_name(size, d, p, instance)}.npz").is_file()]
+    stick = scene.window.pin_friction
+
+    def name(d, p):
+        return case_name(size, d, p, instance, stick)
+
+    todo = [(d, p) for d, p in cases if not (out / f"{name(d, p)}.npz").is_file()]
     bar.update(len(cases) - len(todo))
     if not todo:
         return
@@ -82,23 +88,26 @@ def solve_size(scene, size: float, cases: list[tuple[float, tuple[float, float]]
         t0 = time.perf_counter()
         state = sim.press(ts.Pose(pose[0], pose[1], depth))
         seconds = time.perf_counter() - t0
-        tmp = out / f".{case_name(size, depth, pose, instance)}.tmp.npz"
+        tmp = out / f".{name(depth, pose)}.tmp.npz"
         np.savez(tmp, markers=state.markers_mm, force=state.force_N, seconds=seconds,
                  tets=len(mesh.tets), dofs=sim.body.space.n_dofs, load=os.getloadavg()[0])
-        tmp.replace(out / f"{case_name(size, depth, pose, instance)}.npz")
+        tmp.replace(out / f"{name(depth, pose)}.npz")
         bar.update(1)
 
 
-def summarise(sizes, depths, poses, cases_dir: Path, tolerance: float) -> dict:
+def summarise(sizes, depths, poses, cases_dir: Path, tolerance: float,
+              pin_friction: str = "none") -> dict:
+    def path(size, depth, pose, instance=0):
+        return cases_dir / f"{case_name(size, depth, pose, instance, pin_friction)}.npz"
+
     def load(size, depth, pose, instance=0):
-        with np.load(cases_dir / f"{case_name(size, depth, pose, instance)}.npz") as z:
+        with np.load(path(size, depth, pose, instance)) as z:
             return {k: z[k] for k in z.files}
 
     rows, pairs = [], []
     for depth in depths:
         for pose in poses:
-            have = [h for h in sizes if (cases_dir / f"{case_name(h, depth, pose, 0)}.npz")
-                    .is_file()]
+            have = [h for h in sizes if path(h, depth, pose).is_file()]
             runs = [load(h, depth, pose) for h in have]
             for h, r in zip(have, runs, strict=True):
                 rows.append({"size_mm": h, "depth_mm": depth, "roll_deg": pose[0],
@@ -114,7 +123,7 @@ def summarise(sizes, depths, poses, cases_dir: Path, tolerance: float) -> dict:
                               "force_rel": float(b["force"] / a["force"] - 1.0)})
             for h, a in zip(have, runs, strict=True):  # other pytetwild meshes of a size
                 for i in range(1, 4):
-                    if not (cases_dir / f"{case_name(h, depth, pose, i)}.npz").is_file():
+                    if not path(h, depth, pose, i).is_file():
                         continue
                     b = load(h, depth, pose, i)
                     d = np.linalg.norm(a["markers"] - b["markers"], axis=1)
@@ -203,6 +212,10 @@ def main() -> None:
                     help="agreement of successive sizes that counts as converged (0.01)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "convergence",
                     help="output folder (default docs/convergence)")
+    ap.add_argument("--pin-friction", choices=("none", "stick"), default="none",
+                    help="window.pin_friction of the presses: the pins' ends slide on the "
+                         "window (none, the default) or stick where they touch (stick); "
+                         "stored as separate cases")
     ap.add_argument("--no-solve", action="store_true",
                     help="only summarise the presses already stored in OUT/cases")
     a = ap.parse_args()
@@ -213,7 +226,7 @@ def main() -> None:
 
     import tactip_sim as ts
 
-    scene = ts.load_scene(SCENE)
+    scene = ts.load_scene(SCENE, overrides={"window.pin_friction": a.pin_friction})
     depths = a.depths or [scene.protocol.training_depth_mm, 2.0]
     cases = [(d, p) for d in depths for p in a.poses]
     cases_dir = a.out / "cases"
@@ -225,7 +238,7 @@ def main() -> None:
             solve_size(scene, h, cases, 0, cases_dir, bar)
         for i in range(1, 0 if a.no_solve else a.instances + 1):
             solve_size(scene, sizes[-1], cases, i, cases_dir, bar)
-    summary = summarise(sizes, depths, a.poses, cases_dir, a.tolerance_mm)
+    summary = summarise(sizes, depths, a.poses, cases_dir, a.tolerance_mm, a.pin_friction)
     if not summary["cases"]:
         ap.error(f"no stored presses of these sizes, depths and poses in {cases_dir}")
     (a.out / "summary.json").write_text(json.dumps(summary, indent=1))
