@@ -234,13 +234,13 @@ class Simulator:
             if refined is not None:
                 return refined
         if solver != "neo_hookean":
-            self._window_mu(solver)
+            self._window_stick(solver)
         if solver == "neo_hookean":
             from .fem.neohookean import solve_neo_hookean
 
             result = solve_neo_hookean(self.body, placement, pose.depth_mm, label=str(pose),
                                        tol=self.tol, markers=self.body.markers,
-                                       window_mu=self._window_mu(solver))
+                                       window_stick=self._window_stick(solver))
             markers, dirs = self.body.markers.from_field(result.u, finite=True)
             return self._state(pose, indenter, solver, result.contact, markers, dirs,
                                result.u, result.iterations, t0, result.window_forces)
@@ -383,7 +383,7 @@ class Simulator:
         if solver == "neo_hookean":
             return self._neo_hookean_path(poses, placer, mu, history, indenter, step_done,
                                           stamps)
-        self._window_mu(solver)
+        self._window_stick(solver)
         op = self.reduced if solver == "reduced" else FullOperator(self.body)
         # pins stop at the window as in press (a flat indenter on the reduced model)
         window = solver == "reduced" and bool(getattr(indenter, "flat", False))
@@ -417,7 +417,7 @@ class Simulator:
 
         results = neo_hookean_path(self.body, poses, placer, mu=mu, markers=self.body.markers,
                                    tol=self.tol, history=history, progress=step_done,
-                                   window_mu=self._window_mu("neo_hookean"))
+                                   window_stick=self._window_stick("neo_hookean"))
         out = []
         for k, (p, res) in enumerate(zip(poses, results, strict=True)):
             t0 = time.perf_counter() - (stamps[k + 1] - stamps[k])
@@ -426,18 +426,18 @@ class Simulator:
                                    res.u, res.iterations, t0, res.window_forces))
         return out, results[-1].history
 
-    def _window_mu(self, solver: str) -> float:
-        """The pins' friction on the window for ``solver``: 0 (``window.pin_friction`` =
-        "none") or ``inf`` ("stick", the neo-Hookean solver only: a ValueError names the key
-        for the linear ones, whose pins slide on the window)."""
+    def _window_stick(self, solver: str) -> bool:
+        """Whether the pins' ends stick to the window (``window.pin_friction`` = "stick"),
+        which the neo-Hookean solver alone models: a ValueError names the key for the
+        linear ones, whose pins slide on the window."""
         if self.scene.window.pin_friction == "none":
-            return 0.0
+            return False
         if solver != "neo_hookean":
             raise ValueError(
                 f"window.pin_friction = {self.scene.window.pin_friction!r} needs the "
                 f"neo-Hookean solver (fidelity.material_model = 'neo_hookean'), not {solver!r}:"
                 " the linear solvers' pins slide on the window (allowed there: 'none')")
-        return float("inf")
+        return True
 
     @property
     def tip_mm(self) -> np.ndarray:

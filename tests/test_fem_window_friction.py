@@ -51,7 +51,7 @@ def _placer(sim):
 def stuck(sim):
     """The corner pose pressed to 2 mm with the ends sticking (the press's own steps)."""
     return solve_neo_hookean(sim.body, _placer(sim)(CORNER), CORNER.depth_mm,
-                             markers=sim.body.markers, window_mu=np.inf)
+                             markers=sim.body.markers, window_stick=True)
 
 
 def test_position_jacobian_is_the_derivative_of_the_end_points(sim):
@@ -94,12 +94,12 @@ def test_stuck_ends_stay_put_and_free_ones_slide(sim):
     placer = _placer(sim)
     tips = RodTips(body.markers)
     tapped = neo_hookean_path(body, path_poses(CORNER, steps=8), placer, mu=0.0,
-                              markers=body.markers, window_mu=np.inf)[-1]
+                              markers=body.markers, window_stick=True)[-1]
     before = tips.positions(tapped.u)
     held0 = np.flatnonzero(tapped.end_forces.ravel() > 0)
     poses = [ts.Pose(CORNER.roll_deg, CORNER.pitch_deg, d) for d in (2.1, 2.2, 2.3)]
     res = neo_hookean_path(body, poses, placer, mu=0.0, markers=body.markers,
-                           history=tapped.history, window_mu=np.inf)[-1]
+                           history=tapped.history, window_stick=True)[-1]
     still = held0[res.end_forces.ravel()[held0] > 0]
     assert len(still) >= 2
     moved = np.linalg.norm(tips.positions(res.u)[still] - before[still], axis=1)
@@ -120,17 +120,13 @@ def test_finer_touch_steps_give_the_same_markers(sim, stuck, monkeypatch):
     monkeypatch.setattr(nh, "WINDOW_TOUCH_STEP_MM", 1 / 128)
     body = sim.body
     finer = solve_neo_hookean(body, _placer(sim)(CORNER), CORNER.depth_mm,
-                              markers=body.markers, window_mu=np.inf)
+                              markers=body.markers, window_stick=True)
     a = body.markers.from_field(stuck.u, finite=True)[0]
     b = body.markers.from_field(finer.u, finite=True)[0]
     assert np.linalg.norm(a - b, axis=1).max() < 0.01
 
 
 def test_bad_input_is_named(sim):
-    placer = _placer(sim)
-    with pytest.raises(ValueError, match="window_mu"):
-        solve_neo_hookean(sim.body, placer(CORNER), 2.0, markers=sim.body.markers,
-                          window_mu=-0.1)
     with pytest.raises(ValueError, match=r"window\.pin_friction"):
         ts.load_scene(SCENE, overrides={"window.pin_friction": "glue"})
     stick = ts.load_scene(SCENE, overrides={"window.pin_friction": "stick"})

@@ -59,7 +59,6 @@ from .nh_friction import (
     coulomb_return_mapping,
     normal_basis,
     tangential_part,
-    window_return_mapping,
 )
 from .nh_tips import LinearisedWindow, RodTips, local_frames
 from .pose import Pose
@@ -184,7 +183,7 @@ def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, 
                       label: str = "", tol: Tolerances = TOL,
                       load_step_mm: float | None = None,
                       markers: Markers | None = None,
-                      window_mu: float = 0.0) -> NeoHookeanResult:
+                      window_stick: bool = False) -> NeoHookeanResult:
     """Press the neo-Hookean pad with a placed indenter (load-stepped Newton).
 
     Parameters
@@ -200,29 +199,21 @@ def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, 
     markers : the pins; given, their tips stop at the window's inner face (unilateral
         contact, the tip heights under the finite rod rotation linearised in each Newton
         iteration like the indenter's gaps); None leaves the pins out of the solve
-    window_mu : Coulomb friction between the pins' ends and the window, in [0, 10] (0:
-        frictionless), or ``inf``: an end sticks where it touched. Friction depends on the
-        path: with ``window_mu > 0`` a load step in which a pin's end first touches the
-        window is halved down to :data:`WINDOW_TOUCH_STEP_MM` (:class:`_WindowFriction` says
-        where a point is anchored), and with a finite ``window_mu`` the press is walked in
-        load steps of ``load_step_mm`` (default :data:`WINDOW_FRICTION_STEP_MM`). (An end
-        that sticks is a spring to its anchor, so between touches the stick press does not
-        depend on the path: its steps are as long as Newton converges.)
+    window_stick : the pins' ends stick where they touch the window (else they slide on it
+        freely): a load step in which an end first touches is shortened to
+        :data:`WINDOW_TOUCH_STEP_MM`, where it is anchored (:class:`_WindowStick`); between
+        touches a stuck end is a spring to its anchor, so the other steps are as long as
+        Newton converges
 
     Raises
     ------
-    ValueError
-        ``window_mu`` out of range.
     ContactError
         Newton did not converge even with ``tol.max_load_steps`` load steps.
     """
-    window_mu = _check_window_mu(window_mu)
-    if 0 < window_mu < np.inf and load_step_mm is None:
-        load_step_mm = WINDOW_FRICTION_STEP_MM
     with single_threaded_blas():  # threaded BLAS on a busy machine: factorisations ~10x slower
         tips = None if markers is None or markers.count == 0 else RodTips(markers)
         return _load_steps(NeoHookeanBody(body), placement, depth_mm, label, tol, load_step_mm,
-                           tips, window_mu)
+                           tips, bool(window_stick))
 
 
 def neo_hookean_path(body: ElasticBody, poses: list[Pose],
@@ -230,7 +221,7 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
                      markers: Markers | None = None, tol: Tolerances = TOL,
                      history: NeoHookeanHistory | None = None,
                      progress: Callable[[int], None] | None = None,
-                     window_mu: float = 0.0) -> list[NeoHookeanResult]:
+                     window_stick: bool = False) -> list[NeoHookeanResult]:
     """The neo-Hookean pad along a load path with Coulomb friction (the large-deformation
     counterpart of :func:`~.loadpath.run_path`): one result per pose of ``poses`` (from
     :func:`~.loadpath.path_poses`), each a load step from the last.
@@ -251,13 +242,13 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
     history : where the path starts (an earlier path's last ``history``, in contact); by
         default the pad at rest with the indenter touching at ``poses[0]``'s orientation
     progress : called with the number of steps done after each
-    window_mu : Coulomb friction between the pins' ends and the window, in [0, 10], or
-        ``inf`` (stick)
+    window_stick : the pins' ends stick where they touch the window (anchored within the
+        step in which they touch: the path's own steps set where)
 
     Raises
     ------
     ValueError
-        ``mu`` or ``window_mu`` out of range.
+        ``mu`` out of range.
     LoadPathError
         A step after the first carries no contact force (the path left contact).
     ContactError
@@ -266,7 +257,6 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
     from .loadpath import check_in_contact, check_path, interpolate, touching
 
     mu = check_path(poses, mu)
-    window_mu = _check_window_mu(window_mu)
     nh = NeoHookeanBody(body)
     space = body.space
     rest = space.nodes[space.candidates]
@@ -285,7 +275,7 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
                 target = pending[-1]
                 try:
                     res = _friction_step(nh, rest, history, target, placer(target), mu, tips,
-                                         tol, window_mu)
+                                         tol, bool(window_stick))
                 except _NoConvergence:
                     splits += 1
                     if splits > tol.max_load_steps:
@@ -306,7 +296,7 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
 
 def _friction_step(nh: NeoHookeanBody, rest: np.ndarray, history: NeoHookeanHistory,
                    pose: Pose, placement: Placement, mu: float, tips: RodTips | None,
-                   tol: Tolerances, window_mu: float = 0.0) -> NeoHookeanResult:
+                   tol: Tolerances, window_stick: bool = False) -> NeoHookeanResult:
     """One load step with friction from ``history`` to ``placement`` (raises _NoConvergence)."""
     s = len(rest)
     pressures, tangential = np.zeros(s), np.zeros((s, 3))
@@ -315,7 +305,7 @@ def _friction_step(nh: NeoHookeanBody, rest: np.ndarray, history: NeoHookeanHist
     x0 = rest + history.u.reshape(-1, 3)[nh.body.space.candidates]
     fr = PenaltyFriction(mu, history.placement, x0, pressures, tangential)
     u, contact, window, its, (stick, tang), wt = _newton(
-        nh, placement, history.u, history.active, tips, history.window, tol, fr, window_mu,
+        nh, placement, history.u, history.active, tips, history.window, tol, fr, window_stick,
         history.window_friction)
     nxt = NeoHookeanHistory(placement, pose, u, contact.active, contact.pressures, tang,
                             window, wt)
@@ -325,14 +315,14 @@ def _friction_step(nh: NeoHookeanBody, rest: np.ndarray, history: NeoHookeanHist
 
 def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label: str,
                 tol: Tolerances, load_step_mm: float | None, tips: RodTips | None,
-                window_mu: float = 0.0) -> NeoHookeanResult:
+                window_stick: bool = False) -> NeoHookeanResult:
     body = nh.body
     m = placement.approach
     origin_first = placement.origin_mm + depth_mm * m  # the indenter at first contact
     u = np.zeros(body.space.n_dofs)
     active = np.zeros(0, dtype=np.int64)
     window = None if tips is None else np.zeros(tips.count)
-    window_t = None  # the window's friction (WindowFrictionState), with window_mu > 0
+    window_t = None  # the window's tangential forces (WindowFrictionState), with stick
     contact = None
     first = depth_mm if load_step_mm is None else load_step_mm
     if not first > 0:
@@ -342,13 +332,13 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
     accepted = [] if tips is None else [(0.0, _lowest(tips, u))]
     while done < depth_mm - 1e-12:
         target = min(depth_mm, done + step)
-        if window_mu > 0:
+        if window_stick:
             target = _approach(accepted, target)
         trial = Placement(placement.indenter, placement.rotation, origin_first - target * m,
                           placement.contact_point_mm, placement.max_depth_mm)
         try:
             u_new, contact_new, window_new, its, _, window_t_new = _newton(
-                nh, trial, u, active, tips, window, tol, window_mu=window_mu,
+                nh, trial, u, active, tips, window, tol, window_stick=window_stick,
                 window_t0=window_t)
         except _NoConvergence:
             step = (target - done) / 2
@@ -361,14 +351,14 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
             continue
         iterations += its
         steps += 1
-        if window_mu > 0 and target - done > WINDOW_TOUCH_STEP_MM * (1 + 1e-9) \
+        if window_stick and target - done > WINDOW_TOUCH_STEP_MM * (1 + 1e-9) \
                 and _touched(tips, window, window_new):
             step = (target - done) / 2  # an end touched the window: walk this more finely
             continue
         u, contact, done = u_new, contact_new, target
         active = contact.active
         window, window_t = window_new, window_t_new
-        if window_mu > 0:
+        if window_stick:
             accepted = [accepted[-1], (done, _lowest(tips, u))]
             step = min(first, 2 * step)
     if contact is None:  # depth 0: touching, no force
@@ -413,19 +403,6 @@ def _touched(tips: RodTips, before: np.ndarray, after: np.ndarray) -> bool:
     return bool(np.any(held(after) & ~held(before)))
 
 
-def _check_window_mu(mu: float) -> float:
-    """``mu`` in [0, 10], or ``inf`` (the pins' ends stick where they touch), else
-    :class:`ValueError` naming ``window_mu``."""
-    from .loadpath import check_friction
-
-    if isinstance(mu, (int, float)) and mu == np.inf:
-        return np.inf
-    try:
-        return check_friction(mu, "window_mu")
-    except ValueError as err:
-        raise ValueError(f"{err} or inf (stick)") from None
-
-
 def _per_pin(tips: RodTips | None, window: np.ndarray | None) -> np.ndarray | None:
     """The window's forces on the end points summed per pin (None without pins)."""
     return None if tips is None or window is None else tips.pin_forces(window)
@@ -442,11 +419,9 @@ def _per_point_xy(tips: RodTips | None, state: WindowFrictionState | None
     return None if tips is None or state is None else state.forces.reshape(tips.pins, -1, 2)
 
 
-# with Coulomb friction on the window, a press is walked in load steps of this (mm): where
-# the ends slip, the answer depends on the path (docs/fem.md, "Pins that stick to the window")
-WINDOW_FRICTION_STEP_MM = 0.25
-# ... and a step in which a pin's end first touches is halved down to this (mm): its anchor's
-# error is of the order of that step's motion (docs/fem.md, "Pins that stick to the window")
+# with the ends sticking to the window, a load step in which a pin's end first touches it is
+# shortened to this (mm): the end is anchored within it (docs/fem.md, "Pins that stick to the
+# window": 1/16 -> 1/32 mm moved markers by 0.025 mm, finer steps by 0.005 mm)
 WINDOW_TOUCH_STEP_MM = 1 / 32
 
 
@@ -469,7 +444,7 @@ def _tangent_blocks(nh: NeoHookeanBody, pattern: BlockPattern, u: np.ndarray
 
 def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: np.ndarray,
             tips: RodTips | None, window0: np.ndarray | None, tol: Tolerances,
-            friction: PenaltyFriction | None = None, window_mu: float = 0.0,
+            friction: PenaltyFriction | None = None, window_stick: bool = False,
             window_t0: WindowFrictionState | None = None
             ) -> tuple[np.ndarray, ContactSolution, np.ndarray | None, int,
                        tuple[np.ndarray, np.ndarray] | None, WindowFrictionState | None]:
@@ -498,11 +473,9 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     force: the frictionless iteration. Returns also, with friction, the stick mask and the
     tangential forces (k, 3) of the final contact nodes (None without friction).
 
-    With ``window_mu > 0`` the pins' end points held on the window carry Coulomb friction
-    along it by the same penalty law (:class:`_WindowFriction`; ``window_t0`` their tangential
-    forces and penalties at the step's start), their slip magnitudes ``mu q`` following the
-    window's normal forces in the same fixed point. Returns last the window's friction at
-    the end (None without window friction).
+    With ``window_stick`` the pins' end points held on the window stick where they touched it
+    (:class:`_WindowStick`; ``window_t0`` their tangential forces and penalties at the step's
+    start). Returns last the window's tangential forces at the end (None without).
     """
     body = nh.body
     space = body.space
@@ -522,8 +495,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         held = np.flatnonzero(window0 > 0) if window0 is not None else held
         held = np.union1d(held, tips.entering(tips.heights(u), held, tol.gap_mm))
         last_q = np.zeros(tips.count) if window0 is None else window0.copy()
-    wf = None if tips is None or not window_mu > 0 else \
-        _WindowFriction(tips, window_mu, u0, window_t0)
+    wf = None if tips is None or not window_stick else _WindowStick(tips, u0, window_t0)
     if friction is not None:
         # where each candidate's anchor is at the end of the step
         anchor = friction.x0 + indenter_motion(friction.start, placement, friction.x0)
@@ -566,7 +538,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             blocks[pattern.diag[nodes_a]] += k_fric
             f_ext[nodes_a] = f_fric
         if wf is not None:
-            blocks = wf.linearise(u, held, last_q[held], blocks, pattern, it == 1)
+            blocks = wf.linearise(u, held, blocks, pattern)
         basis = np.broadcast_to(np.eye(3), (space.n_nodes, 3, 3)).copy()
         moved = np.zeros(space.n_nodes, dtype=bool)
         basis[nodes_a] = normal_basis(nu[active])
@@ -609,30 +581,19 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         linear = _Linearised(pattern, rot, basis, f_int, fixed, a_fixed, solve, nodes_a,
                              window)
         a, q, r, react = linear.step(_external(f_ext, wf, space.n_nodes))
-        sliding = friction is not None and friction.mu > 0 and np.any(~stick)
-        if sliding:
+        if friction is not None and friction.mu > 0 and np.any(~stick):
+            # the slip forces' magnitudes mu p follow the pressures they produce: a fixed point
+            # on this linearisation, one solve with the same factor per round
             sl = np.flatnonzero(~stick & (np.abs(f_fric).max(axis=1) > 0))
             direction = f_fric[sl] / np.linalg.norm(f_fric[sl], axis=1)[:, None]
-        if sliding or (wf is not None and len(held)):
-            # the slip forces' magnitudes mu p (mu q on the window) follow the normal forces
-            # they produce: a fixed point on this linearisation, one solve with the same
-            # factor per round
             for _ in range(SLIP_ROUNDS):
-                scale = float(np.abs(react[:, 0]).max(initial=0.0))
-                done = True
-                if sliding:
-                    f_new = friction.mu * np.maximum(react[sl, 0], 0.0)[:, None] * direction
-                    if np.abs(f_new - f_fric[sl]).max(initial=0.0) > 1e-12 * max(scale,
-                                                                                  1e-300):
-                        done = False
-                        f_fric = f_fric.copy()
-                        f_fric[sl] = f_new
-                        f_ext[nodes_a] = f_fric
-                if wf is not None:
-                    q_h = _at_held(window, held, q)
-                    done = wf.slip_round(q_h, max(scale, float(q_h.max(initial=0.0)))) and done
-                if done:
+                f_new = friction.mu * np.maximum(react[sl, 0], 0.0)[:, None] * direction
+                if np.abs(f_new - f_fric[sl]).max(initial=0.0) <= 1e-12 * max(
+                        float(np.abs(react[:, 0]).max(initial=0.0)), 1e-300):
                     break
+                f_fric = f_fric.copy()
+                f_fric[sl] = f_new
+                f_ext[nodes_a] = f_fric
                 a, q, r, react = linear.step(_external(f_ext, wf, space.n_nodes))
         pressures = react[:, 0]
         u_prev = u
@@ -685,7 +646,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             q_h = _at_held(window, held, q)
             allowed = tol.newton_rtol * max(float(pressures.max(initial=0.0)),
                                             float(q_h.max(initial=0.0)), 1e-300)
-            same = wf.settled(u, alpha * du, q_h, allowed, tol.geometry_mm) and same
+            same = wf.settled(u, allowed, tol.geometry_mm) and same
         if tips is not None:
             pushed = np.zeros(0, dtype=np.int64) if window is None else window.points[q > 0]
             new_held = np.union1d(pushed, tips.entering(tips.heights(u), pushed, tol.gap_mm))
@@ -711,7 +672,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     raise _NoConvergence
 
 
-def _external(f_ext: np.ndarray, wf: _WindowFriction | None, n_nodes: int) -> np.ndarray:
+def _external(f_ext: np.ndarray, wf: _WindowStick | None, n_nodes: int) -> np.ndarray:
     """The external nodal forces: ``f_ext`` plus the window's friction on the pins' ends."""
     return f_ext if wf is None else f_ext + wf.nodal(n_nodes)
 
@@ -723,50 +684,48 @@ def _at_held(window: LinearisedWindow | None, held: np.ndarray, q: np.ndarray) -
     return q[np.searchsorted(window.points, held)]
 
 
-class _WindowFriction:
-    """Coulomb friction between the pins' end points and the window over one load step (the
-    penalty law of :func:`~.nh_friction.window_return_mapping`, as the indenter's). A point
-    held at the step's start is anchored where it was then, with its force then; a point
-    that reaches the window during the step is anchored where it crossed the window's plane
-    between the Newton iterate before it was held and the iterate that first held it
-    (linear interpolation of its height): the first iterate from a converged state is the
-    elastic predictor, so in small load steps that is where it touched (a path walked in
-    finer steps anchors it closer). The points' positions along the window and their
-    Jacobian come from :class:`~.nh_tips.RodTips`; the force's stiffness enters the tangent
-    (without the term of the rod's turn: a modified Newton step).
+class _WindowStick:
+    """The pins' end points held on the window stick where they touched it, over one load step
+    (``window.pin_friction = "stick"``): each is tied to its anchor by a penalty spring along
+    the window, as the indenter's stuck nodes are (:mod:`.nh_friction`). A point held at the
+    step's start keeps its anchor through its force then (``t = t0 - k slip``, the slip from
+    where it was then); a point that reaches the window during the step is anchored where it
+    crossed the window's plane between the Newton iterate before it was held and the one that
+    first held it (linear interpolation of its height). A load step in which an end first
+    touches is kept short (:data:`WINDOW_TOUCH_STEP_MM`), so that is where it touched. With
+    its anchor fixed, a stuck end is a spring, so between touches the answer does not depend
+    on the path. The points' positions along the window and their Jacobian come from
+    :class:`~.nh_tips.RodTips`; the springs' stiffness enters the tangent (without the term of
+    the rod's turn: a modified Newton step).
 
-    A pin's stick penalty is :data:`~.nh_friction.PENALTY` over the compliance along the
-    window of its end's first held point (the mean of the x and y diagonal of ``J K^-1 J'``,
-    with the factor of the first iteration that holds it, :meth:`learn`), so a stuck end stays
-    within 1e-3 of the slip its own compliance would allow it; until then it carries no
-    friction. Every point of an end shares it. (A node's
-    stiffness, the indenter's scale, is 1e4 times a rod end's: the linearisation's error in
-    the end's position then became forces that flipped it between stick and slip.)"""
+    A pin's penalty is :data:`~.nh_friction.PENALTY` over the compliance along the window of
+    its end's first held point (the mean of the x and y diagonal of ``J K^-1 J'``, with the
+    factor of the first iteration that holds it, :meth:`learn`), so a stuck end stays within
+    1e-3 of the slip its own compliance would allow it; until then it carries no force. Every
+    point of an end shares it. (A node's stiffness, the indenter's scale, is about 1e4 times a
+    rod end's: the linearisation's error in the end's position then became large forces.)"""
 
-    def __init__(self, tips: RodTips, mu: float, u0: np.ndarray,
-                 start: WindowFrictionState | None) -> None:
-        self.tips, self.mu = tips, mu
+    def __init__(self, tips: RodTips, u0: np.ndarray, start: WindowFrictionState | None
+                 ) -> None:
+        self.tips = tips
         self.t0 = np.zeros((tips.count, 2)) if start is None else start.forces
         self.k_pen = np.full(tips.count, np.nan) if start is None else start.penalty.copy()
         self.prev_xy, self.prev_z = tips.positions(u0), tips.heights(u0)
         self.anchor = np.full((tips.count, 2), np.nan)
         carried = np.flatnonzero(np.abs(self.t0).max(axis=1) > 0)
         self.anchor[carried] = self.prev_xy[carried]
-        self.last = np.zeros((tips.count, 2))  # the last iterate's force on slipping points
-        self.decided: tuple | None = None
         self.points = np.zeros(0, dtype=np.int64)
-        self.stick = np.zeros(0, dtype=bool)
         self.force = np.zeros((0, 2))
         self.jac = None
         self.slip = np.zeros((0, 2))
 
-    def linearise(self, u: np.ndarray, held: np.ndarray, q_held: np.ndarray,
-                  blocks: np.ndarray, pattern: BlockPattern, first: bool) -> np.ndarray:
-        """The forces and stiffness of the points ``held`` (normal forces ``q_held``, the last
-        iterate's) at ``u``; returns ``blocks`` with the stiffness added."""
+    def linearise(self, u: np.ndarray, held: np.ndarray, blocks: np.ndarray,
+                  pattern: BlockPattern) -> np.ndarray:
+        """The forces and stiffness of the points ``held`` at ``u``; returns ``blocks`` with
+        the stiffness added."""
         self.points = held = np.asarray(held, dtype=np.int64)
         if not len(held):
-            self.stick, self.force, self.jac = np.zeros(0, dtype=bool), np.zeros((0, 2)), None
+            self.force, self.jac = np.zeros((0, 2)), None
             return blocks
         xy, z = self.tips.positions(u), self.tips.heights(u)
         fresh = held[np.isnan(self.anchor[held, 0])]
@@ -778,13 +737,10 @@ class _WindowFriction:
         self.prev_xy, self.prev_z = xy, z
         self.jac = self.tips.position_jacobian(u, held)
         self.slip = xy[held] - self.anchor[held]
-        if self.decided is not None and np.array_equal(self.decided[0], held):
-            self.stick, self.force, stiff = self.decided[1:]
-        else:  # as the indenter's: the step's first iterate is the elastic predictor
-            over = np.einsum("ki,ki->k", self.slip, self.last[held]) > 0
-            self.stick, self.force, stiff = self._law(q_held, held, self.slip, over | first)
-        self._relax, self._last_change = 1.0, np.inf  # slip_round's, on this linearisation
+        k_pen = self._penalty(held)
+        self.force = self.t0[held] - k_pen[:, None] * self.slip
         k = len(held)
+        stiff = k_pen[:, None, None] * np.eye(2)
         block = sp.bsr_matrix((stiff, np.arange(k), np.arange(k + 1)), shape=(2 * k, 2 * k))
         extra = (self.jac.T @ block @ self.jac).tocoo()
         return pattern.add_dofs(blocks, extra.row, extra.col, extra.data)
@@ -795,56 +751,22 @@ class _WindowFriction:
             return np.zeros((n_nodes, 3))
         return np.asarray(self.jac.T @ self.force.ravel()).reshape(n_nodes, 3)
 
-    def slip_round(self, q_held: np.ndarray, scale: float) -> bool:
-        """One round of the slipping points' magnitudes ``mu q`` under the normal forces
-        ``q_held`` the last solve gave; True when none moved by more than ``1e-12 scale``.
-
-        A rod's end dragged along the window turns the rod, which can lift the end: its
-        normal force then falls as its friction grows, and the plain fixed point ``f <- mu
-        q(f)`` alternates between the full force and none. So the step is relaxed, halved
-        whenever a round's change does not fall below the last one's (the map is monotone
-        decreasing there, so the relaxed iteration converges to its fixed point)."""
-        sl = np.flatnonzero(~self.stick & (np.abs(self.force).max(axis=1, initial=0.0) > 0))
-        if not len(sl):
-            return True
-        direction = self.force[sl] / np.linalg.norm(self.force[sl], axis=1)[:, None]
-        new = self.mu * np.maximum(q_held[sl], 0.0)[:, None] * direction
-        change = float(np.abs(new - self.force[sl]).max())
-        if change <= 1e-12 * max(scale, 1e-300):
-            return True
-        if change >= self._last_change:
-            self._relax /= 2
-        self._last_change = change
-        self.force = self.force.copy()
-        self.force[sl] += self._relax * (new - self.force[sl])
-        return False
-
-    def settled(self, u: np.ndarray, du: np.ndarray, q_held: np.ndarray, rtol_force: float,
-                geometry_mm: float) -> bool:
-        """Judges the law at the new iterate ``u`` (increment ``du``, the points' new normal
-        forces ``q_held``) as the indenter's nodes are (:func:`_newton`): a stuck point by
-        the linear model's slip; True when every force moved by less than its allowance."""
+    def settled(self, u: np.ndarray, rtol_force: float, geometry_mm: float) -> bool:
+        """Whether the springs' forces at the new iterate ``u`` are those this iterate
+        applied, to ``rtol_force`` plus what the penalty makes of ``geometry_mm``."""
         held = self.points
-        last = np.zeros_like(self.last)
-        last[held[~self.stick]] = self.force[~self.stick]
-        self.last = last
         if not len(held):
-            self.decided = None
             return True
-        slip_lin = self.slip + np.asarray(self.jac @ du).reshape(-1, 2)
-        slip_new = self.tips.positions(u)[held] - self.anchor[held]
-        slip_new = np.where(self.stick[:, None], slip_lin, slip_new)
-        over = np.einsum("ki,ki->k", slip_new, self.last[held]) > 0
-        stick_new, f_new, k_new = self._law(q_held, held, slip_new, over)
-        self.decided = (held, stick_new, f_new, k_new)
-        moved = np.linalg.norm(f_new - self.force, axis=1)
-        allowed = rtol_force + np.where(self.stick | stick_new, self._penalty(held), 0.0) \
-            * max(geometry_mm, 1e-9)
-        return bool(np.all(moved <= allowed))
+        k_pen = self._penalty(held)
+        new = self.t0[held] - k_pen[:, None] * (self.tips.positions(u)[held]
+                                                - self.anchor[held])
+        moved = np.linalg.norm(new - self.force, axis=1)
+        return bool(np.all(moved <= rtol_force + k_pen * max(geometry_mm, 1e-9)))
 
     def learn(self, u: np.ndarray, linear: _Linearised) -> None:
-        """Sets the penalty of the held points that have none from their compliance along
-        the window on this linearisation (two solves a point with its factor)."""
+        """Sets the penalty of the held points' pins that have none from the first such
+        point's compliance along the window on this linearisation (two solves a pin with
+        its factor)."""
         new = self.points[np.isnan(self.k_pen[self.points])]
         if not len(new):
             return
@@ -873,19 +795,8 @@ class _WindowFriction:
         out[self.points] = self.force
         return WindowFrictionState(out, self.k_pen.copy())
 
-    def _law(self, q: np.ndarray, points: np.ndarray, slip: np.ndarray, over: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Stick mask, tangential forces and their stiffness of ``points`` (normal forces
-        ``q``, slips ``slip``): Coulomb's law, or with ``mu = inf`` the stick law alone."""
-        k_pen = self._penalty(points)
-        if np.isinf(self.mu):
-            stiff = k_pen[:, None, None] * np.eye(2)
-            return (np.ones(len(points), dtype=bool), self.t0[points] - k_pen[:, None] * slip,
-                    stiff)
-        return window_return_mapping(self.mu, q, self.t0[points], slip, k_pen, over)
-
     def _penalty(self, points: np.ndarray) -> np.ndarray:
-        """The points' penalties, 0 where not yet learnt (no friction)."""
+        """The points' penalties, 0 where not yet learnt (no force)."""
         return np.nan_to_num(self.k_pen[points], nan=0.0)
 
 

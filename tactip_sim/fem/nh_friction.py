@@ -1,6 +1,6 @@
 """Coulomb friction in the neo-Hookean reference (:func:`.neohookean.neo_hookean_path`): the
-penalty-regularised law with return mapping, and the contact nodes' local frames; the same law
-for the pins' ends on the window (:func:`window_return_mapping`).
+penalty-regularised law with return mapping, and the contact nodes' local frames; the state
+of the pins' ends stuck on the window (:class:`WindowFrictionState`).
 
 Regularised, not exact like the linear solver's stick (:mod:`.friction`): eliminating each
 stuck node's tangential dofs made the stick/slip sets cycle on the pad (a node's force jumps
@@ -16,7 +16,7 @@ import numpy as np
 from .indenters import Placement
 
 __all__ = ["PENALTY", "SLIP_ROUNDS", "PenaltyFriction", "coulomb_return_mapping",
-           "WindowFrictionState", "normal_basis", "tangential_part", "window_return_mapping"]
+           "WindowFrictionState", "normal_basis", "tangential_part"]
 
 
 def normal_basis(normals: np.ndarray) -> np.ndarray:
@@ -90,28 +90,9 @@ def coulomb_return_mapping(mu: float, p: np.ndarray, q0: np.ndarray, slip: np.nd
 
 @dataclass(frozen=True)
 class WindowFrictionState:
-    """The window's friction on the pins' end points that a load step hands the next:
+    """The window's hold on the pins' stuck end points that a load step hands the next:
     ``forces`` (count, 2) mN, the tangential force on each end point (x, y); ``penalty``
     (count,) mN/mm, each point's stick penalty (NaN until the point has been held)."""
 
     forces: np.ndarray
     penalty: np.ndarray
-
-
-_UP = np.array([0.0, 0.0, 1.0])
-
-
-def window_return_mapping(mu: float, q: np.ndarray, t0: np.ndarray, slip: np.ndarray,
-                          k_pen: np.ndarray, overshot: np.ndarray | None = None
-                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`coulomb_return_mapping` for the pins' end points on the window, whose normal is
-    +z: normal forces ``q`` (k,), the tangential forces at the step's start ``t0`` (k, 2),
-    the slips ``slip`` (k, 2) along the window. Returns the stick mask (k,), the tangential
-    forces (k, 2) and their stiffness (k, 2, 2)."""
-    k = len(q)
-    pad = np.zeros((k, 3))
-    slip3, t3 = pad.copy(), pad.copy()
-    slip3[:, :2], t3[:, :2] = slip, t0
-    stick, force, stiff = coulomb_return_mapping(mu, q, t3, slip3, k_pen,
-                                                 np.broadcast_to(_UP, (k, 3)), overshot)
-    return stick, force[:, :2], stiff[:, :2, :2]
