@@ -115,9 +115,9 @@ def test_stuck_ends_stay_put_and_free_ones_slide(sim):
 def test_finer_touch_steps_give_the_same_markers(sim, stuck, monkeypatch):
     """Where an end first touches, the press walks steps of WINDOW_TOUCH_STEP_MM (1/32 mm):
     with 1/128 mm the markers move by less than the convergence criterion (0.01 mm)."""
-    import tactip_sim.fem.neohookean as nh
+    import tactip_sim.fem.nh_stick as nh_stick
 
-    monkeypatch.setattr(nh, "WINDOW_TOUCH_STEP_MM", 1 / 128)
+    monkeypatch.setattr(nh_stick, "WINDOW_TOUCH_STEP_MM", 1 / 128)
     body = sim.body
     finer = solve_neo_hookean(body, _placer(sim)(CORNER), CORNER.depth_mm,
                               markers=body.markers, window_stick=True)

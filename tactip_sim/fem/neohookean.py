@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from . import nh_stick
 from .contact import ContactError, ContactSolution
 from .elasticity import element_dofs
 from .elements import quadrature, shape_gradients
@@ -60,7 +61,8 @@ from .nh_friction import (
     normal_basis,
     tangential_part,
 )
-from .nh_tips import LinearisedWindow, RodTips, local_frames
+from .nh_stick import WindowStick, approach, lowest_heights, touched
+from .nh_tips import LinearisedWindow, RodTips
 from .pose import Pose
 from .tolerances import TOL, Tolerances, single_threaded_blas
 
@@ -201,9 +203,9 @@ def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, 
         iteration like the indenter's gaps); None leaves the pins out of the solve
     window_stick : the pins' ends stick where they touch the window (else they slide on it
         freely): a load step in which an end first touches is shortened to
-        :data:`WINDOW_TOUCH_STEP_MM`, where it is anchored (:class:`_WindowStick`); between
-        touches a stuck end is a spring to its anchor, so the other steps are as long as
-        Newton converges
+        :data:`~.nh_stick.WINDOW_TOUCH_STEP_MM`, where it is anchored
+        (:class:`~.nh_stick.WindowStick`); between touches a stuck end is a spring to its
+        anchor, so the other steps are as long as Newton converges
 
     Raises
     ------
@@ -329,11 +331,11 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
         raise ValueError(f"load_step_mm={load_step_mm!r} is not allowed: it must be > 0 mm")
     done, step, iterations, steps = 0.0, min(depth_mm, first), 0, 0
     # with window friction: the accepted (depth, each pin's lowest end height), last two
-    accepted = [] if tips is None else [(0.0, _lowest(tips, u))]
+    accepted = [] if tips is None else [(0.0, lowest_heights(tips, u))]
     while done < depth_mm - 1e-12:
         target = min(depth_mm, done + step)
         if window_stick:
-            target = _approach(accepted, target)
+            target = approach(accepted, target)
         trial = Placement(placement.indenter, placement.rotation, origin_first - target * m,
                           placement.contact_point_mm, placement.max_depth_mm)
         try:
@@ -351,15 +353,15 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
             continue
         iterations += its
         steps += 1
-        if window_stick and target - done > WINDOW_TOUCH_STEP_MM * (1 + 1e-9) \
-                and _touched(tips, window, window_new):
+        if window_stick and target - done > nh_stick.WINDOW_TOUCH_STEP_MM * (1 + 1e-9) \
+                and touched(tips, window, window_new):
             step = (target - done) / 2  # an end touched the window: walk this more finely
             continue
         u, contact, done = u_new, contact_new, target
         active = contact.active
         window, window_t = window_new, window_t_new
         if window_stick:
-            accepted = [accepted[-1], (done, _lowest(tips, u))]
+            accepted = [accepted[-1], (done, lowest_heights(tips, u))]
             step = min(first, 2 * step)
     if contact is None:  # depth 0: touching, no force
         cand = body.space.candidates
@@ -369,38 +371,6 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
     return NeoHookeanResult(u, contact, iterations, steps, _per_pin(tips, window),
                             end_forces=_per_point(tips, window),
                             end_tangential=_per_point_xy(tips, window_t))
-
-
-def _lowest(tips: RodTips, u: np.ndarray) -> np.ndarray:
-    """(p,) mm, the lowest end point of each pin above the window."""
-    return tips.heights(u).reshape(tips.pins, -1).min(axis=1)
-
-
-def _approach(accepted: list[tuple[float, np.ndarray]], target: float) -> float:
-    """The next load step's end with the window's friction on, from the last two accepted
-    states ``accepted`` (depth, :func:`_lowest`): where the ends still clear of the window
-    would first touch it, extrapolated linearly in the depth, the step stops
-    :data:`WINDOW_TOUCH_STEP_MM`/2 short of that; when that is nearer than one touch step,
-    it crosses in one touch step. So a touch costs about two solves; where the guess is
-    wrong, :func:`_touched` halves the step."""
-    if len(accepted) < 2:
-        return target
-    (d0, z0), (d1, z1) = accepted[-2], accepted[-1]
-    rate = (z0 - z1) / (d1 - d0)  # mm of height lost per mm of depth
-    clear = (z1 > 0) & (rate > 0)
-    if not clear.any():
-        return target
-    touch = d1 + float((z1[clear] / rate[clear]).min())
-    if touch - d1 > WINDOW_TOUCH_STEP_MM:
-        return min(target, touch - WINDOW_TOUCH_STEP_MM / 2)
-    return min(target, d1 + WINDOW_TOUCH_STEP_MM)
-
-
-def _touched(tips: RodTips, before: np.ndarray, after: np.ndarray) -> bool:
-    """Whether a pin whose end was clear of the window (``before``, forces on the end points)
-    has an end point held ``after``."""
-    held = lambda q: (np.asarray(q).reshape(tips.pins, -1) > 0).any(axis=1)  # noqa: E731
-    return bool(np.any(held(after) & ~held(before)))
 
 
 def _per_pin(tips: RodTips | None, window: np.ndarray | None) -> np.ndarray | None:
@@ -419,10 +389,6 @@ def _per_point_xy(tips: RodTips | None, state: WindowFrictionState | None
     return None if tips is None or state is None else state.forces.reshape(tips.pins, -1, 2)
 
 
-# with the ends sticking to the window, a load step in which a pin's end first touches it is
-# shortened to this (mm): the end is anchored within it (docs/fem.md, "Pins that stick to the
-# window": 1/16 -> 1/32 mm moved markers by 0.025 mm, finer steps by 0.005 mm)
-WINDOW_TOUCH_STEP_MM = 1 / 32
 
 
 # stabiliser weights tried (each 10x the last, from the curvature term's scale) before the
@@ -474,7 +440,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     tangential forces (k, 3) of the final contact nodes (None without friction).
 
     With ``window_stick`` the pins' end points held on the window stick where they touched it
-    (:class:`_WindowStick`; ``window_t0`` their tangential forces and penalties at the step's
+    (:class:`WindowStick`; ``window_t0`` their tangential forces and penalties at the step's
     start). Returns last the window's tangential forces at the end (None without).
     """
     body = nh.body
@@ -495,7 +461,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         held = np.flatnonzero(window0 > 0) if window0 is not None else held
         held = np.union1d(held, tips.entering(tips.heights(u), held, tol.gap_mm))
         last_q = np.zeros(tips.count) if window0 is None else window0.copy()
-    wf = None if tips is None or not window_stick else _WindowStick(tips, u0, window_t0)
+    wf = None if tips is None or not window_stick else WindowStick(tips, u0, window_t0)
     if friction is not None:
         # where each candidate's anchor is at the end of the step
         anchor = friction.x0 + indenter_motion(friction.start, placement, friction.x0)
@@ -672,7 +638,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     raise _NoConvergence
 
 
-def _external(f_ext: np.ndarray, wf: _WindowStick | None, n_nodes: int) -> np.ndarray:
+def _external(f_ext: np.ndarray, wf: WindowStick | None, n_nodes: int) -> np.ndarray:
     """The external nodal forces: ``f_ext`` plus the window's friction on the pins' ends."""
     return f_ext if wf is None else f_ext + wf.nodal(n_nodes)
 
@@ -682,122 +648,6 @@ def _at_held(window: LinearisedWindow | None, held: np.ndarray, q: np.ndarray) -
     if window is None:
         return np.zeros(len(held))
     return q[np.searchsorted(window.points, held)]
-
-
-class _WindowStick:
-    """The pins' end points held on the window stick where they touched it, over one load step
-    (``window.pin_friction = "stick"``): each is tied to its anchor by a penalty spring along
-    the window, as the indenter's stuck nodes are (:mod:`.nh_friction`). A point held at the
-    step's start keeps its anchor through its force then (``t = t0 - k slip``, the slip from
-    where it was then); a point that reaches the window during the step is anchored where it
-    crossed the window's plane between the Newton iterate before it was held and the one that
-    first held it (linear interpolation of its height). A load step in which an end first
-    touches is kept short (:data:`WINDOW_TOUCH_STEP_MM`), so that is where it touched. With
-    its anchor fixed, a stuck end is a spring, so between touches the answer does not depend
-    on the path. The points' positions along the window and their Jacobian come from
-    :class:`~.nh_tips.RodTips`; the springs' stiffness enters the tangent (without the term of
-    the rod's turn: a modified Newton step).
-
-    A pin's penalty is :data:`~.nh_friction.PENALTY` over the compliance along the window of
-    its end's first held point (the mean of the x and y diagonal of ``J K^-1 J'``, with the
-    factor of the first iteration that holds it, :meth:`learn`), so a stuck end stays within
-    1e-3 of the slip its own compliance would allow it; until then it carries no force. Every
-    point of an end shares it. (A node's stiffness, the indenter's scale, is about 1e4 times a
-    rod end's: the linearisation's error in the end's position then became large forces.)"""
-
-    def __init__(self, tips: RodTips, u0: np.ndarray, start: WindowFrictionState | None
-                 ) -> None:
-        self.tips = tips
-        self.t0 = np.zeros((tips.count, 2)) if start is None else start.forces
-        self.k_pen = np.full(tips.count, np.nan) if start is None else start.penalty.copy()
-        self.prev_xy, self.prev_z = tips.positions(u0), tips.heights(u0)
-        self.anchor = np.full((tips.count, 2), np.nan)
-        carried = np.flatnonzero(np.abs(self.t0).max(axis=1) > 0)
-        self.anchor[carried] = self.prev_xy[carried]
-        self.points = np.zeros(0, dtype=np.int64)
-        self.force = np.zeros((0, 2))
-        self.jac = None
-        self.slip = np.zeros((0, 2))
-
-    def linearise(self, u: np.ndarray, held: np.ndarray, blocks: np.ndarray,
-                  pattern: BlockPattern) -> np.ndarray:
-        """The forces and stiffness of the points ``held`` at ``u``; returns ``blocks`` with
-        the stiffness added."""
-        self.points = held = np.asarray(held, dtype=np.int64)
-        if not len(held):
-            self.force, self.jac = np.zeros((0, 2)), None
-            return blocks
-        xy, z = self.tips.positions(u), self.tips.heights(u)
-        fresh = held[np.isnan(self.anchor[held, 0])]
-        if len(fresh):  # where each crossed the window's plane since the last iterate
-            drop = self.prev_z[fresh] - z[fresh]
-            t = np.where(drop > 0, self.prev_z[fresh] / np.where(drop > 0, drop, 1.0), 0.0)
-            t = np.clip(t, 0.0, 1.0)[:, None]
-            self.anchor[fresh] = self.prev_xy[fresh] + t * (xy[fresh] - self.prev_xy[fresh])
-        self.prev_xy, self.prev_z = xy, z
-        self.jac = self.tips.position_jacobian(u, held)
-        self.slip = xy[held] - self.anchor[held]
-        k_pen = self._penalty(held)
-        self.force = self.t0[held] - k_pen[:, None] * self.slip
-        k = len(held)
-        stiff = k_pen[:, None, None] * np.eye(2)
-        block = sp.bsr_matrix((stiff, np.arange(k), np.arange(k + 1)), shape=(2 * k, 2 * k))
-        extra = (self.jac.T @ block @ self.jac).tocoo()
-        return pattern.add_dofs(blocks, extra.row, extra.col, extra.data)
-
-    def nodal(self, n_nodes: int) -> np.ndarray:
-        """(n_nodes, 3) the points' tangential forces on the nodes (global frame)."""
-        if self.jac is None:
-            return np.zeros((n_nodes, 3))
-        return np.asarray(self.jac.T @ self.force.ravel()).reshape(n_nodes, 3)
-
-    def settled(self, u: np.ndarray, rtol_force: float, geometry_mm: float) -> bool:
-        """Whether the springs' forces at the new iterate ``u`` are those this iterate
-        applied, to ``rtol_force`` plus what the penalty makes of ``geometry_mm``."""
-        held = self.points
-        if not len(held):
-            return True
-        k_pen = self._penalty(held)
-        new = self.t0[held] - k_pen[:, None] * (self.tips.positions(u)[held]
-                                                - self.anchor[held])
-        moved = np.linalg.norm(new - self.force, axis=1)
-        return bool(np.all(moved <= rtol_force + k_pen * max(geometry_mm, 1e-9)))
-
-    def learn(self, u: np.ndarray, linear: _Linearised) -> None:
-        """Sets the penalty of the held points' pins that have none from the first such
-        point's compliance along the window on this linearisation (two solves a pin with
-        its factor)."""
-        new = self.points[np.isnan(self.k_pen[self.points])]
-        if not len(new):
-            return
-        n = self.tips.per_pin
-        pins = np.unique(new // n)
-        known = self.k_pen.reshape(-1, n)[pins]
-        # one penalty a pin: a point of an end that is already held is nearly immovable
-        # (the end is rigid), so its own compliance would give it a penalty without bound
-        fresh = pins[np.isnan(known).all(axis=1)]
-        if len(fresh):
-            first = np.array([new[new // n == j][0] for j in fresh])
-            jac = self.tips.position_jacobian(u, first) @ local_frames(linear.basis)
-            free = (jac @ sp.diags((~linear.fixed).ravel().astype(np.float64))).tocsr()
-            w = np.asarray(linear.solve(np.ascontiguousarray(free.T.toarray())))
-            w = w.reshape(free.shape[1], -1)
-            compliance = np.einsum("ij,ji->i", free.toarray(), w).reshape(-1, 2).mean(axis=1)
-            self.k_pen.reshape(-1, n)[fresh] = (PENALTY / np.maximum(compliance, 1e-300)
-                                                )[:, None]
-        for j in np.setdiff1d(pins, fresh):
-            row = self.k_pen.reshape(-1, n)[j]
-            row[np.isnan(row)] = np.nanmax(row)
-
-    def state(self) -> WindowFrictionState:
-        """The forces on every end point and the penalties, for the next step."""
-        out = np.zeros((self.tips.count, 2))
-        out[self.points] = self.force
-        return WindowFrictionState(out, self.k_pen.copy())
-
-    def _penalty(self, points: np.ndarray) -> np.ndarray:
-        """The points' penalties, 0 where not yet learnt (no force)."""
-        return np.nan_to_num(self.k_pen[points], nan=0.0)
 
 
 class _Linearised:

@@ -1,0 +1,169 @@
+"""Pins' ends that stick to the window in the neo-Hookean reference (``window.pin_friction =
+"stick"``, docs/fem.md "Pins that stick to the window"): the penalty springs that hold each end
+point where it touched, and the load steps that find where that is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from .nh_blocks import BlockPattern
+from .nh_friction import PENALTY, WindowFrictionState
+from .nh_tips import RodTips, local_frames
+
+__all__ = ["WINDOW_TOUCH_STEP_MM", "WindowStick", "approach", "lowest_heights", "touched"]
+
+# with the ends sticking to the window, a load step in which a pin's end first touches it is
+# shortened to this (mm): the end is anchored within it (docs/fem.md, "Pins that stick to the
+# window": 1/16 -> 1/32 mm moved markers by 0.025 mm, finer steps by 0.005 mm)
+WINDOW_TOUCH_STEP_MM = 1 / 32
+
+
+class WindowStick:
+    """The pins' end points held on the window stick where they touched it, over one load step
+    (``window.pin_friction = "stick"``): each is tied to its anchor by a penalty spring along
+    the window, as the indenter's stuck nodes are (:mod:`.nh_friction`). A point held at the
+    step's start keeps its anchor through its force then (``t = t0 - k slip``, the slip from
+    where it was then); a point that reaches the window during the step is anchored where it
+    crossed the window's plane between the Newton iterate before it was held and the one that
+    first held it (linear interpolation of its height). A load step in which an end first
+    touches is kept short (:data:`WINDOW_TOUCH_STEP_MM`), so that is where it touched. With
+    its anchor fixed, a stuck end is a spring, so between touches the answer does not depend
+    on the path. The points' positions along the window and their Jacobian come from
+    :class:`~.nh_tips.RodTips`; the springs' stiffness enters the tangent (without the term of
+    the rod's turn: a modified Newton step).
+
+    A pin's penalty is :data:`~.nh_friction.PENALTY` over the compliance along the window of
+    its end's first held point (the mean of the x and y diagonal of ``J K^-1 J'``, with the
+    factor of the first iteration that holds it, :meth:`learn`), so a stuck end stays within
+    1e-3 of the slip its own compliance would allow it; until then it carries no force. Every
+    point of an end shares it. (A node's stiffness, the indenter's scale, is about 1e4 times a
+    rod end's: the linearisation's error in the end's position then became large forces.)"""
+
+    def __init__(self, tips: RodTips, u0: np.ndarray, start: WindowFrictionState | None
+                 ) -> None:
+        self.tips = tips
+        self.t0 = np.zeros((tips.count, 2)) if start is None else start.forces
+        self.k_pen = np.full(tips.count, np.nan) if start is None else start.penalty.copy()
+        self.prev_xy, self.prev_z = tips.positions(u0), tips.heights(u0)
+        self.anchor = np.full((tips.count, 2), np.nan)
+        carried = np.flatnonzero(np.abs(self.t0).max(axis=1) > 0)
+        self.anchor[carried] = self.prev_xy[carried]
+        self.points = np.zeros(0, dtype=np.int64)
+        self.force = np.zeros((0, 2))
+        self.jac = None
+        self.slip = np.zeros((0, 2))
+
+    def linearise(self, u: np.ndarray, held: np.ndarray, blocks: np.ndarray,
+                  pattern: BlockPattern) -> np.ndarray:
+        """The forces and stiffness of the points ``held`` at ``u``; returns ``blocks`` with
+        the stiffness added."""
+        self.points = held = np.asarray(held, dtype=np.int64)
+        if not len(held):
+            self.force, self.jac = np.zeros((0, 2)), None
+            return blocks
+        xy, z = self.tips.positions(u), self.tips.heights(u)
+        fresh = held[np.isnan(self.anchor[held, 0])]
+        if len(fresh):  # where each crossed the window's plane since the last iterate
+            drop = self.prev_z[fresh] - z[fresh]
+            t = np.where(drop > 0, self.prev_z[fresh] / np.where(drop > 0, drop, 1.0), 0.0)
+            t = np.clip(t, 0.0, 1.0)[:, None]
+            self.anchor[fresh] = self.prev_xy[fresh] + t * (xy[fresh] - self.prev_xy[fresh])
+        self.prev_xy, self.prev_z = xy, z
+        self.jac = self.tips.position_jacobian(u, held)
+        self.slip = xy[held] - self.anchor[held]
+        k_pen = self._penalty(held)
+        self.force = self.t0[held] - k_pen[:, None] * self.slip
+        k = len(held)
+        stiff = k_pen[:, None, None] * np.eye(2)
+        block = sp.bsr_matrix((stiff, np.arange(k), np.arange(k + 1)), shape=(2 * k, 2 * k))
+        extra = (self.jac.T @ block @ self.jac).tocoo()
+        return pattern.add_dofs(blocks, extra.row, extra.col, extra.data)
+
+    def nodal(self, n_nodes: int) -> np.ndarray:
+        """(n_nodes, 3) the points' tangential forces on the nodes (global frame)."""
+        if self.jac is None:
+            return np.zeros((n_nodes, 3))
+        return np.asarray(self.jac.T @ self.force.ravel()).reshape(n_nodes, 3)
+
+    def settled(self, u: np.ndarray, rtol_force: float, geometry_mm: float) -> bool:
+        """Whether the springs' forces at the new iterate ``u`` are those this iterate
+        applied, to ``rtol_force`` plus what the penalty makes of ``geometry_mm``."""
+        held = self.points
+        if not len(held):
+            return True
+        k_pen = self._penalty(held)
+        new = self.t0[held] - k_pen[:, None] * (self.tips.positions(u)[held]
+                                                - self.anchor[held])
+        moved = np.linalg.norm(new - self.force, axis=1)
+        return bool(np.all(moved <= rtol_force + k_pen * max(geometry_mm, 1e-9)))
+
+    def learn(self, u: np.ndarray, linear) -> None:
+        """Sets the penalty of the held points' pins that have none from the first such
+        point's compliance along the window on this linearisation (``linear``: the Newton
+        iteration's linear system, with its local ``basis``, its ``fixed`` dofs and the
+        factor's ``solve``; two solves a pin)."""
+        new = self.points[np.isnan(self.k_pen[self.points])]
+        if not len(new):
+            return
+        n = self.tips.per_pin
+        pins = np.unique(new // n)
+        known = self.k_pen.reshape(-1, n)[pins]
+        # one penalty a pin: a point of an end that is already held is nearly immovable
+        # (the end is rigid), so its own compliance would give it a penalty without bound
+        fresh = pins[np.isnan(known).all(axis=1)]
+        if len(fresh):
+            first = np.array([new[new // n == j][0] for j in fresh])
+            jac = self.tips.position_jacobian(u, first) @ local_frames(linear.basis)
+            free = (jac @ sp.diags((~linear.fixed).ravel().astype(np.float64))).tocsr()
+            w = np.asarray(linear.solve(np.ascontiguousarray(free.T.toarray())))
+            w = w.reshape(free.shape[1], -1)
+            compliance = np.einsum("ij,ji->i", free.toarray(), w).reshape(-1, 2).mean(axis=1)
+            self.k_pen.reshape(-1, n)[fresh] = (PENALTY / np.maximum(compliance, 1e-300)
+                                                )[:, None]
+        for j in np.setdiff1d(pins, fresh):
+            row = self.k_pen.reshape(-1, n)[j]
+            row[np.isnan(row)] = np.nanmax(row)
+
+    def state(self) -> WindowFrictionState:
+        """The forces on every end point and the penalties, for the next step."""
+        out = np.zeros((self.tips.count, 2))
+        out[self.points] = self.force
+        return WindowFrictionState(out, self.k_pen.copy())
+
+    def _penalty(self, points: np.ndarray) -> np.ndarray:
+        """The points' penalties, 0 where not yet learnt (no force)."""
+        return np.nan_to_num(self.k_pen[points], nan=0.0)
+
+
+def lowest_heights(tips: RodTips, u: np.ndarray) -> np.ndarray:
+    """(p,) mm, the lowest end point of each pin above the window."""
+    return tips.heights(u).reshape(tips.pins, -1).min(axis=1)
+
+
+def approach(accepted: list[tuple[float, np.ndarray]], target: float) -> float:
+    """The next load step's end with the window's friction on, from the last two accepted
+    states ``accepted`` (depth, :func:`lowest_heights`): where the ends still clear of the window
+    would first touch it, extrapolated linearly in the depth, the step stops
+    :data:`WINDOW_TOUCH_STEP_MM`/2 short of that; when that is nearer than one touch step,
+    it crosses in one touch step. So a touch costs about two solves; where the guess is
+    wrong, :func:`touched` halves the step."""
+    if len(accepted) < 2:
+        return target
+    (d0, z0), (d1, z1) = accepted[-2], accepted[-1]
+    rate = (z0 - z1) / (d1 - d0)  # mm of height lost per mm of depth
+    clear = (z1 > 0) & (rate > 0)
+    if not clear.any():
+        return target
+    touch = d1 + float((z1[clear] / rate[clear]).min())
+    if touch - d1 > WINDOW_TOUCH_STEP_MM:
+        return min(target, touch - WINDOW_TOUCH_STEP_MM / 2)
+    return min(target, d1 + WINDOW_TOUCH_STEP_MM)
+
+
+def touched(tips: RodTips, before: np.ndarray, after: np.ndarray) -> bool:
+    """Whether a pin whose end was clear of the window (``before``, forces on the end points)
+    has an end point held ``after``."""
+    held = lambda q: (np.asarray(q).reshape(tips.pins, -1) > 0).any(axis=1)  # noqa: E731
+    return bool(np.any(held(after) & ~held(before)))
