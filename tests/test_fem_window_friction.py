@@ -126,6 +126,22 @@ def test_finer_touch_steps_give_the_same_markers(sim, stuck, monkeypatch):
     assert np.linalg.norm(a - b, axis=1).max() < 0.01
 
 
+def test_the_next_step_stops_short_of_the_next_touch():
+    """Heights falling linearly with depth: the step stops half a touch step before the
+    first end would touch, or crosses in one touch step when that is nearer than one."""
+    from tactip_sim.fem.nh_stick import WINDOW_TOUCH_STEP_MM as touch
+    from tactip_sim.fem.nh_stick import approach
+
+    # pin 0 would touch at 1 + 0.8 / 0.2 = 5 mm, pin 1 at 1 + 0.3 / 0.2 = 2.5 mm; pin 2 is
+    # held (height 0) and pin 3 rises: neither counts
+    states = [(0.0, np.array([1.0, 0.5, 0.0, 0.1])), (1.0, np.array([0.8, 0.3, 0.0, 0.2]))]
+    assert approach(states, 4.0) == pytest.approx(2.5 - touch / 2)
+    assert approach(states, 1.5) == 1.5  # a shorter step is left as it is
+    near = [(0.0, np.array([1.0])), (1.0, np.array([0.2 * touch / 2]))]
+    assert approach(near, 4.0) == pytest.approx(1.0 + touch)
+    assert approach(states[:1], 4.0) == 4.0  # one state: nothing to extrapolate from
+
+
 def test_bad_input_is_named(sim):
     with pytest.raises(ValueError, match=r"window\.pin_friction"):
         ts.load_scene(SCENE, overrides={"window.pin_friction": "glue"})
