@@ -103,8 +103,8 @@ class NeoHookeanHistory:
     tangential : (k, 3) mN, the tangential parts of their forces (sensor frame)
     window : (p n,) mN or None, the window's force on each end point of the pins
         (:class:`~.nh_tips.RodTips`)
-    window_friction : the window's friction on the end points (forces and penalties), or
-        None
+    window_friction : the window's hold on the stuck end points (forces, penalties, anchors),
+        or None
     """
 
     placement: Placement
@@ -244,8 +244,8 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
     history : where the path starts (an earlier path's last ``history``, in contact); by
         default the pad at rest with the indenter touching at ``poses[0]``'s orientation
     progress : called with the number of steps done after each
-    window_stick : the pins' ends stick where they touch the window (anchored within the
-        step in which they touch: the path's own steps set where)
+    window_stick : the pins' ends stick where they touch the window (anchored at the end of
+        the step in which they touch: the path's own steps set where)
 
     Raises
     ------
@@ -440,8 +440,9 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     tangential forces (k, 3) of the final contact nodes (None without friction).
 
     With ``window_stick`` the pins' end points held on the window stick where they touched it
-    (:class:`WindowStick`; ``window_t0`` their tangential forces and penalties at the step's
-    start). Returns last the window's tangential forces at the end (None without).
+    (:class:`~.nh_stick.WindowStick`; ``window_t0`` their anchors and penalties at the step's
+    start). Returns last the window's hold at the end: forces, penalties, anchors (None
+    without).
     """
     body = nh.body
     space = body.space
@@ -461,7 +462,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         held = np.flatnonzero(window0 > 0) if window0 is not None else held
         held = np.union1d(held, tips.entering(tips.heights(u), held, tol.gap_mm))
         last_q = np.zeros(tips.count) if window0 is None else window0.copy()
-    wf = None if tips is None or not window_stick else WindowStick(tips, u0, window_t0)
+    wf = None if tips is None or not window_stick else WindowStick(tips, window_t0)
     if friction is not None:
         # where each candidate's anchor is at the end of the step
         anchor = friction.x0 + indenter_motion(friction.start, placement, friction.x0)
@@ -628,7 +629,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
                 if window is not None:
                     ends[window.points] = q
             return (u, final, ends, it, (None if friction is None else (stick, tangential)),
-                    None if wf is None else wf.state())
+                    None if wf is None else wf.state(u))
         active = new_active
         if tips is not None:
             last_q = np.zeros(tips.count)

@@ -92,7 +92,9 @@ def coulomb_return_mapping(mu: float, p: np.ndarray, q0: np.ndarray, slip: np.nd
 class WindowFrictionState:
     """The window's hold on the pins' stuck end points that a load step hands the next:
     ``forces`` (count, 2) mN, the tangential force on each end point (x, y); ``penalty``
-    (count,) mN/mm, each point's stick penalty (NaN until the point has been held)."""
+    (count,) mN/mm, each point's stick penalty (NaN until its pin has been held);
+    ``anchors`` (count, 2) mm, where each stuck point is held (NaN: free)."""
 
     forces: np.ndarray
     penalty: np.ndarray
+    anchors: np.ndarray

@@ -15,66 +15,58 @@ from .nh_tips import RodTips, local_frames
 __all__ = ["WINDOW_TOUCH_STEP_MM", "WindowStick", "approach", "lowest_heights", "touched"]
 
 # with the ends sticking to the window, a load step in which a pin's end first touches it is
-# shortened to this (mm): the end is anchored within it (docs/fem.md, "Pins that stick to the
-# window": 1/16 -> 1/32 mm moved markers by 0.025 mm, finer steps by 0.005 mm)
-WINDOW_TOUCH_STEP_MM = 1 / 32
+# shortened to this (mm): the end slides freely within it and is anchored at its end
+# (docs/fem.md, "Pins that stick to the window": halving it from 1/16 mm moved the markers
+# by 0.044, 0.014, 0.0074, 0.0047 and 0.0045 mm)
+WINDOW_TOUCH_STEP_MM = 1 / 256
+ON_WINDOW_MM = 1e-5
+"""An end point this close to the window (mm) at a step's end is on it (the held points end
+within :data:`~.window.HELD_TOL_MM` of it), and keeps or gets its anchor."""
 
 
 class WindowStick:
-    """The pins' end points held on the window stick where they touched it, over one load step
+    """The pins' end points held on the window stick where they touched it
     (``window.pin_friction = "stick"``): each is tied to its anchor by a penalty spring along
-    the window, as the indenter's stuck nodes are (:mod:`.nh_friction`). A point held at the
-    step's start keeps its anchor through its force then (``t = t0 - k slip``, the slip from
-    where it was then); a point that reaches the window during the step is anchored where it
-    crossed the window's plane between the Newton iterate before it was held and the one that
-    first held it (linear interpolation of its height). A load step in which an end first
-    touches is kept short (:data:`WINDOW_TOUCH_STEP_MM`), so that is where it touched. With
+    the window (``t = -k (x - anchor)``), as the indenter's stuck nodes are
+    (:mod:`.nh_friction`), while the window's normal force stays unilateral. A point that
+    reaches the window during a load step slides freely until the step's end, where it is
+    anchored (:meth:`state`); a load step in which an end first touches is kept short
+    (:data:`WINDOW_TOUCH_STEP_MM`), so that is where it touched, to within that step's motion,
+    whatever path the Newton iterates took. A point that leaves the window is let go. With
     its anchor fixed, a stuck end is a spring, so between touches the answer does not depend
     on the path. The points' positions along the window and their Jacobian come from
     :class:`~.nh_tips.RodTips`; the springs' stiffness enters the tangent (without the term of
     the rod's turn: a modified Newton step).
 
     A pin's penalty is :data:`~.nh_friction.PENALTY` over the compliance along the window of
-    its end's first held point (the mean of the x and y diagonal of ``J K^-1 J'``, with the
-    factor of the first iteration that holds it, :meth:`learn`), so a stuck end stays within
-    1e-3 of the slip its own compliance would allow it; until then it carries no force. Every
-    point of an end shares it. (A node's stiffness, the indenter's scale, is about 1e4 times a
-    rod end's: the linearisation's error in the end's position then became large forces.)"""
+    its end's first anchored point (the mean of the x and y diagonal of ``J K^-1 J'``, with
+    the factor of the first iteration that holds it, :meth:`learn`), so a stuck end stays
+    within 1e-3 of the slip its own compliance would allow it; until then it carries no
+    force. Every point of an end shares it. (A node's stiffness, the indenter's scale, is
+    about 1e4 times a rod end's: the linearisation's error in the end's position then became
+    large forces.)"""
 
-    def __init__(self, tips: RodTips, u0: np.ndarray, start: WindowFrictionState | None
-                 ) -> None:
+    def __init__(self, tips: RodTips, start: WindowFrictionState | None) -> None:
         self.tips = tips
-        self.t0 = np.zeros((tips.count, 2)) if start is None else start.forces
         self.k_pen = np.full(tips.count, np.nan) if start is None else start.penalty.copy()
-        self.prev_xy, self.prev_z = tips.positions(u0), tips.heights(u0)
-        self.anchor = np.full((tips.count, 2), np.nan)
-        carried = np.flatnonzero(np.abs(self.t0).max(axis=1) > 0)
-        self.anchor[carried] = self.prev_xy[carried]
+        self.anchor = np.full((tips.count, 2), np.nan) if start is None \
+            else start.anchors.copy()
         self.points = np.zeros(0, dtype=np.int64)
         self.force = np.zeros((0, 2))
         self.jac = None
-        self.slip = np.zeros((0, 2))
 
     def linearise(self, u: np.ndarray, held: np.ndarray, blocks: np.ndarray,
                   pattern: BlockPattern) -> np.ndarray:
-        """The forces and stiffness of the points ``held`` at ``u``; returns ``blocks`` with
-        the stiffness added."""
-        self.points = held = np.asarray(held, dtype=np.int64)
+        """The forces and stiffness of the anchored points among ``held`` at ``u``; returns
+        ``blocks`` with the stiffness added."""
+        held = np.asarray(held, dtype=np.int64)
+        self.points = held = held[~np.isnan(self.anchor[held, 0])]
         if not len(held):
             self.force, self.jac = np.zeros((0, 2)), None
             return blocks
-        xy, z = self.tips.positions(u), self.tips.heights(u)
-        fresh = held[np.isnan(self.anchor[held, 0])]
-        if len(fresh):  # where each crossed the window's plane since the last iterate
-            drop = self.prev_z[fresh] - z[fresh]
-            t = np.where(drop > 0, self.prev_z[fresh] / np.where(drop > 0, drop, 1.0), 0.0)
-            t = np.clip(t, 0.0, 1.0)[:, None]
-            self.anchor[fresh] = self.prev_xy[fresh] + t * (xy[fresh] - self.prev_xy[fresh])
-        self.prev_xy, self.prev_z = xy, z
         self.jac = self.tips.position_jacobian(u, held)
-        self.slip = xy[held] - self.anchor[held]
         k_pen = self._penalty(held)
-        self.force = self.t0[held] - k_pen[:, None] * self.slip
+        self.force = -k_pen[:, None] * (self.tips.positions(u)[held] - self.anchor[held])
         k = len(held)
         stiff = k_pen[:, None, None] * np.eye(2)
         block = sp.bsr_matrix((stiff, np.arange(k), np.arange(k + 1)), shape=(2 * k, 2 * k))
@@ -94,13 +86,12 @@ class WindowStick:
         if not len(held):
             return True
         k_pen = self._penalty(held)
-        new = self.t0[held] - k_pen[:, None] * (self.tips.positions(u)[held]
-                                                - self.anchor[held])
+        new = -k_pen[:, None] * (self.tips.positions(u)[held] - self.anchor[held])
         moved = np.linalg.norm(new - self.force, axis=1)
         return bool(np.all(moved <= rtol_force + k_pen * max(geometry_mm, 1e-9)))
 
     def learn(self, u: np.ndarray, linear) -> None:
-        """Sets the penalty of the held points' pins that have none from the first such
+        """Sets the penalty of the anchored points' pins that have none from the first such
         point's compliance along the window on this linearisation (``linear``: the Newton
         iteration's linear system, with its local ``basis``, its ``fixed`` dofs and the
         factor's ``solve``; two solves a pin)."""
@@ -126,11 +117,23 @@ class WindowStick:
             row = self.k_pen.reshape(-1, n)[j]
             row[np.isnan(row)] = np.nanmax(row)
 
-    def state(self) -> WindowFrictionState:
-        """The forces on every end point and the penalties, for the next step."""
-        out = np.zeros((self.tips.count, 2))
-        out[self.points] = self.force
-        return WindowFrictionState(out, self.k_pen.copy())
+    def state(self, u: np.ndarray) -> WindowFrictionState:
+        """At the step's end ``u``: the springs' forces on every end point, the penalties, and
+        the anchors for the next step. A point on the window (within :data:`ON_WINDOW_MM`)
+        keeps its anchor, or is anchored where it is now if it has none (it reached the window
+        in this step); a point off the window is let go. (On the window, not pushed: which of
+        a flat end's points carry its force changes from step to step, while all of them lie
+        on the window; an end rolling onto the window lays new points down where they touch.)
+        """
+        on = self.tips.heights(u) <= ON_WINDOW_MM
+        anchors = np.where(on[:, None], self.anchor, np.nan)
+        fresh = on & np.isnan(anchors[:, 0])
+        if fresh.any():
+            anchors[fresh] = self.tips.positions(u)[fresh]
+        forces = np.zeros((self.tips.count, 2))
+        forces[self.points] = self.force
+        forces[~on] = 0.0
+        return WindowFrictionState(forces, self.k_pen.copy(), anchors)
 
     def _penalty(self, points: np.ndarray) -> np.ndarray:
         """The points' penalties, 0 where not yet learnt (no force)."""
