@@ -330,7 +330,7 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
     if not first > 0:
         raise ValueError(f"load_step_mm={load_step_mm!r} is not allowed: it must be > 0 mm")
     done, step, iterations, steps = 0.0, min(depth_mm, first), 0, 0
-    # with window friction: the accepted (depth, each pin's lowest end height), last two
+    # with the ends sticking: the accepted (depth, each pin's lowest end height), last two
     accepted = [] if tips is None else [(0.0, lowest_heights(tips, u))]
     while done < depth_mm - 1e-12:
         target = min(depth_mm, done + step)
@@ -343,7 +343,7 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
                 nh, trial, u, active, tips, window, tol, window_stick=window_stick,
                 window_t0=window_t)
         except _NoConvergence:
-            step = (target - done) / 2
+            step = (target - done) / 2 if window_stick else step / 2
             steps += 1
             if steps > tol.max_load_steps:
                 raise ContactError(
@@ -387,8 +387,6 @@ def _per_point_xy(tips: RodTips | None, state: WindowFrictionState | None
                   ) -> np.ndarray | None:
     """The window's friction forces on the end points, (p, n, 2) (None without them)."""
     return None if tips is None or state is None else state.forces.reshape(tips.pins, -1, 2)
-
-
 
 
 # stabiliser weights tried (each 10x the last, from the curvature term's scale) before the

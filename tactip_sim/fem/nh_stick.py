@@ -12,12 +12,13 @@ from .nh_blocks import BlockPattern
 from .nh_friction import PENALTY, WindowFrictionState
 from .nh_tips import RodTips, local_frames
 
-__all__ = ["WINDOW_TOUCH_STEP_MM", "WindowStick", "approach", "lowest_heights", "touched"]
+__all__ = ["ON_WINDOW_MM", "WINDOW_TOUCH_STEP_MM", "WindowStick", "approach", "lowest_heights",
+           "touched"]
 
 # with the ends sticking to the window, a load step in which a pin's end first touches it is
 # shortened to this (mm): the end slides freely within it and is anchored at its end
-# (docs/fem.md, "Pins that stick to the window": halving it from 1/16 mm moved the markers
-# by 0.044, 0.014, 0.0074, 0.0047 and 0.0045 mm)
+# (docs/fem.md, "Pins that stick to the window": halving it from 1/32 mm moved the markers
+# by 0.094, 0.0065, 0.0047 and 0.0045 mm at the corner pose)
 WINDOW_TOUCH_STEP_MM = 1 / 256
 ON_WINDOW_MM = 1e-5
 """An end point this close to the window (mm) at a step's end is on it (the held points end
@@ -146,9 +147,9 @@ def lowest_heights(tips: RodTips, u: np.ndarray) -> np.ndarray:
 
 
 def approach(accepted: list[tuple[float, np.ndarray]], target: float) -> float:
-    """The next load step's end with the window's friction on, from the last two accepted
-    states ``accepted`` (depth, :func:`lowest_heights`): where the ends still clear of the window
-    would first touch it, extrapolated linearly in the depth, the step stops
+    """The next load step's end with the ends sticking to the window, from the last two
+    accepted states ``accepted`` (depth, :func:`lowest_heights`): where the ends still clear of
+    the window would first touch it, extrapolated linearly in the depth, the step stops
     :data:`WINDOW_TOUCH_STEP_MM`/2 short of that; when that is nearer than one touch step,
     it crosses in one touch step. So a touch costs about two solves; where the guess is
     wrong, :func:`touched` halves the step."""
