@@ -150,3 +150,16 @@ def test_bad_input_is_named(sim):
     linear = ts.Simulator(stick, mesh=sim.mesh, element_order=1, solver="full")
     with pytest.raises(ValueError, match=r"window\.pin_friction.*neo-Hookean"):
         linear.press(ts.Pose(0, 0, 0.5))
+
+
+def test_the_key_is_left_out_of_the_hash_at_its_default():
+    """``window.pin_friction`` at "none" leaves the scene's dict and hash as they were; "stick"
+    is written and changes the hash, and reads back."""
+    from tactip_sim.scene import scene_from_dict, scene_hash, scene_to_dict
+
+    plain = ts.load_scene(SCENE)
+    stick = ts.load_scene(SCENE, overrides={"window.pin_friction": "stick"})
+    assert "pin_friction" not in scene_to_dict(plain)["window"]
+    assert scene_to_dict(stick)["window"]["pin_friction"] == "stick"
+    assert scene_hash(stick) != scene_hash(plain)
+    assert scene_hash(scene_from_dict(scene_to_dict(stick))) == scene_hash(stick)
