@@ -19,6 +19,8 @@ Usage::
     python benchmarks/convergence_local_refinement.py --out /tmp/localref --no-solve
     python benchmarks/convergence_local_refinement.py --out /tmp/pinsA --roll -4.2 --pitch -8.8 \
         --auto-pins --instances 0                            # the pins the estimate flags
+    python benchmarks/convergence_local_refinement.py --out /tmp/stick2 --depth 2 --auto-pins \
+        --instances 0 --pin-friction stick                   # the ends stuck to the window
 
 Each press is stored in ``OUT`` as it finishes (the fresh mesh too); a rerun solves only the
 missing ones. Prints the largest / mean marker difference of each pair (mm), the leading
@@ -53,10 +55,11 @@ def cases(edges, radius: float, instances) -> list[tuple[str, int, float | None]
             for i in instances for e in (None, *edges)]
 
 
-def _scene():
+def _scene(pin_friction: str = "none"):
     import tactip_sim as ts
 
-    return ts.replace_in(ts.load_scene(SCENE), fidelity={
+    scene = ts.load_scene(SCENE, overrides={"window.pin_friction": pin_friction})
+    return ts.replace_in(scene, fidelity={
         "mesh_edge_mm": 1.0, "element_order": 2, "material_model": "neo_hookean"})
 
 
@@ -108,13 +111,15 @@ def solve(label: str, instance: int, edge: float | None, pose, a, out: Path,
     pins = pins if edge is not None else []
     if path.is_file():
         with np.load(path) as z:  # a press of another study in the same folder is not reused
+            stored = str(z["pin_friction"]) if "pin_friction" in z.files else "none"
             if "pose" in z.files and not (np.allclose(z["pose"], pose)
-                                          and z["pins"].tolist() == pins):
+                                          and z["pins"].tolist() == pins
+                                          and stored == a.pin_friction):
                 raise SystemExit(f"{path} holds a press at pose {z['pose'].tolist()} with "
-                                 f"pins {z['pins'].tolist()}, not this study's: give another "
-                                 "--out")
+                                 f"pins {z['pins'].tolist()} and window.pin_friction "
+                                 f"{stored!r}, not this study's: give another --out")
         return path
-    scene = _scene()
+    scene = _scene(a.pin_friction)
     mesh = base_mesh(instance, out)
     if edge is not None:  # the pins' roots are the pad's, whatever the mesh
         mesh = refine(mesh, build_pad(scene).pins.roots[pins], edge, a.radius)
@@ -131,7 +136,7 @@ def solve(label: str, instance: int, edge: float | None, pose, a, out: Path,
     np.savez(tmp, markers=state.markers_mm, force=state.force_N, seconds=seconds,
              p1_markers=p1_markers, estimate=state.marker_errors_mm,
              tets=len(mesh.tets), dofs=sim.body.space.n_dofs, pose=np.array(pose),
-             pins=np.array(pins, dtype=int))
+             pins=np.array(pins, dtype=int), pin_friction=a.pin_friction)
     tmp.replace(path)
     return path
 
@@ -154,6 +159,9 @@ def main() -> None:
                     help="refine around the pins the product's estimate flags (above "
                     "--tolerance) on the unrefined mesh of each instance, not --pins (what "
                     "fidelity.pin_refinement = 'auto' does at its first level)")
+    ap.add_argument("--pin-friction", choices=("none", "stick"), default="none",
+                    help="window.pin_friction of the presses: the pins' ends slide on the "
+                    "window (none, the default) or stay where they touched it (stick)")
     a = ap.parse_args()
     if any(not 0 <= p < 97 for p in a.pins):
         ap.error(f"--pins {a.pins}: allowed 0-96")
