@@ -141,6 +141,29 @@ def test_the_next_step_stops_short_of_the_next_touch():
     near = [(0.0, np.array([1.0])), (1.0, np.array([0.2 * touch / 2]))]
     assert approach(near, 4.0) == pytest.approx(1.0 + touch)
     assert approach(states[:1], 4.0) == 4.0  # one state: nothing to extrapolate from
+    # an end a hair above the window (held ends sit within ON_WINDOW_MM of it) is on it
+    on = [(0.0, np.array([1.0, 0.1])), (1.0, np.array([0.8, 1e-6]))]
+    assert approach(on, 8.0) == pytest.approx(5.0 - touch / 2)
+
+
+def test_a_missed_touch_bounds_the_next_steps():
+    """A longer step found an end newly touching at 2 mm: the touch is before 2 mm."""
+    from tactip_sim.fem.nh_stick import WINDOW_TOUCH_STEP_MM as touch
+    from tactip_sim.fem.nh_stick import approach
+
+    # nothing to extrapolate from: halfway from the last accepted state
+    assert approach([(0.0, np.array([1.0]))], 4.0, touched_at=2.0, misses=1) == 1.0
+    # just missed from this state: halfway, whatever the extrapolation says
+    states = [(0.0, np.array([1.0])), (1.0, np.array([0.5]))]  # would touch at 2 mm
+    assert approach(states, 4.0, touched_at=1.8, misses=1) == pytest.approx(1.4)
+    # from a state accepted since: the extrapolation again, no further than half a touch
+    # step short of the known touch
+    assert approach(states, 4.0, touched_at=1.8) == pytest.approx(1.8 - touch / 2)
+    assert approach(states, 4.0, touched_at=3.0) == pytest.approx(2.0 - touch / 2)
+    # within one touch step of it: cross to it
+    close = [(0.0, np.array([1.0])), (1.0, np.array([0.5]))]
+    assert approach(close, 4.0, touched_at=1.0 + touch * 0.75) == pytest.approx(
+        1.0 + touch * 0.75)
 
 
 def test_bad_input_is_named(sim):
@@ -163,3 +186,25 @@ def test_the_key_is_left_out_of_the_hash_at_its_default():
     assert scene_to_dict(stick)["window"]["pin_friction"] == "stick"
     assert scene_hash(stick) != scene_hash(plain)
     assert scene_hash(scene_from_dict(scene_to_dict(stick))) == scene_hash(stick)
+
+
+def test_a_stuck_point_pulled_off_and_pressed_back_slides():
+    """Held sets cycling between Newton iterations (a stuck point whose spring pulls it off
+    the window, let go, presses back through it): the point stays held, without its anchor;
+    other changes of the held set are left alone."""
+    from types import SimpleNamespace
+
+    from tactip_sim.fem.nh_stick import WindowStick
+
+    wf = WindowStick(SimpleNamespace(count=4), None)
+    wf.anchor[1] = (0.5, -0.5)  # point 1 stuck, the others not
+    a, b = np.array([0, 1]), np.array([0])
+    assert wf.let_slide(a, b, None).tolist() == [0]  # no history yet
+    assert wf.let_slide(a, b, np.array([0, 2])).tolist() == [0]  # not a cycle
+    assert wf.let_slide(a, a, b).tolist() == [0, 1]  # settled
+    assert not np.isnan(wf.anchor[1]).any()
+    assert wf.let_slide(a, b, b).tolist() == [0, 1]  # the cycle: kept, let slide
+    assert np.isnan(wf.anchor[1]).all()
+    wf.anchor[3] = (0.1, 0.1)
+    c, d = np.array([0, 2]), np.array([0])  # point 2 is not stuck: the cycle is not its spring
+    assert wf.let_slide(c, d, d).tolist() == [0]

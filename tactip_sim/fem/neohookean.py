@@ -332,10 +332,13 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
     done, step, iterations, steps = 0.0, min(depth_mm, first), 0, 0
     # with the ends sticking: the accepted (depth, each pin's lowest end height), last two
     accepted = [] if tips is None else [(0.0, lowest_heights(tips, u))]
+    # with the ends sticking: the nearest depth at which a step from the last accepted state
+    # found an end newly touching, and how many steps did since
+    touched_at, misses = None, 0
     while done < depth_mm - 1e-12:
         target = min(depth_mm, done + step)
         if window_stick:
-            target = approach(accepted, target)
+            target = approach(accepted, target, touched_at, misses)
         trial = Placement(placement.indenter, placement.rotation, origin_first - target * m,
                           placement.contact_point_mm, placement.max_depth_mm)
         try:
@@ -353,15 +356,19 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
             continue
         iterations += its
         steps += 1
-        if window_stick and target - done > nh_stick.WINDOW_TOUCH_STEP_MM * (1 + 1e-9) \
-                and touched(tips, window, window_new):
-            step = (target - done) / 2  # an end touched the window: walk this more finely
+        touch = window_stick and touched(tips, window, window_new)
+        if touch and target - done > nh_stick.WINDOW_TOUCH_STEP_MM * (1 + 1e-9):
+            # an end touched the window within a longer step: find where, before it
+            touched_at, misses = target, misses + 1
             continue
         u, contact, done = u_new, contact_new, target
         active = contact.active
         window, window_t = window_new, window_t_new
         if window_stick:
             accepted = [accepted[-1], (done, lowest_heights(tips, u))]
+            misses = 0
+            if touch or (touched_at is not None and done >= touched_at - 1e-12):
+                touched_at = None
             step = min(first, 2 * step)
     if contact is None:  # depth 0: touching, no force
         cand = body.space.candidates
@@ -461,6 +468,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         held = np.union1d(held, tips.entering(tips.heights(u), held, tol.gap_mm))
         last_q = np.zeros(tips.count) if window0 is None else window0.copy()
     wf = None if tips is None or not window_stick else WindowStick(tips, window_t0)
+    held_before = None  # the held set an iteration before ``held`` (WindowStick.let_slide)
     if friction is not None:
         # where each candidate's anchor is at the end of the step
         anchor = friction.x0 + indenter_motion(friction.start, placement, friction.x0)
@@ -615,6 +623,8 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         if tips is not None:
             pushed = np.zeros(0, dtype=np.int64) if window is None else window.points[q > 0]
             new_held = np.union1d(pushed, tips.entering(tips.heights(u), pushed, tol.gap_mm))
+            if wf is not None:
+                new_held = wf.let_slide(held, new_held, held_before)
             same = same and np.array_equal(new_held, held)
         if alpha == 1.0 and same and change <= max(tol.geometry_mm, 1e-9):
             forces = pressures[:, None] * nu_new[active] + tangential
@@ -633,7 +643,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             last_q = np.zeros(tips.count)
             if window is not None:
                 last_q[window.points] = q
-            held = new_held
+            held_before, held = held, new_held
     raise _NoConvergence
 
 

@@ -118,6 +118,24 @@ class WindowStick:
             row = self.k_pen.reshape(-1, n)[j]
             row[np.isnan(row)] = np.nanmax(row)
 
+    def let_slide(self, held: np.ndarray, new_held: np.ndarray, before: np.ndarray | None
+                  ) -> np.ndarray:
+        """Breaks a cycle of the held points between Newton iterations (``before``, ``held``,
+        ``new_held``: the last three sets): a stuck point that its own spring pulls off the
+        window (its normal force turns negative) and that, let go, presses back through it.
+        It then carries no normal force, and so no friction either: it stays held but slides
+        for the rest of the load step (it is anchored again where the step ends, if it is on
+        the window). Returns the held set to go on with."""
+        if before is None or np.array_equal(new_held, held) \
+                or not np.array_equal(new_held, before):
+            return new_held
+        flip = np.setxor1d(new_held, held)
+        stuck = flip[~np.isnan(self.anchor[flip, 0])]
+        if not len(stuck):
+            return new_held
+        self.anchor[stuck] = np.nan
+        return np.union1d(new_held, stuck)
+
     def state(self, u: np.ndarray) -> WindowFrictionState:
         """At the step's end ``u``: the springs' forces on every end point, the penalties, and
         the anchors for the next step. A point on the window (within :data:`ON_WINDOW_MM`)
@@ -146,24 +164,40 @@ def lowest_heights(tips: RodTips, u: np.ndarray) -> np.ndarray:
     return tips.heights(u).reshape(tips.pins, -1).min(axis=1)
 
 
-def approach(accepted: list[tuple[float, np.ndarray]], target: float) -> float:
+def approach(accepted: list[tuple[float, np.ndarray]], target: float,
+             touched_at: float | None = None, misses: int = 0) -> float:
     """The next load step's end with the ends sticking to the window, from the last two
     accepted states ``accepted`` (depth, :func:`lowest_heights`): where the ends still clear of
     the window would first touch it, extrapolated linearly in the depth, the step stops
     :data:`WINDOW_TOUCH_STEP_MM`/2 short of that; when that is nearer than one touch step,
-    it crosses in one touch step. So a touch costs about two solves; where the guess is
-    wrong, :func:`touched` halves the step."""
-    if len(accepted) < 2:
+    it crosses in one touch step. So a touch costs about two solves.
+
+    Where the guess is wrong, a longer step found an end newly touching at ``touched_at``
+    (the nearest such depth since the last touch, ``misses`` such steps from the last
+    accepted state): the touch lies before it. Within one touch step of it, the step crosses
+    to it. Just after a miss the step goes halfway there; from a state accepted since, the
+    extrapolation guides it again, but no further than half a touch step short of
+    ``touched_at``."""
+    touch_step = WINDOW_TOUCH_STEP_MM
+    d1 = accepted[-1][0]
+    if touched_at is not None and touched_at - d1 <= touch_step * (1 + 1e-9):
+        return min(target, touched_at)
+    touch = np.inf
+    if len(accepted) >= 2:
+        (d0, z0), (_, z1) = accepted[-2], accepted[-1]
+        rate = (z0 - z1) / (d1 - d0)  # mm of height lost per mm of depth
+        clear = (z1 > ON_WINDOW_MM) & (rate > 0)  # not those already on the window
+        if clear.any():
+            touch = d1 + float((z1[clear] / rate[clear]).min())
+    if touched_at is not None:
+        if misses or not np.isfinite(touch):
+            return min(target, d1 + (touched_at - d1) / 2)
+        touch = min(touch, touched_at)
+    if not np.isfinite(touch):
         return target
-    (d0, z0), (d1, z1) = accepted[-2], accepted[-1]
-    rate = (z0 - z1) / (d1 - d0)  # mm of height lost per mm of depth
-    clear = (z1 > 0) & (rate > 0)
-    if not clear.any():
-        return target
-    touch = d1 + float((z1[clear] / rate[clear]).min())
-    if touch - d1 > WINDOW_TOUCH_STEP_MM:
-        return min(target, touch - WINDOW_TOUCH_STEP_MM / 2)
-    return min(target, d1 + WINDOW_TOUCH_STEP_MM)
+    if touch - d1 > touch_step:
+        return min(target, touch - touch_step / 2)
+    return min(target, d1 + touch_step)
 
 
 def touched(tips: RodTips, before: np.ndarray, after: np.ndarray) -> bool:
