@@ -335,6 +335,7 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
     # with the ends sticking: the nearest depth at which a step from the last accepted state
     # found an end newly touching, and how many steps did since
     touched_at, misses = None, 0
+    before = None  # (depth, u) of the accepted state before the last: the steps' predictor
     while done < depth_mm - 1e-12:
         target = min(depth_mm, done + step)
         if window_stick:
@@ -344,7 +345,7 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
         try:
             u_new, contact_new, window_new, its, _, window_t_new = _newton(
                 nh, trial, u, active, tips, window, tol, window_stick=window_stick,
-                window_t0=window_t)
+                window_t0=window_t, guess=_predicted(nh, before, done, u, target))
         except _NoConvergence:
             step = (target - done) / 2 if window_stick else step / 2
             steps += 1
@@ -361,6 +362,7 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
             # an end touched the window within a longer step: find where, before it
             touched_at, misses = target, misses + 1
             continue
+        before = (done, u)
         u, contact, done = u_new, contact_new, target
         active = contact.active
         window, window_t = window_new, window_t_new
@@ -378,6 +380,18 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
     return NeoHookeanResult(u, contact, iterations, steps, _per_pin(tips, window),
                             end_forces=_per_point(tips, window),
                             end_tangential=_per_point_xy(tips, window_t))
+
+
+def _predicted(nh: NeoHookeanBody, before: tuple[float, np.ndarray] | None, done: float,
+               u: np.ndarray, target: float) -> np.ndarray | None:
+    """The first iterate of the load step from ``done`` (displacements ``u``) to ``target``:
+    the last two accepted states extrapolated linearly in the depth (a secant predictor), or
+    None (start from ``u``) without two states, over more than twice the last step's length
+    (after a touch step's, it misled Newton), or where it would invert an element."""
+    if before is None or not 0 < target - done <= 2 * (done - before[0]):
+        return None
+    guess = u + (u - before[1]) * ((target - done) / (done - before[0]))
+    return guess if nh.min_jacobian(guess) > 0 else None
 
 
 def _per_pin(tips: RodTips | None, window: np.ndarray | None) -> np.ndarray | None:
@@ -416,7 +430,7 @@ def _tangent_blocks(nh: NeoHookeanBody, pattern: BlockPattern, u: np.ndarray
 def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: np.ndarray,
             tips: RodTips | None, window0: np.ndarray | None, tol: Tolerances,
             friction: PenaltyFriction | None = None, window_stick: bool = False,
-            window_t0: WindowFrictionState | None = None
+            window_t0: WindowFrictionState | None = None, guess: np.ndarray | None = None
             ) -> tuple[np.ndarray, ContactSolution, np.ndarray | None, int,
                        tuple[np.ndarray, np.ndarray] | None, WindowFrictionState | None]:
     """Semi-smooth Newton on equilibrium and the contact conditions together.
@@ -448,6 +462,9 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     (:class:`~.nh_stick.WindowStick`; ``window_t0`` their anchors and penalties at the step's
     start). Returns last the window's hold at the end: forces, penalties, anchors (None
     without).
+
+    ``guess``, if given, is the first iterate instead of ``u0`` (the step's start state, which
+    the sets ``active0`` and ``window0`` belong to).
     """
     body = nh.body
     space = body.space
@@ -457,7 +474,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     clamped = np.ones(space.n_dofs, dtype=bool)
     clamped[body.free] = False
     clamped = clamped.reshape(-1, 3)
-    u = u0.copy()
+    u = u0.copy() if guess is None else guess.copy()
     x = rest + u.reshape(-1, 3)[cand]
     g, _ = placement.gap(x)
     active = np.union1d(active0, np.flatnonzero(g < -tol.gap_mm))
