@@ -208,3 +208,33 @@ def test_a_stuck_point_pulled_off_and_pressed_back_slides():
     wf.anchor[3] = (0.1, 0.1)
     c, d = np.array([0, 2]), np.array([0])  # point 2 is not stuck: the cycle is not its spring
     assert wf.let_slide(c, d, d).tolist() == [0]
+
+
+def test_reusing_a_factorisation_changes_the_cost_not_the_answer(sim, stuck, monkeypatch):
+    """Near the solution the Newton iterations go on with the last factorisation (modified
+    Newton); every iteration factorising afresh (full Newton) ends at the same state."""
+    import tactip_sim.fem.neohookean as nh
+    from tactip_sim.fem.nh_blocks import BlockPattern
+
+    calls = {"n": 0}
+    factor = BlockPattern.factor
+
+    def counted(self, *args, **kwargs):
+        calls["n"] += 1
+        return factor(self, *args, **kwargs)
+
+    def press() -> tuple[object, int]:
+        calls["n"] = 0
+        result = solve_neo_hookean(sim.body, _placer(sim)(CORNER), CORNER.depth_mm,
+                                   markers=sim.body.markers, window_stick=True)
+        return result, calls["n"]
+
+    monkeypatch.setattr(BlockPattern, "factor", counted)
+    _, reused = press()
+    monkeypatch.setattr(nh, "REUSE_FACTOR_MM", 0.0)
+    full, factorised = press()
+    assert factorised >= full.iterations  # one factorisation an iteration, or more
+    assert reused < 0.75 * factorised
+    assert np.abs(full.u - stuck.u).max() < 1e-8
+    assert full.end_forces.sum() == pytest.approx(stuck.end_forces.sum(), rel=1e-8)
+    assert stuck.iterations < 1.3 * full.iterations

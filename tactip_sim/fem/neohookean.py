@@ -416,6 +416,13 @@ def _per_point_xy(tips: RodTips | None, state: WindowFrictionState | None
 STABILISER_TRIES = 8
 
 
+# a Newton iteration reuses the last factorisation when the last increment was at most this
+# (mm) and the active and held sets are those it was made with; a fresh one follows when an
+# iteration on it shrinks the increment by less than REUSE_CONTRACTION
+REUSE_FACTOR_MM = 1e-2
+REUSE_CONTRACTION = 0.1
+
+
 class _NoConvergence(Exception):
     pass
 
@@ -494,6 +501,9 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         decided = None  # (active, stick mask, friction forces, their stiffness), last iterate
         f_last = np.zeros((len(cand), 3))  # the last iterate's force on each slipping node
     first_try = 0  # where the tangent's variants start (below)
+    # the last factorisation (its solver, and the active and held sets it was made with) while
+    # the iterations may go on with it, and the last iteration's increment (mm)
+    reuse, change = None, np.inf
     for it in range(1, tol.newton_max_iter + 1):
         x = rest + u.reshape(-1, 3)[cand]
         g, nu = placement.gap(x)
@@ -547,7 +557,16 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             tries = [(curvature, 0.0)] + [(curvature, 10.0 ** k)
                                           for k in range(STABILISER_TRIES)] + tries
         stab = None  # built on first need: (pairs, values scaled to the curvature term)
-        for k in range(min(first_try, len(tries) - 1), len(tries)):
+        # near the solution, with the same sets, the last factorisation still serves (a
+        # modified Newton iteration: the same solution, a few solves instead of a factorisation)
+        stale = (reuse is not None and friction is None and change <= REUSE_FACTOR_MM
+                 and np.array_equal(active, reuse[1]) and np.array_equal(held, reuse[2]))
+        if stale:
+            curv = tries[0][0]
+            full = blocks if curv is None else pattern.add_dofs(blocks, curv[0], curv[1],
+                                                                -curv[2])
+            rot, solve = pattern.rotate(full, basis, moved), reuse[0]
+        for k in range(min(first_try, len(tries) - 1), len(tries) * (not stale)):
             curv, weight = tries[k]
             full = blocks if curv is None else pattern.add_dofs(blocks, curv[0], curv[1],
                                                                 -curv[2])
@@ -562,6 +581,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             try:
                 solve = pattern.factor(rot, fixed)
                 first_try = max(k - 1, 0) if curv is not None else first_try
+                reuse = (solve, active.copy(), held.copy())
                 break
             except (np.linalg.LinAlgError, RuntimeError):
                 if curv is None:
@@ -594,7 +614,9 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             if alpha < 1 / 1024:
                 raise _NoConvergence
         u = u + alpha * du
-        change = float(np.abs(alpha * du).max())
+        last_change, change = change, float(np.abs(alpha * du).max())
+        if alpha < 1.0 or (stale and change > REUSE_CONTRACTION * last_change):
+            reuse = None  # a fresh factorisation next
         x_new = rest + u.reshape(-1, 3)[cand]
         g_new, nu_new = placement.gap(x_new)
         keep = active[pressures > 0.0]
