@@ -243,7 +243,8 @@ class Simulator:
                                        window_stick=self._window_stick(solver))
             markers, dirs = self.body.markers.from_field(result.u, finite=True)
             return self._state(pose, indenter, solver, result.contact, markers, dirs,
-                               result.u, result.iterations, t0, result.window_forces)
+                               result.u, result.iterations, t0, result.window_forces,
+                               touch_states=result.touch_states)
         window = None
         if solver == "reduced":
             op = self.reduced
@@ -498,8 +499,8 @@ class Simulator:
 
     def _state(self, pose: Pose, indenter: Indenter, solver: str, sol: ContactSolution,
                markers: np.ndarray, dirs: np.ndarray, u: np.ndarray | None, iterations: int,
-               t0: float, window: np.ndarray | None = None, *, surface: bool = True
-               ) -> ContactState:
+               t0: float, window: np.ndarray | None = None, *, surface: bool = True,
+               touch_states: dict[int, np.ndarray] | None = None) -> ContactState:
         space = self.body.space
         nodes = space.candidates[sol.active]
         points = self._cand_rest[sol.active] + sol.u[sol.active]
@@ -513,8 +514,10 @@ class Simulator:
         nv = space.n_vertices
         errors = None
         if u is not None:
-            errors = marker_error_estimate(self.body.markers, space, u,
-                                           np.flatnonzero(self.mesh.regions == REGION_SKIN))
+            skin = np.flatnonzero(self.mesh.regions == REGION_SKIN)
+            errors = marker_error_estimate(self.body.markers, space, u, skin)
+            if errors is not None and touch_states:
+                errors = _stuck_errors(errors, touch_states, self.body.markers, space, skin)
         return ContactState(
             pose=pose, indenter=indenter, solver=solver, markers_mm=markers,
             rest_markers_mm=self.body.markers.rest_mm, marker_directions=dirs,
@@ -537,3 +540,20 @@ def _check_solver(solver: str) -> str:
     if solver not in SOLVERS:
         raise ValueError(f"solver={solver!r} is not allowed: one of {', '.join(SOLVERS)}")
     return solver
+
+
+def _stuck_errors(errors: np.ndarray, touch_states: dict[int, np.ndarray], markers, space,
+                  skin: np.ndarray) -> np.ndarray:
+    """``errors`` (the markers' estimates at the solution) with those of the pins whose end is
+    stuck on the window replaced by their estimate where the end was anchored
+    (``touch_states``, :attr:`~.fem.neohookean.NeoHookeanResult.touch_states`): a stuck end
+    stays at its anchor, so its marker carries the error it had there (docs/fem.md, "Pins that
+    stick to the window"). At the solution the skin under a held pin's base carries the rod's
+    push, whose gradient jumps do not shrink with the mesh and say nothing of the marker."""
+    out = errors.copy()
+    groups: dict[int, tuple[np.ndarray, list[int]]] = {}
+    for pin, u in touch_states.items():  # pins anchored in one step share one state
+        groups.setdefault(id(u), (u, []))[1].append(pin)
+    for u, pins in groups.values():
+        out[pins] = marker_error_estimate(markers, space, u, skin)[pins]
+    return out

@@ -238,3 +238,28 @@ def test_reusing_a_factorisation_changes_the_cost_not_the_answer(sim, stuck, mon
     assert np.abs(full.u - stuck.u).max() < 1e-8
     assert full.end_forces.sum() == pytest.approx(stuck.end_forces.sum(), rel=1e-8)
     assert stuck.iterations < 1.3 * full.iterations
+
+
+def test_each_stuck_pin_keeps_the_state_where_it_touched(sim, stuck):
+    """The pins whose end lies on the window at the end of a stuck press are those with a
+    touch state, and in it their end had just reached the window."""
+    from tactip_sim.fem.nh_stick import ON_WINDOW_MM, lowest_heights
+
+    tips = RodTips(sim.body.markers)
+    on = np.flatnonzero(lowest_heights(tips, stuck.u) <= ON_WINDOW_MM)
+    assert len(on) >= 2
+    assert sorted(stuck.touch_states) == on.tolist()
+    for pin, u in stuck.touch_states.items():
+        assert lowest_heights(tips, u)[pin] <= ON_WINDOW_MM
+        assert not np.array_equal(u, stuck.u)  # touched before the last step
+
+
+def test_touch_states_follow_the_ends():
+    from tactip_sim.fem.neohookean import _note_touches
+
+    states: dict[int, np.ndarray] = {}
+    first, second = np.zeros(3), np.ones(3)
+    _note_touches(states, np.array([0.0, 0.2, 1e-6]), first)  # pins 0 and 2 reach it
+    assert sorted(states) == [0, 2] and states[0] is first
+    _note_touches(states, np.array([0.0, 0.0, 0.3]), second)  # 1 reaches it, 2 leaves
+    assert sorted(states) == [0, 1] and states[0] is first and states[1] is second

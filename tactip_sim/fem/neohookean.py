@@ -88,6 +88,11 @@ class NeoHookeanResult:
     end_tangential: np.ndarray | None = None
     """(p, n, 2) mN, the window's friction force (x, y) on each end point (None when the
     window is frictionless)."""
+    touch_states: dict[int, np.ndarray] | None = None
+    """With the ends sticking: for each pin whose end lies on the window at the end, the
+    displacement (n_dofs,) of the accepted load step at whose close its end first reached the
+    window (where it was anchored; pins that touched in the same step share one array).
+    None without the stick."""
 
 
 @dataclass(frozen=True)
@@ -335,6 +340,7 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
     # with the ends sticking: the nearest depth at which a step from the last accepted state
     # found an end newly touching, and how many steps did since
     touched_at, misses = None, 0
+    touch_states: dict[int, np.ndarray] = {}  # with the ends sticking: NeoHookeanResult's
     before = None  # (depth, u) of the accepted state before the last: the steps' predictor
     while done < depth_mm - 1e-12:
         target = min(depth_mm, done + step)
@@ -368,6 +374,7 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
         window, window_t = window_new, window_t_new
         if window_stick:
             accepted = [accepted[-1], (done, lowest_heights(tips, u))]
+            _note_touches(touch_states, accepted[-1][1], u)
             misses = 0
             if touch or (touched_at is not None and done >= touched_at - 1e-12):
                 touched_at = None
@@ -379,7 +386,20 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
                                   np.zeros((0, 3)), np.zeros(0), g, 0.0, 0, 0)
     return NeoHookeanResult(u, contact, iterations, steps, _per_pin(tips, window),
                             end_forces=_per_point(tips, window),
-                            end_tangential=_per_point_xy(tips, window_t))
+                            end_tangential=_per_point_xy(tips, window_t),
+                            touch_states=touch_states if window_stick else None)
+
+
+def _note_touches(states: dict[int, np.ndarray], lowest: np.ndarray, u: np.ndarray) -> None:
+    """Keeps ``states`` (pin -> the displacement where its end reached the window) up to
+    date after an accepted load step with displacement ``u`` and each pin's lowest end height
+    ``lowest``: a pin whose end now lies on the window gets ``u`` if it has no state, a pin
+    whose end left it loses its state."""
+    on = lowest <= nh_stick.ON_WINDOW_MM
+    for pin in np.flatnonzero(on):
+        states.setdefault(int(pin), u)
+    for pin in [p for p in states if not on[p]]:
+        del states[pin]
 
 
 def _predicted(nh: NeoHookeanBody, before: tuple[float, np.ndarray] | None, done: float,
