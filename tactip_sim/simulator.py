@@ -424,7 +424,8 @@ class Simulator:
             t0 = time.perf_counter() - (stamps[k + 1] - stamps[k])
             markers, dirs = self.body.markers.from_field(res.u, finite=True)
             out.append(self._state(p, indenter, "neo_hookean", res.contact, markers, dirs,
-                                   res.u, res.iterations, t0, res.window_forces))
+                                   res.u, res.iterations, t0, res.window_forces,
+                                   touch_states=res.touch_states))
         return out, results[-1].history
 
     def _window_stick(self, solver: str) -> bool:

@@ -97,6 +97,8 @@ def test_stuck_ends_stay_put_and_free_ones_slide(sim):
                               markers=body.markers, window_stick=True)[-1]
     before = tips.positions(tapped.u)
     held0 = np.flatnonzero(tapped.end_forces.ravel() > 0)
+    # the path keeps, for each pin held at its end, the state of the step it touched in
+    assert set(held0 // tips.per_pin) <= set(tapped.touch_states)
     poses = [ts.Pose(CORNER.roll_deg, CORNER.pitch_deg, d) for d in (2.1, 2.2, 2.3)]
     res = neo_hookean_path(body, poses, placer, mu=0.0, markers=body.markers,
                            history=tapped.history, window_stick=True)[-1]

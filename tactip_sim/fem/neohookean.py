@@ -250,7 +250,10 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
         default the pad at rest with the indenter touching at ``poses[0]``'s orientation
     progress : called with the number of steps done after each
     window_stick : the pins' ends stick where they touch the window (anchored at the end of
-        the step in which they touch: the path's own steps set where)
+        the step in which they touch: the path's own steps set where); each result's
+        ``touch_states`` then holds the path's state where each end on the window reached it
+        (from ``history``'s path on, for a continued path: an end held there counts from the
+        first step)
 
     Raises
     ------
@@ -274,6 +277,7 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
     tips = None if markers is None or markers.count == 0 else RodTips(markers)
     out: list[NeoHookeanResult] = []
     splits = 0
+    touch_states: dict[int, np.ndarray] = {}  # with the ends sticking (NeoHookeanResult's)
     with single_threaded_blas():
         for k, pose in enumerate(poses):
             label = f"{pose} (step {k + 1} of {len(poses)})"
@@ -295,7 +299,11 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
                 iterations += res.iterations
                 steps += 1
             check_in_contact(k, pose, k == 0 and fresh, res.contact.active.size)
-            out.append(dataclasses.replace(res, iterations=iterations, load_steps=steps))
+            if window_stick and tips is not None:
+                _note_touches(touch_states, lowest_heights(tips, res.u), res.u)
+            out.append(dataclasses.replace(
+                res, iterations=iterations, load_steps=steps,
+                touch_states=dict(touch_states) if window_stick and tips is not None else None))
             if progress is not None:
                 progress(k + 1)
     return out
