@@ -548,9 +548,10 @@ def _stuck_errors(errors: np.ndarray, touch_states: dict[int, np.ndarray], marke
     """``errors`` (the markers' estimates at the solution) with those of the pins whose end is
     stuck on the window replaced by their estimate where the end was anchored
     (``touch_states``, :attr:`~.fem.neohookean.NeoHookeanResult.touch_states`): a stuck end
-    stays at its anchor, so its marker carries the error it had there (docs/fem.md, "Pins that
-    stick to the window"). At the solution the skin under a held pin's base carries the rod's
-    push, whose gradient jumps do not shrink with the mesh and say nothing of the marker."""
+    keeps its anchor, so its marker carries the error it had there (docs/fem.md, "The markers'
+    error"; the end's tilt about its anchored points after the touch is left out). At the
+    solution the skin under a held pin's base carries the rod's push, whose gradient jumps do
+    not shrink with the mesh and say nothing of the marker."""
     out = errors.copy()
     groups: dict[int, tuple[np.ndarray, list[int]]] = {}
     for pin, u in touch_states.items():  # pins anchored in one step share one state
