@@ -154,10 +154,10 @@ def test_a_missed_touch_bounds_the_next_steps():
     from tactip_sim.fem.nh_stick import approach
 
     # nothing to extrapolate from: halfway from the last accepted state
-    assert approach([(0.0, np.array([1.0]))], 4.0, touched_at=2.0, misses=1) == 1.0
+    assert approach([(0.0, np.array([1.0]))], 4.0, touched_at=2.0, missed=True) == 1.0
     # just missed from this state: halfway, whatever the extrapolation says
     states = [(0.0, np.array([1.0])), (1.0, np.array([0.5]))]  # would touch at 2 mm
-    assert approach(states, 4.0, touched_at=1.8, misses=1) == pytest.approx(1.4)
+    assert approach(states, 4.0, touched_at=1.8, missed=True) == pytest.approx(1.4)
     # from a state accepted since: the extrapolation again, no further than half a touch
     # step short of the known touch
     assert approach(states, 4.0, touched_at=1.8) == pytest.approx(1.8 - touch / 2)

@@ -345,15 +345,15 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
     done, step, iterations, steps = 0.0, min(depth_mm, first), 0, 0
     # with the ends sticking: the accepted (depth, each pin's lowest end height), last two
     accepted = [] if tips is None else [(0.0, lowest_heights(tips, u))]
-    # with the ends sticking: the nearest depth at which a step from the last accepted state
-    # found an end newly touching, and how many steps did since
-    touched_at, misses = None, 0
+    # with the ends sticking: the nearest depth at which a step found an end newly touching
+    # since the last touch, and whether the last step from the last accepted state did
+    touched_at, missed = None, False
     touch_states: dict[int, np.ndarray] = {}  # with the ends sticking: NeoHookeanResult's
     before = None  # (depth, u) of the accepted state before the last: the steps' predictor
     while done < depth_mm - 1e-12:
         target = min(depth_mm, done + step)
         if window_stick:
-            target = approach(accepted, target, touched_at, misses)
+            target = approach(accepted, target, touched_at, missed)
         trial = Placement(placement.indenter, placement.rotation, origin_first - target * m,
                           placement.contact_point_mm, placement.max_depth_mm)
         try:
@@ -374,7 +374,7 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
         touch = window_stick and touched(tips, window, window_new)
         if touch and target - done > nh_stick.WINDOW_TOUCH_STEP_MM * (1 + 1e-9):
             # an end touched the window within a longer step: find where, before it
-            touched_at, misses = target, misses + 1
+            touched_at, missed = target, True
             continue
         before = (done, u)
         u, contact, done = u_new, contact_new, target
@@ -383,7 +383,7 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
         if window_stick:
             accepted = [accepted[-1], (done, lowest_heights(tips, u))]
             _note_touches(touch_states, accepted[-1][1], u)
-            misses = 0
+            missed = False
             if touch or (touched_at is not None and done >= touched_at - 1e-12):
                 touched_at = None
             step = min(first, 2 * step)

@@ -165,7 +165,7 @@ def lowest_heights(tips: RodTips, u: np.ndarray) -> np.ndarray:
 
 
 def approach(accepted: list[tuple[float, np.ndarray]], target: float,
-             touched_at: float | None = None, misses: int = 0) -> float:
+             touched_at: float | None = None, missed: bool = False) -> float:
     """The next load step's end with the ends sticking to the window, from the last two
     accepted states ``accepted`` (depth, :func:`lowest_heights`): where the ends still clear of
     the window would first touch it, extrapolated linearly in the depth, the step stops
@@ -173,11 +173,11 @@ def approach(accepted: list[tuple[float, np.ndarray]], target: float,
     it crosses in one touch step. So a touch costs about two solves.
 
     Where the guess is wrong, a longer step found an end newly touching at ``touched_at``
-    (the nearest such depth since the last touch, ``misses`` such steps from the last
-    accepted state): the touch lies before it. Within one touch step of it, the step crosses
-    to it. Just after a miss the step goes halfway there; from a state accepted since, the
-    extrapolation guides it again, but no further than half a touch step short of
-    ``touched_at``."""
+    (the nearest such depth since the last touch; ``missed``: the last step from the last
+    accepted state was such a step): the touch lies before it. Within one touch step of it,
+    the step crosses to it. Just after a miss the step goes halfway there; from a state
+    accepted since, the extrapolation guides it again, but no further than half a touch step
+    short of ``touched_at``."""
     touch_step = WINDOW_TOUCH_STEP_MM
     d1 = accepted[-1][0]
     if touched_at is not None and touched_at - d1 <= touch_step * (1 + 1e-9):
@@ -190,7 +190,7 @@ def approach(accepted: list[tuple[float, np.ndarray]], target: float,
         if clear.any():
             touch = d1 + float((z1[clear] / rate[clear]).min())
     if touched_at is not None:
-        if misses or not np.isfinite(touch):
+        if missed or not np.isfinite(touch):
             return min(target, d1 + (touched_at - d1) / 2)
         touch = min(touch, touched_at)
     if not np.isfinite(touch):
