@@ -28,7 +28,7 @@ from .fem.contact import ContactSolution, solve_contact
 from .fem.friction import FrictionHistory
 from .fem.full import FullOperator
 from .fem.indenters import Indenter, Plate, indenter_from_scene, place
-from .fem.marker_error import marker_error_estimate
+from .fem.marker_error import marker_error_estimate, stuck_marker_errors
 from .fem.model import ElasticBody
 from .fem.pose import Pose
 from .fem.reduced import ReducedModel
@@ -518,7 +518,8 @@ class Simulator:
             skin = np.flatnonzero(self.mesh.regions == REGION_SKIN)
             errors = marker_error_estimate(self.body.markers, space, u, skin)
             if errors is not None and touch_states:
-                errors = _stuck_errors(errors, touch_states, self.body.markers, space, skin)
+                errors = stuck_marker_errors(errors, touch_states, self.body.markers, space,
+                                             skin)
         return ContactState(
             pose=pose, indenter=indenter, solver=solver, markers_mm=markers,
             rest_markers_mm=self.body.markers.rest_mm, marker_directions=dirs,
@@ -542,20 +543,3 @@ def _check_solver(solver: str) -> str:
         raise ValueError(f"solver={solver!r} is not allowed: one of {', '.join(SOLVERS)}")
     return solver
 
-
-def _stuck_errors(errors: np.ndarray, touch_states: dict[int, np.ndarray], markers, space,
-                  skin: np.ndarray) -> np.ndarray:
-    """``errors`` (the markers' estimates at the solution) with those of the pins whose end is
-    stuck on the window replaced by their estimate where the end was anchored
-    (``touch_states``, :attr:`~.fem.neohookean.NeoHookeanResult.touch_states`): a stuck end
-    keeps its anchor, so its marker carries the error it had there (docs/fem.md, "The markers'
-    error"; the end's tilt about its anchored points after the touch is left out). At the
-    solution the skin under a held pin's base carries the rod's push, whose gradient jumps do
-    not shrink with the mesh and say nothing of the marker."""
-    out = errors.copy()
-    groups: dict[int, tuple[np.ndarray, list[int]]] = {}
-    for pin, u in touch_states.items():  # pins anchored in one step share one state
-        groups.setdefault(id(u), (u, []))[1].append(pin)
-    for u, pins in groups.values():
-        out[pins] = marker_error_estimate(markers, space, u, skin)[pins]
-    return out

@@ -24,7 +24,7 @@ import numpy as np
 from .markers import Markers
 from .space import Space, gradient_operator
 
-__all__ = ["marker_error_estimate", "recovered_gradient"]
+__all__ = ["marker_error_estimate", "recovered_gradient", "stuck_marker_errors"]
 
 # rows (3 c + k = d u_c / d x_k) of the gradient whose differences are the curl's components
 _CURL = ((7, 5), (2, 6), (3, 1))
@@ -91,3 +91,21 @@ def marker_error_estimate(markers: Markers, space: Space, u: np.ndarray,
     d = (g_h - g_star).reshape(p, k, 9)
     rot = 0.5 * np.stack([d[..., a] - d[..., b] for a, b in _CURL], axis=-1)  # (p, k, 3)
     return markers.length_mm * np.sqrt(np.einsum("pk,k->p", (rot**2).sum(axis=2), w))
+
+
+def stuck_marker_errors(errors: np.ndarray, touch_states: dict[int, np.ndarray],
+                        markers: Markers, space: Space, skin: np.ndarray) -> np.ndarray:
+    """``errors`` (the markers' estimates at the solution) with those of the pins whose end is
+    stuck on the window replaced by their estimate where the end was anchored
+    (``touch_states``, :attr:`~.neohookean.NeoHookeanResult.touch_states`): a stuck end
+    keeps its anchor, so its marker carries the error it had there (docs/fem.md, "The markers'
+    error"; the end's tilt about its anchored points after the touch is left out). At the
+    solution the skin under a held pin's base carries the rod's push, whose gradient jumps do
+    not shrink with the mesh and say nothing of the marker."""
+    out = errors.copy()
+    groups: dict[int, tuple[np.ndarray, list[int]]] = {}
+    for pin, u in touch_states.items():  # pins anchored in one step share one state
+        groups.setdefault(id(u), (u, []))[1].append(pin)
+    for u, pins in groups.values():
+        out[pins] = marker_error_estimate(markers, space, u, skin)[pins]
+    return out
