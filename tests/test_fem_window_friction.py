@@ -265,3 +265,36 @@ def test_touch_states_follow_the_ends():
     assert sorted(states) == [0, 2] and states[0] is first
     _note_touches(states, np.array([0.0, 0.0, 0.3]), second)  # 1 reaches it, 2 leaves
     assert sorted(states) == [0, 1] and states[0] is first and states[1] is second
+
+
+def test_one_factorisation_alive_at_a_time(sim, monkeypatch):
+    """CHOLMOD's factor is most of a large press's memory: the last one is let go before the
+    next is made (two at once were the 1 mm pad's peak)."""
+    import gc
+    import weakref
+
+    from tactip_sim.fem.nh_blocks import BlockPattern
+
+    factor = BlockPattern.factor
+    made: list[weakref.ref] = []
+    alive_at_call: list[int] = []
+
+    class Solver:
+        def __init__(self, solve):
+            self.solve = solve
+
+        def __call__(self, b):
+            return self.solve(b)
+
+    def tracked(self, *args, **kwargs):
+        gc.collect()
+        alive_at_call.append(sum(r() is not None for r in made))
+        solver = Solver(factor(self, *args, **kwargs))
+        made.append(weakref.ref(solver))
+        return solver
+
+    monkeypatch.setattr(BlockPattern, "factor", tracked)
+    solve_neo_hookean(sim.body, _placer(sim)(CORNER), CORNER.depth_mm,
+                      markers=sim.body.markers, window_stick=True)
+    assert len(made) > 5
+    assert max(alive_at_call) == 0

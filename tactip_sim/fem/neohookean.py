@@ -594,6 +594,10 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             full = blocks if curv is None else pattern.add_dofs(blocks, curv[0], curv[1],
                                                                 -curv[2])
             rot, solve = pattern.rotate(full, basis, moved), reuse[0]
+        else:
+            # let the last factor go before the next is made: CHOLMOD's factor is most of a
+            # press's memory, and two at once were its peak (docs/fem.md)
+            reuse = solve = linear = window = None
         for k in range(min(first_try, len(tries) - 1), len(tries) * (not stale)):
             curv, weight = tries[k]
             full = blocks if curv is None else pattern.add_dofs(blocks, curv[0], curv[1],

@@ -10,6 +10,7 @@ import scipy.sparse as sp
 from .elasticity import Factor
 from .model import ElasticBody
 from .nh_tips import rod_pairs
+from .tolerances import factor_threads
 
 __all__ = ["BlockPattern", "node_stiffness"]
 
@@ -133,7 +134,13 @@ class BlockPattern:
         try:
             if self.symbolic is None:
                 self.symbolic = analyze(mat, ordering_method="metis", mode="supernodal")
-            return self.symbolic.cholesky(mat)
+            threads = factor_threads()
+            if threads == 1:  # the caller's BLAS setting (single_threaded_blas) stands
+                return self.symbolic.cholesky(mat)
+            from threadpoolctl import threadpool_limits
+
+            with threadpool_limits(threads, user_api="blas"):
+                return self.symbolic.cholesky(mat)
         except CholmodError as exc:
             raise np.linalg.LinAlgError(f"CHOLMOD: {exc}") from exc
 
