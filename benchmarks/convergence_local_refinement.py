@@ -21,6 +21,9 @@ Usage::
         --auto-pins --instances 0                            # the pins the estimate flags
     python benchmarks/convergence_local_refinement.py --out /tmp/stick2 --depth 2 --auto-pins \
         --instances 0 --pin-friction stick                   # the ends stuck to the window
+    python benchmarks/convergence_local_refinement.py --out /tmp/stick2 --depth 2 --pins 2 3 9 \
+        10 19 20 30 --instances 0 --pin-friction stick --radius 1.5 --next-level
+                                         # then the product's second level after it
 
 Each press is stored in ``OUT`` as it finishes (the fresh mesh too); a rerun solves only the
 missing ones. Prints the largest / mean marker difference of each pair (mm), the leading
@@ -49,10 +52,32 @@ LEAD_PINS = (2, 3, 9, 10, 12, 19)
 MESHES = ("1 mm", "second 1 mm")  # instance 0: the bundled mesh; 1: a fresh pytetwild build
 
 
-def cases(edges, radius: float, instances) -> list[tuple[str, int, float | None]]:
-    """(label, instance, refined edge or None) for every mesh of the study."""
-    return [(MESHES[i] + ("" if e is None else f" refined {e:g}/{radius:g}"), i, e)
-            for i in instances for e in (None, *edges)]
+NEXT = "next level"  # the edge of a case refined by the product's rule for a second level
+
+
+def cases(edges, radius: float, instances, next_level: bool = False
+          ) -> list[tuple[str, int, float | str | None]]:
+    """(label, instance, refined edge, or None, or :data:`NEXT`) for every mesh of the study."""
+    levels = (None, *edges) + ((NEXT,) if next_level else ())
+    return [(MESHES[i] + ("" if e is None else f" refined {edges[-1]:g}/{radius:g}, {e}"
+                          if e == NEXT else f" refined {e:g}/{radius:g}"), i, e)
+            for i in instances for e in levels]
+
+
+def next_level(out: Path, first: str, edge: float, tolerance: float
+               ) -> tuple[list[int], list[float]]:
+    """The pins and their zones' edges of the product's second level
+    (:meth:`tactip_sim.fem.refine.PinRefiner.press`) after the refined press ``first`` (pins
+    at ``edge``): a pin its estimate still puts above ``tolerance`` gets a zone
+    :data:`~tactip_sim.fem.refine.PIN_LEVEL_FACTOR` finer, or joins at ``edge``."""
+    from tactip_sim.fem.refine import PIN_LEVEL_FACTOR
+
+    with np.load(case_path(out, first)) as z:
+        edges = {int(p): edge for p in z["pins"]}
+        for p in map(int, np.flatnonzero(z["estimate"] > tolerance)):
+            edges[p] = edges[p] * PIN_LEVEL_FACTOR if p in edges else edge
+    pins = sorted(edges)
+    return pins, [edges[p] for p in pins]
 
 
 def _scene(pin_friction: str = "none"):
@@ -78,9 +103,9 @@ def base_mesh(instance: int, out: Path):
     return mesh
 
 
-def refine(mesh, roots: np.ndarray, edge_mm: float, radius_mm: float):
+def refine(mesh, roots: np.ndarray, edge_mm: float | tuple[float, ...], radius_mm: float):
     """``mesh`` bisected until every tet within ``radius_mm`` of a root has edges of at most
-    ``edge_mm`` (graded outside), snapped onto the pad's surfaces
+    ``edge_mm`` (one for all, or one a root; graded outside), snapped onto the pad's surfaces
     (:func:`tactip_sim.mesh.local.refined_mesh`)."""
     from tactip_sim.mesh.local import Refinement, refined_mesh
 
@@ -102,8 +127,8 @@ def refined_pins(a, out: Path, instance: int, edges) -> list[int]:
         return np.flatnonzero(z["estimate"] > a.tolerance).tolist()
 
 
-def solve(label: str, instance: int, edge: float | None, pose, a, out: Path,
-          pins: list[int]) -> Path:
+def solve(label: str, instance: int, edge: float | tuple[float, ...] | None, pose, a,
+          out: Path, pins: list[int]) -> Path:
     import tactip_sim as ts
     from tactip_sim.geometry import build_pad
 
@@ -136,7 +161,9 @@ def solve(label: str, instance: int, edge: float | None, pose, a, out: Path,
     np.savez(tmp, markers=state.markers_mm, force=state.force_N, seconds=seconds,
              p1_markers=p1_markers, estimate=state.marker_errors_mm,
              tets=len(mesh.tets), dofs=sim.body.space.n_dofs, pose=np.array(pose),
-             pins=np.array(pins, dtype=int), pin_friction=a.pin_friction)
+             pins=np.array(pins, dtype=int), pin_friction=a.pin_friction,
+             pin_edges=np.broadcast_to(np.asarray(edge if pins else [], dtype=float),
+                                       (len(pins),)))
     tmp.replace(path)
     return path
 
@@ -159,6 +186,10 @@ def main() -> None:
                     help="refine around the pins the product's estimate flags (above "
                     "--tolerance) on the unrefined mesh of each instance, not --pins (what "
                     "fidelity.pin_refinement = 'auto' does at its first level)")
+    ap.add_argument("--next-level", action="store_true",
+                    help="one more mesh per instance: the finest --edges press's pins, those "
+                    "its estimate still puts above --tolerance refined 0.75x finer (newly "
+                    "flagged pins joining at that edge), the product's second level")
     ap.add_argument("--pin-friction", choices=("none", "stick"), default="none",
                     help="window.pin_friction of the presses: the pins' ends slide on the "
                     "window (none, the default) or stay where they touched it (stick)")
@@ -167,12 +198,17 @@ def main() -> None:
         ap.error(f"--pins {a.pins}: allowed 0-96")
     a.out.mkdir(parents=True, exist_ok=True)
     pose = (a.roll, a.pitch, a.depth)
-    study = cases(sorted(a.edges, reverse=True), a.radius, sorted(set(a.instances)))
+    edges = sorted(a.edges, reverse=True)
+    study = cases(edges, a.radius, sorted(set(a.instances)), a.next_level)
     if not a.no_solve:
         from tqdm import tqdm
 
         for label, instance, edge in tqdm(study, desc="presses", unit="press"):
             pins = [] if edge is None else refined_pins(a, a.out, instance, a.edges)
+            if edge == NEXT:
+                first = next(lab for lab, i, e in study if i == instance and e == edges[-1])
+                pins, zone = next_level(a.out, first, edges[-1], a.tolerance)
+                edge = tuple(zone)
             solve(label, instance, edge, pose, a, a.out, pins)
     runs = {}
     for label, _, _ in study:
@@ -184,7 +220,9 @@ def main() -> None:
     for label, r in runs.items():
         print(f"  {label:<28} {int(r['tets']):7d} tets {int(r['dofs']):8d} dofs "
               f"{float(r['force']):8.4f} N {float(r['seconds']):7.1f} s"
-              + (f"  pins {r['pins'].tolist()}" if r.get("pins", np.zeros(0)).size else ""))
+              + (f"  pins {r['pins'].tolist()}" if r.get("pins", np.zeros(0)).size else "")
+              + (f" edges {np.round(r['pin_edges'], 3).tolist()}"
+                 if np.unique(r.get("pin_edges", np.zeros(0))).size > 1 else ""))
     same_level = [(p, q) for p, i, e in study for q, j, f in study if i == 0 < j and e == f]
     successive = [(p, q) for (p, i, _), (q, j, _) in zip(study, study[1:], strict=False)
                   if i == j]
