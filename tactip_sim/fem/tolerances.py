@@ -92,9 +92,9 @@ def single_threaded_blas():
 def factor_threads() -> int:
     """BLAS threads for the neo-Hookean reference's sparse Cholesky factorisations:
     ``$TACTIP_FACTOR_THREADS``, default 1. On an idle 2-core machine two threads factorised
-    the 1 mm pad's P2 tangent 1.6x faster (docs/fem.md); beside other work they were up to
-    10x slower, hence the default. Raises ValueError naming the variable if it is not an
-    integer from 1 to the machine's CPU count."""
+    the 1 mm pad's P2 tangent 1.6x faster; with the other core busy they were slower (1.59
+    against 1.29 s on the 2 mm mesh; docs/fem.md), hence the default. Raises ValueError
+    naming the variable if it is not an integer from 1 to the machine's CPU count."""
     raw = os.environ.get("TACTIP_FACTOR_THREADS", "1")
     limit = os.cpu_count() or 1
     try:
