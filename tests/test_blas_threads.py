@@ -44,8 +44,9 @@ def test_bad_factor_threads_are_named(monkeypatch, raw):
 
 
 def test_threaded_factorisation_solves_alike_and_restores_one_thread(monkeypatch):
-    """TACTIP_FACTOR_THREADS=2 factorises with two BLAS threads and leaves the caller's one
-    thread after; the solution agrees with the one-thread factor's to round-off."""
+    """With TACTIP_FACTOR_THREADS=2 the factor solves as the one-thread factor does (to
+    round-off) and the caller's one BLAS thread is back after the factorisation (the speed
+    is bench_factor.py's to measure)."""
     import os
 
     import numpy as np
