@@ -48,6 +48,8 @@ SUB_MM = 0.25  # sub-tets of about this size integrate the bump in an element
 def _subtets(levels: int) -> tuple[np.ndarray, np.ndarray]:
     """Barycentric points (q, 4) and weights (q,) of the degree-2 rule on the 8^levels tets of
     ``levels`` regular (red) refinements of a tet (equal volumes)."""
+    from tactip_sim.fem.elements import quadrature
+
     tets = [np.eye(4)]
     for _ in range(levels):
         split = []
@@ -59,9 +61,7 @@ def _subtets(levels: int) -> tuple[np.ndarray, np.ndarray]:
                 (m[0, 1], m[0, 2], m[0, 3], m[1, 3]), (m[0, 1], m[0, 2], m[1, 2], m[1, 3]),
                 (m[0, 2], m[0, 3], m[1, 3], m[2, 3]), (m[0, 2], m[1, 2], m[1, 3], m[2, 3]))]
         tets = split
-    a, b = 0.5854101966249685, 0.1381966011250105
-    rule = np.full((4, 4), b)
-    np.fill_diagonal(rule, a)
+    rule, _ = quadrature(2)  # equal weights
     pts = np.concatenate([rule @ t for t in tets])
     return pts, np.full(len(pts), 1.0 / len(pts))
 
@@ -104,17 +104,10 @@ def base_averages(space, pad, radius_mm: float) -> tuple[sp.csr_matrix, sp.csr_m
 def averaged(markers, space, pad, radius_mm: float):
     """``markers`` (rods) with the root's displacement and the turn read from the base
     averages (:func:`base_averages`) instead of the root point and the 14 base points."""
-    from tactip_sim.fem.markers import _CURL
+    from tactip_sim.fem.markers import rod_operator
 
     shift, grad = base_averages(space, pad, radius_mm)
-    p = markers.count
-    base = 9 * np.arange(p)[:, None]
-    plus = (base + np.array([a for a, _ in _CURL])).ravel()
-    minus = (base + np.array([b for _, b in _CURL])).ravel()
-    turn = (0.5 * (grad[plus] - grad[minus])).tocsr()
-    order = np.concatenate([np.arange(3 * p).reshape(p, 3),
-                            3 * p + np.arange(3 * p).reshape(p, 3)], axis=1).ravel()
-    return replace(markers, operator=sp.vstack([shift, turn]).tocsr()[order], gradient=grad)
+    return replace(markers, operator=rod_operator(shift, grad), gradient=grad)
 
 
 def solve(coupling: str, refined: bool, a, out: Path) -> Path:

@@ -243,18 +243,30 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
         grad = _mean_gradient(space, centre[:, None, :], np.ones(1))[0]
     if model == "embedded":
         tip_el, tip_lam, _ = locate(space, pins.tips)
-        first = interpolation_operator(space, tip_el, tip_lam)
-        second = root_op
+        operator = _interleave(interpolation_operator(space, tip_el, tip_lam), root_op)
     else:
-        first = root_op
-        base = 9 * np.arange(p)[:, None]
-        plus = (base + np.array([a for a, _ in _CURL])).ravel()
-        minus = (base + np.array([b for _, b in _CURL])).ravel()
-        second = (0.5 * (grad[plus] - grad[minus])).tocsr()  # row 3 i + a: w_a of pin i
-    # interleave: pin i -> rows 6 i + [0, 1, 2] (first), 6 i + [3, 4, 5] (second)
+        operator = rod_operator(root_op, grad)
+    return Markers(model, pins.tips.copy(), pins.roots.copy(), pins.directions.copy(), length,
+                   operator, grad, end_radius_mm if model == "rod" else 0.0,
+                   *(base_quad or (None, None, None)))
+
+
+def rod_operator(shift: sp.csr_matrix, grad: sp.csr_matrix) -> sp.csr_matrix:
+    """(6 p, n_dofs) the rods' :attr:`Markers.operator` from the operators of each root's
+    displacement ``shift`` (3 p, n_dofs) and of its mean skin gradient ``grad`` (9 p,
+    n_dofs): rows ``6 i .. 6 i + 2`` the root's displacement, ``6 i + 3 .. 6 i + 5`` the
+    rotation vector ``w = 1/2 curl u`` of the mean gradient."""
+    base = 9 * np.arange(grad.shape[0] // 9)[:, None]
+    plus = (base + np.array([a for a, _ in _CURL])).ravel()
+    minus = (base + np.array([b for _, b in _CURL])).ravel()
+    return _interleave(shift, (0.5 * (grad[plus] - grad[minus])).tocsr())
+
+
+def _interleave(first: sp.csr_matrix, second: sp.csr_matrix) -> sp.csr_matrix:
+    """Rows ``3 i + c`` of ``first`` and ``second`` (3 p each) as rows ``6 i + c`` and
+    ``6 i + 3 + c``."""
+    p = first.shape[0] // 3
     stacked = sp.vstack([first, second]).tocsr()
     order = np.concatenate([np.arange(3 * p).reshape(p, 3), 3 * p + np.arange(3 * p).reshape(p, 3)],
                            axis=1).ravel()
-    return Markers(model, pins.tips.copy(), pins.roots.copy(), pins.directions.copy(), length,
-                   stacked[order], grad, end_radius_mm if model == "rod" else 0.0,
-                   *(base_quad or (None, None, None)))
+    return stacked[order]
