@@ -10,20 +10,21 @@ root and point dipoles at the 14 points. A point force has no finite-energy limi
 elasticity (the displacement under it grows without bound as the mesh is refined), so the
 held pins get softer with every refinement and the force they carry never converges.
 
-This study replaces both operators by averages over the pin's bonded base, integrated over the
-skin's elements (a bump ``(1 - (rho/r)^2)^2`` in the distance ``rho`` from the pin's axis,
-``r`` the pin's radius, through the skin's thickness; each element's part by a degree-2 rule on
-up to 8^3 sub-tets): loads that are bounded functionals of the field, with a finite limit. It
-presses the corner pose at 2 mm, window frictionless (a path-independent answer), on the given
-mesh and on the same mesh refined around the held pins, with both couplings, and prints the
-plate's force, the held pins' forces and how far refinement moved the markers.
+This study compared that coupling (the model until 2026-11-28) with one averaged over the
+pin's bonded base, integrated over the skin's elements (a bump ``(1 - (rho/r)^2)^2`` in the
+distance ``rho`` from the pin's axis, ``r`` the pin's radius, through the skin's thickness):
+loads that are bounded functionals of the field, with a finite limit. The averaged coupling is
+now the product's rod model (:mod:`tactip_sim.fem.markers`); the point coupling is rebuilt
+here from the earlier model's operators. It presses the corner pose at 2 mm, window
+frictionless (a path-independent answer), on the given mesh and on the same mesh refined
+around the held pins, with both couplings, and prints the plate's force, the held pins' forces
+and how far refinement moved the markers.
 
 Usage::
 
     python benchmarks/convergence_rod_coupling.py --out DIR                      # P2, 1 mm
     python benchmarks/convergence_rod_coupling.py --out DIR --order 1 --edge 2   # quick
 
-A study, not the product: the averaged coupling lives here until it is chosen for the model.
 Each press is stored in ``OUT``; a rerun solves only the missing ones.
 """
 
@@ -35,79 +36,28 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 
 from tactip_sim.commands.args import float_in
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
 HELD = (2, 9, 19)  # the pins held by the window at the corner pose, 2 mm (docs/convergence.md)
-SUB_MM = 0.25  # sub-tets of about this size integrate the bump in an element
 
 
-def _subtets(levels: int) -> tuple[np.ndarray, np.ndarray]:
-    """Barycentric points (q, 4) and weights (q,) of the degree-2 rule on the 8^levels tets of
-    ``levels`` regular (red) refinements of a tet (equal volumes)."""
-    from tactip_sim.fem.elements import quadrature
+def point_coupling(markers, space, pad, radius_mm: float, thickness_mm: float):
+    """``markers`` (rods) with the earlier model's operators: the root's displacement at the
+    root point and the gradient averaged at the 7 x 2 points of the base
+    (:func:`convergence_rod_quadrature.disk7_base`), the lever from the root."""
+    from convergence_rod_quadrature import disk7_base, mean_gradient
 
-    tets = [np.eye(4)]
-    for _ in range(levels):
-        split = []
-        for v in tets:
-            m = {(a, b): 0.5 * (v[a] + v[b]) for a in range(4) for b in range(a + 1, 4)}
-            split += [np.array(t) for t in (
-                (v[0], m[0, 1], m[0, 2], m[0, 3]), (v[1], m[0, 1], m[1, 2], m[1, 3]),
-                (v[2], m[0, 2], m[1, 2], m[2, 3]), (v[3], m[0, 3], m[1, 3], m[2, 3]),
-                (m[0, 1], m[0, 2], m[0, 3], m[1, 3]), (m[0, 1], m[0, 2], m[1, 2], m[1, 3]),
-                (m[0, 2], m[0, 3], m[1, 3], m[2, 3]), (m[0, 2], m[1, 2], m[1, 3], m[2, 3]))]
-        tets = split
-    rule, _ = quadrature(2)  # equal weights
-    pts = np.concatenate([rule @ t for t in tets])
-    return pts, np.full(len(pts), 1.0 / len(pts))
-
-
-def base_averages(space, pad, radius_mm: float) -> tuple[sp.csr_matrix, sp.csr_matrix]:
-    """(3 p, n_dofs) the bump-weighted mean displacement and (9 p, n_dofs) mean gradient over
-    each pin's base in the skin (the bump's support: the skin within ``radius_mm`` of the
-    pin's axis)."""
-    from tactip_sim.fem.space import gradient_operator, interpolation_operator
-    from tactip_sim.mesh import REGION_SKIN
-
-    skin = np.flatnonzero(space.regions == REGION_SKIN)
-    verts = space.nodes[space.elements[skin, :4]]
-    centre = verts.mean(axis=1)
-    size = np.linalg.norm(verts - centre[:, None], axis=2).max(axis=1)
-    volume = np.abs(np.linalg.det(verts[:, 1:] - verts[:, :1])) / 6.0
-    rules: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    shift, grad = [], []
-    for root, axis in zip(pad.pins.roots, pad.pins.directions, strict=True):
-        rel = centre - root
-        rho = np.linalg.norm(rel - np.outer(rel @ axis, axis), axis=1)
-        els, lams, ws = [], [], []
-        for e in np.flatnonzero(rho < radius_mm + size):
-            levels = int(np.clip(np.ceil(np.log2(2.0 * size[e] / SUB_MM)), 0, 3))
-            lam, w = rules.setdefault(levels, _subtets(levels))
-            r = lam @ verts[e] - root
-            d = np.linalg.norm(r - np.outer(r @ axis, axis), axis=1)
-            w = np.clip(1.0 - (d / radius_mm) ** 2, 0.0, None) ** 2 * w * volume[e]
-            keep = w > 0
-            els.append(np.full(keep.sum(), skin[e]))
-            lams.append(lam[keep])
-            ws.append(w[keep])
-        el, lam, w = np.concatenate(els), np.concatenate(lams), np.concatenate(ws)
-        w = w / w.sum()
-        shift.append(sp.csr_matrix(np.kron(w, np.eye(3))) @ interpolation_operator(space, el, lam))
-        grad.append(sp.csr_matrix(np.kron(w, np.eye(9))) @ gradient_operator(space, el, lam))
-    return sp.vstack(shift).tocsr(), sp.vstack(grad).tocsr()
-
-
-def averaged(markers, space, pad, radius_mm: float):
-    """``markers`` (rods) with the root's displacement and the turn read from the base
-    averages (:func:`base_averages`) instead of the root point and the 14 base points."""
     from tactip_sim.fem.markers import rod_operator
+    from tactip_sim.fem.space import interpolation_operator, locate
 
-    shift, grad = base_averages(space, pad, radius_mm)
-    return replace(markers, operator=rod_operator(shift, grad), gradient=grad)
+    el, lam, _ = locate(space, markers.roots_mm)
+    grad = mean_gradient(space, *disk7_base(pad, radius_mm, thickness_mm))
+    return replace(markers, operator=rod_operator(interpolation_operator(space, el, lam), grad),
+                   gradient=grad, base_elements=None, base_lam=None, base_weights=None,
+                   anchors_mm=markers.roots_mm.copy())
 
 
 def solve(coupling: str, refined: bool, a, out: Path) -> Path:
@@ -131,8 +81,9 @@ def solve(coupling: str, refined: bool, a, out: Path) -> Path:
         sim = ts.Simulator(scene, mesh=mesh)
     body = sim.body
     markers = body.markers
-    if coupling == "averaged":  # on the body too: the tangent's pattern reads its rods
-        markers = averaged(markers, body.space, sim.pad, 0.5 * scene.pins.diameter_mm)
+    if coupling == "point":  # on the body too: the tangent's pattern reads its rods
+        markers = point_coupling(markers, body.space, sim.pad, 0.5 * scene.pins.diameter_mm,
+                                 body.skin_thickness_mm)
         body.markers = markers
     pose = ts.Pose(a.roll, a.pitch, a.depth)
     rest = body.space.nodes[body.space.candidates]

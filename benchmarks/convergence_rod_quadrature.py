@@ -2,14 +2,16 @@
 
 docs/convergence.md: at the training depth and the corner pose, the largest marker difference
 between successive meshes stops at ~0.02 mm, the size of the difference between two pytetwild
-meshes of the same size. A rod's tip is ``root + u(root) + L R d``, with ``R`` the mean
-rotation of the skin under the pin's base, averaged by a 7-point disk rule at two depths
-(:mod:`tactip_sim.fem.markers`). The P2 gradient jumps between elements, so a denser rule
-averages it better. This study presses the default pad with the reference physics on the
-bundled 1.25 and 1 mm meshes and on a second, freshly built 1 mm mesh, keeps each solve's
-displacement field, and compares the meshes' markers under three rules: the product's 7 x 2
-points, a 144 x 3 and a 400 x 4 point rule (Gauss-Legendre in radius and depth, equal angles),
-and the roots alone (no rotation: the displacement interpolated at the root).
+meshes of the same size. A rod's tip was then ``root + u(root) + L R d``, with ``R`` the mean
+rotation of the skin under the pin's base, averaged by a 7-point disk rule at two depths (the
+model until 2026-11-28; since then rods read a weighted mean over their base's skin elements,
+:mod:`tactip_sim.fem.markers`, listed here as "base average (product)"). The P2 gradient jumps
+between elements, so a denser rule averages it better. This study presses the default pad with
+the reference physics on the bundled 1.25 and 1 mm meshes and on a second, freshly built 1 mm
+mesh, keeps each solve's displacement field, and compares the meshes' markers under the
+earlier model's 7 x 2 points, a 144 x 3 and a 400 x 4 point rule (Gauss-Legendre in radius
+and depth, equal angles), the product's base average and the roots alone (no rotation: the
+displacement interpolated at the root).
 
 Usage::
 
@@ -33,7 +35,13 @@ from tactip_sim.commands.args import float_in
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
 CASES = (("1.25", 1.25, 0), ("1", 1.0, 0), ("1 (second mesh)", 1.0, 1))
-RULES = {"7 x 2 (product)": None, "144 x 3": (6, 24, 3), "400 x 4": (10, 40, 4)}
+RULES = {"base average (product)": None, "7 x 2 (earlier)": "disk7", "144 x 3": (6, 24, 3),
+         "400 x 4": (10, 40, 4)}
+# 7-point rule on the unit disk, exact for polynomials of degree 3 (Stroud's S2:3-1 family):
+# the centre with weight 1/4 and six points at radius sqrt(2/3) with weight 1/8 each
+_DISK_R = np.concatenate([[0.0], np.full(6, np.sqrt(2.0 / 3.0))])
+_DISK_T = np.concatenate([[0.0], np.arange(6) * np.pi / 3.0])
+_DISK_W = np.concatenate([[0.25], np.full(6, 0.125)])
 
 
 def _scene(size: float):
@@ -77,12 +85,46 @@ def solve(size: float, instance: int, pose, out: Path) -> Path:
     return path
 
 
+def lay_on_skin(pad, ring_mm: np.ndarray, depths_mm: np.ndarray) -> np.ndarray:
+    """Points (p, k z, 3) around each pin's base: the in-plane offsets ``ring_mm`` (k, 2) laid
+    on the skin's inner face in the pins' own layout coordinates (the map that placed the
+    roots, so the disk follows the dome's curvature), each at the ``depths_mm`` (z,) along the
+    skin's outward normal; point ``i z + j`` is offset ``i`` at depth ``j``."""
+    from tactip_sim.geometry import map_to_dome
+
+    uv = pad.pins.lattice_uv[:, None, :] + np.asarray(ring_mm)[None]  # (p, k, 2)
+    on_face = map_to_dome(pad.inner, uv.reshape(-1, 2))
+    normal = pad.inner.outward_normal(on_face)
+    pts = on_face[:, None, :] + np.asarray(depths_mm)[None, :, None] * normal[:, None, :]
+    return pts.reshape(len(pad.pins.roots), -1, 3)
+
+
+def disk7_base(pad, radius_mm: float, thickness_mm: float):
+    """The earlier model's points (p, 14, 3) and weights (14,): the 7-point disk rule laid on
+    the skin, each point at two Gauss depths (``t/2 -+ t/(2 sqrt 3)``)."""
+    ring = radius_mm * _DISK_R[:, None] * np.stack([np.cos(_DISK_T), np.sin(_DISK_T)], axis=1)
+    depth = thickness_mm * (0.5 + np.array([-1.0, 1.0]) / (2.0 * np.sqrt(3.0)))
+    return lay_on_skin(pad, ring, depth), np.repeat(_DISK_W, len(depth)) / len(depth)
+
+
+def mean_gradient(space, points: np.ndarray, weights: np.ndarray):
+    """(9 p, n_dofs) operator of ``grad u`` averaged over each pin's points (p, k, 3) with
+    ``weights`` (k,), in the skin's elements."""
+    import scipy.sparse as sp
+
+    from tactip_sim.fem.space import gradient_operator, locate
+    from tactip_sim.mesh import REGION_SKIN
+
+    p, k = points.shape[:2]
+    el, lam, _ = locate(space, points.reshape(-1, 3), region=REGION_SKIN)
+    average = sp.kron(sp.eye(p), sp.kron(np.asarray(weights)[None, :], sp.eye(9)))
+    return (average @ gradient_operator(space, el, lam)).tocsr()
+
+
 def dense_base(pad, radius_mm: float, thickness_mm: float, n_r: int, n_theta: int, n_z: int):
     """Quadrature points (p, k, 3) and weights (k,) over each pin's base: Gauss-Legendre in
     radius (weight r) and through the skin, ``n_theta`` equal angles; laid on the skin as the
-    product's 7-point rule is (:func:`tactip_sim.fem.markers.lay_on_skin`)."""
-    from tactip_sim.fem.markers import lay_on_skin
-
+    earlier 7-point rule was (:func:`lay_on_skin`)."""
     xr, wr = np.polynomial.legendre.leggauss(n_r)
     r = 0.5 * (xr + 1.0)
     theta = 2.0 * np.pi * np.arange(n_theta) / n_theta
@@ -99,7 +141,7 @@ def dense_base(pad, radius_mm: float, thickness_mm: float, n_r: int, n_theta: in
 def markers_by_rule(size: float, instance: int, out: Path) -> dict[str, np.ndarray]:
     """The stored press's markers under each rule of :data:`RULES`, and its roots."""
     import tactip_sim as ts
-    from tactip_sim.fem.markers import _mean_gradient
+    from tactip_sim.fem.space import interpolation_operator, locate
     from tactip_sim.mesh import read_mesh
 
     scene = _scene(size)
@@ -108,18 +150,20 @@ def markers_by_rule(size: float, instance: int, out: Path) -> dict[str, np.ndarr
     m = body.markers
     with np.load(out / f"h{size:g}_i{instance}.npz") as data:
         u = data["u"]
-    root = m.roots_mm + (m.operator @ u).reshape(m.count, 2, 3)[:, 0]
+    el, lam, _ = locate(body.space, m.roots_mm)
+    root = m.roots_mm + (interpolation_operator(body.space, el, lam) @ u).reshape(-1, 3)
     result = {"roots only": root}
+    radius, thickness = 0.5 * scene.pins.diameter_mm, body.skin_thickness_mm
     for name, rule in RULES.items():
         if rule is None:
             result[name] = m.from_field(u, finite=True)[0]
             continue
-        pts, w = dense_base(body.pad, 0.5 * scene.pins.diameter_mm, body.skin_thickness_mm,
-                            *rule)
-        h = (_mean_gradient(body.space, pts, w) @ u).reshape(m.count, 3, 3)
+        pts, w = (disk7_base(body.pad, radius, thickness) if rule == "disk7"
+                  else dense_base(body.pad, radius, thickness, *rule))
+        h = (mean_gradient(body.space, pts, w) @ u).reshape(m.count, 3, 3)
         left, _, right = np.linalg.svd(np.eye(3) + h)  # the polar decomposition's rotation
         result[name] = root + m.length_mm * np.einsum("pij,pj->pi", left @ right,
-                                                      m.directions)
+                                                      m.directions)  # the earlier kinematics
     return result
 
 
@@ -161,10 +205,10 @@ def main() -> None:
             cells.append(f"{d.max():.4f} / {d.mean():.4f} (#{int(np.argmax(d))})")
         print(f"{rule:<16}" + "".join(f"{c:>30}" for c in cells))
     for rule in RULES:
-        if RULES[rule] is not None:
-            moved = np.linalg.norm(tips["1"][rule] - tips["1"]["7 x 2 (product)"], axis=1)
-            print(f"{rule} against the product's rule on the 1 mm mesh: {moved.max():.4f} mm "
-                  "at most")
+        if isinstance(RULES[rule], tuple):
+            moved = np.linalg.norm(tips["1"][rule] - tips["1"]["7 x 2 (earlier)"], axis=1)
+            print(f"{rule} against the earlier 7 x 2 rule on the 1 mm mesh: {moved.max():.4f} "
+                  "mm at most")
 
 
 if __name__ == "__main__":

@@ -101,12 +101,11 @@ def candidates(sim, u: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     p1 = ts.Simulator(ts.replace_in(sim.scene, fidelity={"element_order": 1}), mesh=sim.mesh)
     out["P2 - P1 marker"] = np.linalg.norm(
         markers - p1.body.markers.from_field(u[:3 * nv], finite=True)[0], axis=1)
-    mean = np.einsum("pkj,k->pj", at_base, w).reshape(p, 3, 3)
+    mean = np.einsum("pkj,pk->pj", at_base, w).reshape(p, 3, 3)
     uu, _, vt = np.linalg.svd(np.eye(3) + mean)
-    dirs = np.einsum("pij,pj->pi", uu @ vt, mk.directions)
-    roots = mk.roots_mm + (mk.operator @ u).reshape(p, 2, 3)[:, 0]
+    anchors = mk.anchors_mm + (mk.operator @ u).reshape(p, 2, 3)[:, 0]
     out["tip from the recovered mean gradient"] = np.linalg.norm(
-        roots + mk.length_mm * dirs - markers, axis=1)
+        anchors + np.einsum("pij,pj->pi", uu @ vt, mk.levers_mm) - markers, axis=1)
     vol = np.abs(tet_volumes(space.nodes[:nv], space.elements[skin, :4]))
     diff = _vertex_gradients(space, u, skin) - g_star[space.elements[skin, :4]]
     per_tet = np.sqrt((diff**2).sum(axis=2).mean(axis=1))
@@ -117,7 +116,7 @@ def candidates(sim, u: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         ball[i] = mk.length_mm * np.sqrt(np.average(per_tet[idx] ** 2, weights=vol[idx]))
     out[f"gradient RMS over a {BALL_MM:g} mm ball x lever"] = ball
     out["gradient RMS over the base x lever / 2"] = 0.5 * mk.length_mm * np.sqrt(
-        np.einsum("pk,k->p", ((g_h - at_base) ** 2).sum(axis=2), w))
+        np.einsum("pk,pk->p", ((g_h - at_base) ** 2).sum(axis=2), w))
     out["rotation RMS over the base x lever (product)"] = marker_error_estimate(mk, space, u, skin)
     return markers, out
 

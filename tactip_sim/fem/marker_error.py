@@ -1,17 +1,18 @@
 """A-posteriori estimate of each marker's discretisation error (rod pins).
 
-A rod's tip is its root's displacement plus the skin's mean rotation under its base over the
-pin's lever (:mod:`~tactip_sim.fem.markers`); on the pad's meshes the tips' error is that
+A rod's tip is its base's mean displacement plus the skin's mean rotation under its base over
+the pin's lever (:mod:`~tactip_sim.fem.markers`); on the pad's meshes the tips' error is that
 rotation's (docs/convergence.md: the roots alone converge first, the rotation over the 3 mm lever
 adds the rest). The estimate compares the solution's gradient with a recovered one
 (Zienkiewicz–Zhu): the skin's displacement gradient averaged at every mesh vertex over the skin
 tets that share it (volume-weighted) and interpolated linearly, a continuous field that is
 closer to the exact gradient than the discontinuous finite-element one where the mesh resolves
-the field. At each of the pin base's quadrature points the difference's rotation part
-``1/2 curl (grad u_h - G*)`` is taken; the estimate is the lever times its root mean square over
-the base:
+the field. At the base weight's centroid in each skin element under the pin (weights ``w_k``,
+the element's share of the base) the difference's rotation part ``1/2 curl (grad u_h - G*)``
+is taken; the estimate is the lever (anchor to tip, :attr:`~.markers.Markers.levers_mm`)
+times its root mean square over the base:
 
-    eta_i = L * sqrt( sum_k w_k |1/2 curl (grad u_h - G*)(x_k)|^2 )
+    eta_i = |lever_i| * sqrt( sum_k w_k |1/2 curl (grad u_h - G*)(x_k)|^2 )
 
 Measured against what local refinement moved (docs/convergence.md, "An estimate per marker"):
 it ranks the rim pins that a mesh leaves unconverged, and is of their error's size.
@@ -90,7 +91,8 @@ def marker_error_estimate(markers: Markers, space: Space, u: np.ndarray,
     g_h = (gradient_operator(space, el.ravel(), lam.reshape(-1, 4)) @ u).reshape(-1, 9)
     d = (g_h - g_star).reshape(p, k, 9)
     rot = 0.5 * np.stack([d[..., a] - d[..., b] for a, b in _CURL], axis=-1)  # (p, k, 3)
-    return markers.length_mm * np.sqrt(np.einsum("pk,k->p", (rot**2).sum(axis=2), w))
+    lever = np.linalg.norm(markers.levers_mm, axis=1)
+    return lever * np.sqrt(np.einsum("pk,pk->p", (rot**2).sum(axis=2), w))
 
 
 def stuck_marker_errors(errors: np.ndarray, touch_states: dict[int, np.ndarray],

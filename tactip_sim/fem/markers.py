@@ -6,17 +6,19 @@ Two models (``scene.pins.model``):
     The tip is a material point of the gel: its displacement is interpolated from the element
     that contains it. Its direction is the deformed root -> tip chord.
 ``rod``
-    The pin is a rigid rod clamped in the skin: the tip is the deformed root plus the skin's
-    local rotation applied to the rest pin vector, ``tip = root + u(root) + L R d``. ``R`` is
-    the mean rotation of the skin the pin's base is bonded to: ``grad u`` averaged over the
-    base disk (the pin's diameter, laid on the curved skin around the root) by a 7-point disk
-    rule (exact for cubics) at two Gauss points through the skin's thickness; for linear
-    elasticity the rotation by the small-rotation vector ``w = 1/2 curl u`` of that mean
-    (exact Rodrigues formula), for the neo-Hookean solve the rotation of the polar
-    decomposition of the mean ``F = I + grad u``. The average is what makes the tips converge
-    with the mesh: the P2 gradient at a single point jumps between elements, and over a 3 mm
-    lever arm that jump moved single markers by 0.02-0.04 mm from one mesh to the next
-    (docs/convergence.md).
+    The pin is a rigid rod bonded to the skin by its base: the tip is the base's mean
+    displacement plus the skin's mean rotation under the base applied to the rest pin vector,
+    ``tip = root + U + L R d``. Both means weigh the skin with ``(1 - (rho/r)^2)^2`` in the
+    distance ``rho`` from the pin's axis (``r`` the pin's radius) through the skin's thickness
+    (:func:`_base_average`). ``R`` is, for linear elasticity, the rotation by the
+    small-rotation vector ``w = 1/2 curl u`` of the mean gradient (exact Rodrigues formula),
+    for the neo-Hookean solve the rotation of the polar decomposition of the mean
+    ``F = I + grad u``. Averages rather than point values, for two reasons
+    (docs/convergence.md): the P2 gradient at a single point jumps between elements, and over
+    a 3 mm lever that jump moved single markers by 0.02-0.04 mm from one mesh to the next;
+    and when the window holds a rod its push enters the skin through the same operators,
+    where a point load (the root's displacement at one point) has no mesh limit and the held
+    pins got softer with every refinement.
 
 Both are linear maps of the nodal displacements up to the final rotation, so the reduced
 model stores their response to contact forces (:attr:`Markers.operator`, 6 rows per pin).
@@ -30,9 +32,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from ..geometry import Pad, map_to_dome
+from ..geometry import Pad
 from ..mesh import REGION_SKIN
-from .space import Space, gradient_operator, interpolation_operator, locate
+from .elements import quadrature, shape_values
+from .space import Space, element_rows, gradient_operator, interpolation_operator, locate
 
 END_ANGLES = 64
 """Vertices of the polygon that stands for a rod's flat end where it meets the window: the true
@@ -53,15 +56,21 @@ class Markers:
     directions : (p, 3) unit rest pin directions (root -> tip)
     length_mm : pin length
     operator : (6 p, n_dofs) sparse; rows ``6 i .. 6 i + 5`` of pin ``i`` are
-        embedded: [u(tip), u(root)]; rod: [u(root), w] with ``w = 1/2 curl u`` in the skin
-    gradient : (9 p, n_dofs) sparse displacement gradient at the skin point (rod model)
+        embedded: [u(tip), u(root)]; rod: [U, w], the displacement of its anchor (the
+        base's mean displacement, or the root's) and ``w = 1/2 curl u`` of the skin's (mean)
+        gradient
+    gradient : (9 p, n_dofs) sparse: the skin's displacement gradient under each pin (its
+        base's mean, or at the point under the root)
     end_radius_mm : radius of the rod's flat end (rod model; 0 for embedded tips, material
         points of the gel): the end is a disc normal to the rod, so a tilted rod's lowest point
         is the rim, ``end_radius_mm |d_xy|`` below the tip (:meth:`lowest_heights`)
-    base_elements, base_lam, base_weights : (p, k) elements and (p, k, 4) barycentric
-        coordinates of the quadrature points of each rod's base, and their (k,) weights (rods
-        averaged over a base; ``None`` otherwise): what
-        :func:`~tactip_sim.fem.marker_error.marker_error_estimate` reads
+    anchors_mm : (p, 3) the point whose displacement the operator's first rows give, with
+        the pin: a rod's base centroid (the weighted centroid of the skin its base averages
+        over; its root, turned at a point), an embedded tip itself (default)
+    base_elements, base_lam, base_weights : (p, k) the skin elements each rod's base weight
+        touches, (p, k, 4) the weight's centroid in each (barycentric) and (p, k) each one's
+        share (summing to 1 per pin; zero-weight padding) (rods averaged over a base; ``None``
+        otherwise): what :func:`~tactip_sim.fem.marker_error.marker_error_estimate` reads
     """
 
     model: str
@@ -75,11 +84,21 @@ class Markers:
     base_elements: np.ndarray | None = None
     base_lam: np.ndarray | None = None
     base_weights: np.ndarray | None = None
+    anchors_mm: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.end_radius_mm < 0.0 or (self.model == "embedded" and self.end_radius_mm):
             raise ValueError(f"end_radius_mm={self.end_radius_mm:g}: >= 0 for rods, 0 for "
                              "embedded tips")
+        if self.anchors_mm is None:
+            object.__setattr__(self, "anchors_mm",
+                               (self.rest_mm if self.model == "embedded" else self.roots_mm).copy())
+
+    @functools.cached_property
+    def levers_mm(self) -> np.ndarray:
+        """(p, 3) mm: each tip from its anchor at rest (:attr:`anchors_mm`), the arm the rod's
+        rotation turns (zeros for embedded tips)."""
+        return self.rest_mm - self.anchors_mm
 
     def lowest_heights(self, tips: np.ndarray, dirs: np.ndarray) -> np.ndarray:
         """(p,) mm: the height ``z`` of each pin's lowest end point, the rim of its flat end
@@ -91,14 +110,15 @@ class Markers:
 
     @functools.cached_property
     def end_offsets(self) -> np.ndarray:
-        """(p, n, 3) mm: the points of each rod's end that meet the window, from its root at
-        rest: the tip (``n = 1``) or, with a flat end, the :data:`END_ANGLES` vertices of its
-        rim, ``L d + r (cos t b1 + sin t b2)`` (``b1, b2`` orthonormal, normal to ``d``). They
-        turn with the rod; embedded tips: the tip, relative to itself (zeros)."""
+        """(p, n, 3) mm: the points of each rod's end that meet the window, from its anchor
+        (:attr:`anchors_mm`) at rest: the tip (``n = 1``) or, with a flat end, the
+        :data:`END_ANGLES` vertices of its rim, ``lever + r (cos t b1 + sin t b2)`` (``b1, b2``
+        orthonormal, normal to the pin's direction ``d``). They turn with the rod; embedded
+        tips: the tip, relative to itself (zeros)."""
         p = self.count
         if self.model == "embedded":
             return np.zeros((p, 1, 3))
-        tip = self.length_mm * self.directions[:, None, :]
+        tip = self.levers_mm[:, None, :]
         if not self.end_radius_mm or p == 0:
             return tip
         d = self.directions
@@ -129,9 +149,9 @@ class Markers:
             tips = self.rest_mm + v[:, 0]
             chord = tips - (self.roots_mm + v[:, 1])
             return tips, chord / np.linalg.norm(chord, axis=1, keepdims=True)
-        dirs = np.einsum("pij,pj->pi", rodrigues(v[:, 1]), self.directions)
-        root = self.roots_mm + v[:, 0]
-        return root + self.length_mm * dirs, dirs
+        turn = rodrigues(v[:, 1])
+        tips = self.anchors_mm + v[:, 0] + np.einsum("pij,pj->pi", turn, self.levers_mm)
+        return tips, np.einsum("pij,pj->pi", turn, self.directions)
 
     def from_field(self, u: np.ndarray, *, finite: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Markers and directions from full nodal displacements ``u`` (n_dofs,) mm.
@@ -144,9 +164,10 @@ class Markers:
             return self.from_values(vals)
         h = (self.gradient @ u).reshape(self.count, 3, 3)
         uu, _, vt = np.linalg.svd(np.eye(3) + h)
-        dirs = np.einsum("pij,pj->pi", uu @ vt, self.directions)
-        root = self.roots_mm + vals.reshape(self.count, 2, 3)[:, 0]
-        return root + self.length_mm * dirs, dirs
+        turn = uu @ vt
+        tips = (self.anchors_mm + vals.reshape(self.count, 2, 3)[:, 0]
+                + np.einsum("pij,pj->pi", turn, self.levers_mm))
+        return tips, np.einsum("pij,pj->pi", turn, self.directions)
 
 
 def rodrigues(w: np.ndarray) -> np.ndarray:
@@ -162,49 +183,114 @@ def rodrigues(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
 
 
-# 7-point rule on the unit disk, exact for polynomials of degree 3 (Stroud's S2:3-1 family):
-# the centre with weight 1/4 and six points at radius sqrt(2/3) with weight 1/8 each
-_DISK_R = np.concatenate([[0.0], np.full(6, np.sqrt(2.0 / 3.0))])
-_DISK_T = np.concatenate([[0.0], np.arange(6) * np.pi / 3.0])
-_DISK_W = np.concatenate([[0.25], np.full(6, 0.125)])
+SUB_MM = 0.25
+"""Size (mm) of the sub-tets on which a skin element's share of a rod's base weight is
+integrated (:func:`_base_average`): the weight's support, the pin's radius, spans a few of them
+(docs/convergence.md, "The rod's coupling")."""
 
 
-def lay_on_skin(pad: Pad, ring_mm: np.ndarray, depths_mm: np.ndarray) -> np.ndarray:
-    """Points (p, k z, 3) around each pin's base: the in-plane offsets ``ring_mm`` (k, 2) laid
-    on the skin's inner face in the pins' own layout coordinates (the map that placed the
-    roots, so the disk follows the dome's curvature), each at the ``depths_mm`` (z,) along the
-    skin's outward normal; point ``i z + j`` is offset ``i`` at depth ``j``."""
-    uv = pad.pins.lattice_uv[:, None, :] + np.asarray(ring_mm)[None]  # (p, k, 2)
-    on_face = map_to_dome(pad.inner, uv.reshape(-1, 2))
-    normal = pad.inner.outward_normal(on_face)
-    pts = on_face[:, None, :] + np.asarray(depths_mm)[None, :, None] * normal[:, None, :]
-    return pts.reshape(len(pad.pins.roots), -1, 3)
+@functools.cache
+def _subtet_rule(levels: int) -> tuple[np.ndarray, np.ndarray]:
+    """Barycentric points (q, 4) and weights (q,) (summing to 1) of the degree-2 rule
+    (:func:`~.elements.quadrature`) on each of the ``8^levels`` equal tets of ``levels``
+    regular (red) refinements of a tet."""
+    tets = [np.eye(4)]
+    for _ in range(levels):
+        split = []
+        for v in tets:
+            m = {(a, b): 0.5 * (v[a] + v[b]) for a in range(4) for b in range(a + 1, 4)}
+            split += [np.array(t) for t in (
+                (v[0], m[0, 1], m[0, 2], m[0, 3]), (v[1], m[0, 1], m[1, 2], m[1, 3]),
+                (v[2], m[0, 2], m[1, 2], m[2, 3]), (v[3], m[0, 3], m[1, 3], m[2, 3]),
+                (m[0, 1], m[0, 2], m[0, 3], m[1, 3]), (m[0, 1], m[0, 2], m[1, 2], m[1, 3]),
+                (m[0, 2], m[0, 3], m[1, 3], m[2, 3]), (m[0, 2], m[1, 2], m[1, 3], m[2, 3]))]
+        tets = split
+    lam, w = quadrature(2)
+    return np.concatenate([lam @ t for t in tets]), np.tile(w, len(tets)) / len(tets)
 
 
-def _base_points(pad: Pad, radius_mm: float, thickness_mm: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Quadrature points (p, k, 3) and weights (k,) of each pin's base: the 7-point disk rule
-    laid on the skin (:func:`lay_on_skin`), each point at two Gauss depths
-    (``t/2 -+ t/(2 sqrt 3)``) along the skin's outward normal."""
-    ring = radius_mm * _DISK_R[:, None] * np.stack([np.cos(_DISK_T), np.sin(_DISK_T)], axis=1)
-    depth = thickness_mm * (0.5 + np.array([-1.0, 1.0]) / (2.0 * np.sqrt(3.0)))
-    weights = np.repeat(_DISK_W, len(depth)) / len(depth)  # sums to 1
-    return lay_on_skin(pad, ring, depth), weights
+def _pin_sums(pin: np.ndarray, weights: np.ndarray, width: int, p: int) -> sp.csr_matrix:
+    """(width p, width k) sparse: row ``width j + c`` sums rows ``width i + c`` of a (width k,
+    n) point operator over the points ``i`` of pin ``j = pin[i]``, weighted by ``weights[i]``."""
+    c = np.arange(width)
+    rows = (width * np.asarray(pin)[:, None] + c).ravel()
+    cols = (width * np.arange(len(pin))[:, None] + c).ravel()
+    vals = np.repeat(np.asarray(weights, dtype=float), width)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(width * p, width * len(pin)))
 
 
-def _mean_gradient(space: Space, points: np.ndarray, weights: np.ndarray
-                   ) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
-    """(9 p, n_dofs) operator of ``grad u`` averaged over each pin's quadrature points
-    ``points`` (p, k, 3) with ``weights`` (k,), in the skin's elements; and the points'
-    elements (p, k) and barycentric coordinates (p, k, 4)."""
-    p, k = points.shape[:2]
-    el, lam, _ = locate(space, points.reshape(-1, 3), region=REGION_SKIN)
-    per_point = gradient_operator(space, el, lam)  # (9 p k, n_dofs), pin-major
-    rows = np.broadcast_to((9 * np.arange(p))[:, None, None] + np.arange(9), (p, k, 9))
-    cols = (9 * (np.arange(p)[:, None] * k + np.arange(k)))[:, :, None] + np.arange(9)
-    vals = np.broadcast_to(np.asarray(weights)[None, :, None], (p, k, 9))
-    average = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(9 * p, 9 * p * k))
-    return (average @ per_point).tocsr(), el.reshape(p, k), lam.reshape(p, k, 4)
+def _base_average(space: Space, pins, radius_mm: float, thickness_mm: float):
+    """The rods' base averages: each pin's skin displacement and displacement gradient averaged
+    with the weight ``(1 - (rho / r)^2)^2`` in the distance ``rho`` from its axis (``r =
+    radius_mm``) over the skin's elements within the skin's thickness of its root.
+
+    Each element's share is integrated on its sub-tets (:func:`_subtet_rule`, about
+    :data:`SUB_MM` across): the shape functions' weighted sum (exact for the weight sampled at
+    the sub-points) and, the gradient being affine in an element, the gradient at the
+    weight's centroid times the element's weight. Both are bounded functionals of the field:
+    a load on them (the window pushing a rod) is spread over the base and has a mesh limit,
+    where a load at one point (the root) has none.
+
+    Returns
+    -------
+    shift : (3 p, n_dofs) the mean displacement
+    grad : (9 p, n_dofs) the mean gradient
+    anchors : (p, 3) mm, the weighted centroid of each base (where the mean displacement is
+        a rigid motion's)
+    elements, lam, weights : (p, k), (p, k, 4), (p, k): per pin, the skin elements its weight
+        touches, the weight's centroid in each (barycentric) and each one's share (summing to
+        1; padded with zero weights to the most elements any pin touches)
+    """
+    skin = np.flatnonzero(space.regions == REGION_SKIN)
+    verts = space.nodes[space.elements[skin, :4]]
+    centre = verts.mean(axis=1)
+    size = np.linalg.norm(verts - centre[:, None], axis=2).max(axis=1)
+    volume = np.abs(np.linalg.det(verts[:, 1:] - verts[:, :1])) / 6.0
+    levels = np.clip(np.ceil(np.log2(2.0 * size / SUB_MM)), 0, 3).astype(np.int64)
+    p = len(pins.roots)
+    per_pin = []
+    for root, axis in zip(pins.roots, pins.directions, strict=True):
+        rel = centre - root
+        along = rel @ axis  # the skin lies outside the root: -thickness .. 0
+        rho = np.linalg.norm(rel - np.outer(along, axis), axis=1)
+        near = (rho < radius_mm + size) & (along > -thickness_mm - size) & (along < size)
+        parts = []
+        for level in np.unique(levels[near]):
+            idx = np.flatnonzero(near & (levels == level))
+            lam_q, w_q = _subtet_rule(int(level))
+            pts = np.einsum("qi,eij->eqj", lam_q, verts[idx]) - root
+            rho2 = np.einsum("eqj,eqj->eq", pts, pts) - (pts @ axis) ** 2
+            w = np.clip(1.0 - rho2 / radius_mm**2, 0.0, None) ** 2 * w_q * volume[idx, None]
+            total = w.sum(axis=1)
+            keep = total > 0.0
+            w, total = w[keep], total[keep]
+            parts.append((skin[idx[keep]], (w @ lam_q) / total[:, None], total,
+                          w @ shape_values(space.order, lam_q)))
+        if not parts:
+            raise ValueError(f"a pin's base at {np.round(root, 3).tolist()} mm lies in no "
+                             "skin element: pins.diameter_mm or the mesh does not fit the pad")
+        el, lam, w, values = (np.concatenate(x) for x in zip(*parts, strict=True))
+        per_pin.append((el, lam, w / w.sum(), values / w.sum()))
+    pin = np.concatenate([np.full(len(x[0]), j) for j, x in enumerate(per_pin)])
+    el, lam, w, values = (np.concatenate(x) for x in zip(*per_pin, strict=True))
+    shift = (_pin_sums(pin, np.ones(len(pin)), 3, p) @ element_rows(space, el, values)).tocsr()
+    grad = (_pin_sums(pin, w, 9, p) @ gradient_operator(space, el, lam)).tocsr()
+    corners = space.nodes[space.elements[el, :4]]
+    anchors = _pin_sums(pin, w, 3, p) @ np.einsum("ki,kij->kj", lam, corners).ravel()
+    k = max(len(x[0]) for x in per_pin)
+    elements = np.empty((p, k), dtype=np.int64)
+    lams = np.full((p, k, 4), 0.25)
+    weights = np.zeros((p, k))
+    for j, (e, la, wj, _) in enumerate(per_pin):
+        elements[j] = e[0]
+        elements[j, :len(e)], lams[j, :len(e)], weights[j, :len(e)] = e, la, wj
+    return shift, grad, anchors.reshape(p, 3), elements, lams, weights
+
+
+def _point_gradient(space: Space, points: np.ndarray) -> sp.csr_matrix:
+    """(9 p, n_dofs) operator of ``grad u`` at one point (p, 3) per pin, in the skin."""
+    el, lam, _ = locate(space, points, region=REGION_SKIN)
+    return gradient_operator(space, el, lam)
 
 
 def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: float,
@@ -216,10 +302,11 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
     space : the discretisation
     pad : the pad (its pins give roots, directions and tips)
     model : "embedded" or "rod"
-    skin_thickness_mm : the rod's rotation is taken half this far outside the root
-    footprint_radius_mm : the radius of the pin's base over which the skin's rotation is
-        averaged for rods (0, and for embedded tips, whose direction is their chord: at the
-        point under the root)
+    skin_thickness_mm : the skin's thickness, through which a rod's base is averaged (or, at a
+        single point, the rotation is taken half this far outside the root)
+    footprint_radius_mm : the radius of a rod's base, over which the skin's displacement and
+        rotation are averaged (0: the root's displacement, the rotation at the point under
+        it; embedded tips, whose direction is their chord, ignore it)
     end_radius_mm : the radius of a rod's flat end, whose rim meets the window (rods only)
     """
     if model not in ("embedded", "rod"):
@@ -233,22 +320,20 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
     length = float(np.mean(np.linalg.norm(pins.tips - pins.roots, axis=1)))
     root_el, root_lam, _ = locate(space, pins.roots)
     root_op = interpolation_operator(space, root_el, root_lam)
-    base_quad = None
-    if model == "rod" and footprint_radius_mm > 0.0 and pad.inner is not None:
-        points, weights = _base_points(pad, footprint_radius_mm, skin_thickness_mm)
-        grad, el, lam = _mean_gradient(space, points, weights)
-        base_quad = (el, lam, weights)
-    else:  # at the point under the root, in the middle of the skin
-        centre = pins.roots - 0.5 * skin_thickness_mm * pins.directions
-        grad = _mean_gradient(space, centre[:, None, :], np.ones(1))[0]
     if model == "embedded":
         tip_el, tip_lam, _ = locate(space, pins.tips)
         operator = _interleave(interpolation_operator(space, tip_el, tip_lam), root_op)
-    else:
-        operator = rod_operator(root_op, grad)
+        grad = _point_gradient(space, pins.roots - 0.5 * skin_thickness_mm * pins.directions)
+        return Markers(model, pins.tips.copy(), pins.roots.copy(), pins.directions.copy(),
+                       length, operator, grad)
+    base, anchors = (None, None, None), None
+    if footprint_radius_mm > 0.0:
+        root_op, grad, anchors, *base = _base_average(space, pins, footprint_radius_mm,
+                                                      skin_thickness_mm)
+    else:  # at the root, turned at the point under it in the middle of the skin
+        grad = _point_gradient(space, pins.roots - 0.5 * skin_thickness_mm * pins.directions)
     return Markers(model, pins.tips.copy(), pins.roots.copy(), pins.directions.copy(), length,
-                   operator, grad, end_radius_mm if model == "rod" else 0.0,
-                   *(base_quad or (None, None, None)))
+                   rod_operator(root_op, grad), grad, end_radius_mm, *base, anchors)
 
 
 def rod_operator(shift: sp.csr_matrix, grad: sp.csr_matrix) -> sp.csr_matrix:

@@ -51,7 +51,7 @@ class RodTips:
         m = self.markers
         if m.model != "rod":
             return m.from_field(u, finite=True)[0][:, 2] - WINDOW_Z_MM
-        root_z = m.roots_mm[:, 2] + self.pin_z @ u
+        root_z = m.anchors_mm[:, 2] + self.pin_z @ u
         turned = np.einsum("pij,pkj->pki", self._rotations(u), m.end_offsets)[..., 2]
         return (root_z[:, None] + turned - WINDOW_Z_MM).ravel()
 
@@ -61,7 +61,7 @@ class RodTips:
         m = self.markers
         if m.model != "rod":
             return m.from_field(u, finite=True)[0][:, :2]
-        root = m.roots_mm[:, :2] + (self.root_xy @ u).reshape(self.pins, 2)
+        root = m.anchors_mm[:, :2] + (self.root_xy @ u).reshape(self.pins, 2)
         turned = np.einsum("pij,pkj->pki", self._rotations(u)[:, :2], m.end_offsets)
         return (root[:, None, :] + turned).reshape(-1, 2)
 

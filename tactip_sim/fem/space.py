@@ -216,13 +216,20 @@ def interpolation_operator(space: Space, elements: np.ndarray, lam: np.ndarray) 
 
     Row ``3 i + c`` is component ``c`` at point ``i`` (node-major, like the dofs).
     """
-    vals = shape_values(space.order, lam)  # (p, nl)
+    return element_rows(space, elements, shape_values(space.order, lam))
+
+
+def element_rows(space: Space, elements: np.ndarray, values: np.ndarray) -> sp.csr_matrix:
+    """Sparse (3 p, n_dofs) map whose row ``3 i + c`` is ``sum_a values[i, a] u_c`` over the
+    nodes ``a`` of element ``elements[i]``: the shape functions' values at a point
+    (:func:`interpolation_operator`) or any weighted sum of them, such as their integral
+    against a weight over the element."""
     nodes = space.elements[elements]  # (p, nl)
     p, nl = nodes.shape
     rows = (3 * np.arange(p)[:, None, None] + np.arange(3)[None, None, :])
     rows = np.broadcast_to(rows, (p, nl, 3))
     cols = 3 * nodes[:, :, None] + np.arange(3)[None, None, :]
-    data = np.broadcast_to(vals[:, :, None], (p, nl, 3))
+    data = np.broadcast_to(np.asarray(values)[:, :, None], (p, nl, 3))
     return sp.csr_matrix((data.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * p, space.n_dofs))
 
 

@@ -82,7 +82,7 @@ def point_heights(markers: Markers, values: np.ndarray) -> np.ndarray:
     v = np.asarray(values).reshape(p, 2, 3)
     # only the rotations' third rows: z of R m for every offset m
     turned = np.matmul(markers.end_offsets, rodrigues(v[:, 1])[:, 2, :, None])[..., 0]
-    return (markers.roots_mm[:, 2] + v[:, 0, 2])[:, None] + turned - WINDOW_Z_MM
+    return (markers.anchors_mm[:, 2] + v[:, 0, 2])[:, None] + turned - WINDOW_Z_MM
 
 
 def point_jacobian(markers: Markers, values: np.ndarray, points: np.ndarray) -> np.ndarray:
