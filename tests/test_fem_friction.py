@@ -199,6 +199,26 @@ def test_pins_stop_at_the_window_along_a_path(fingertip):
     check_the_laws(fingertip, after, deeper, mu=0.5, both=True)  # the centre sticks
 
 
+def test_a_frictionless_tap_onto_the_window_ends_on_the_press_branch(fingertip):
+    """The rods' turn makes the pin-window problem non-convex. A tap (one frictionless step
+    from rest) to a pose where the window holds pins 2, 9 and 19 must end where the press
+    ends and the neo-Hookean solve agrees (pin 9 turned from its rest direction, not lying
+    flat on the window): before the entering pins were linearised where they met the window,
+    the tap linearised them where the plate alone had pushed them through it and pin 9 ended
+    flat (its direction's z -1.0 against the press's -0.81)."""
+    pose = ts.Pose(8, -7, 2.1)
+    pressed = fingertip.press(pose)
+    tap = fingertip.press_path(pose, steps=1, friction=0.0)[-1]
+    assert set(np.flatnonzero(tap.window_forces_N > 0)) \
+        == set(np.flatnonzero(pressed.window_forces_N > 0)) and pressed.pins_on_window
+    turned = np.degrees(np.arccos(np.clip(np.einsum(
+        "pi,pi->p", tap.marker_directions, pressed.marker_directions), -1.0, 1.0)))
+    # degrees; the flat branch is ~36 deg away. Within a branch a held end can roll on its
+    # rim along a nearly flat valley of the frictionless window: pin 2 by 1.2 deg here
+    assert turned.max() < 5.0
+    assert tap.force_N == pytest.approx(pressed.force_N, rel=0.01)
+
+
 def check_the_laws(sim: ts.Simulator, before: FrictionHistory, after: FrictionHistory, *,
                    mu: float, both: bool = False) -> None:
     """The contact, Coulomb and window laws at the end of a step from ``before`` to ``after``,
@@ -214,14 +234,19 @@ def check_the_laws(sim: ts.Simulator, before: FrictionHistory, after: FrictionHi
     held.ravel()[after.window_points] = after.window_forces
     values = after.window_values
     wrench = window_generalised_forces(markers, values, held)
+    # the rods' fixed point stops when the values repeat to VALUES_TOL (1e-9): the window's
+    # wrench, taken at the last values rather than at the linearisation before them, differs
+    # by ~ 1e-9 x (held forces, up to ~1 N) x (lever, 3 mm), which the pins' compliance
+    # (~4e-3 mm/mN) turns into ~1e-8 mm
+    slack = 1e-7
     assert np.abs(op.marker_values(after.nodes, after.forces)
-                  + op.marker_compliance @ wrench - values).max() < 1e-8
+                  + op.marker_compliance @ wrench - values).max() < slack
     z = point_heights(markers, values)
     assert z.min() > -1e-6 and np.abs(z.ravel()[after.window_points]).max() < 1e-6
     assert (after.window_forces > 0).all()
     # every candidate: the plate's forces and the window's (through the pins) move it
     pushed = (op.marker_response_t @ wrench).reshape(-1, 3)  # by the window, through the pins
-    assert np.abs(after.extra_mm - pushed).max() < 1e-8  # what the next step starts from
+    assert np.abs(after.extra_mm - pushed).max() < slack  # what the next step starts from
     u = (op.block(np.arange(len(rest)), after.nodes) @ after.forces.ravel()).reshape(-1, 3) \
         + pushed
     gap, normal = after.placement.gap(rest + u)

@@ -371,6 +371,7 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
     v = history.window_values
     q = np.zeros(len(points)) if history.window_forces is None \
         else np.asarray(history.window_forces, dtype=np.float64)
+    before = np.zeros(6 * p) if v is None else np.asarray(v, dtype=np.float64)
     guess = None
     mixer = _Anderson()
     for _ in range(_MAX_ROUNDS + 1):
@@ -403,7 +404,16 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
         if not np.array_equal(new_points, points):
             start = np.zeros(len(new_points))  # the new points start from no force
             start[np.isin(new_points, points)] = q
-            points, v, q = new_points, t_v, start
+            # a pin that enters is linearised where it was before it met the window (the last
+            # step's values, or rest), as stop_at_window's first phase does, not where the
+            # solve without it pushed it through: linearised there, a rod's end can settle on
+            # a far branch (turned flat onto the window, an equilibrium of the rods' finite
+            # turn that the neo-Hookean solve does not reach)
+            entering = np.setdiff1d(new_points // n, points // n)
+            rows = (6 * entering[:, None] + np.arange(6)).ravel()
+            v = t_v.copy()
+            v[rows] = before[rows]
+            points, q = new_points, start
             mixer.reset()
             continue
         v = mixer.next(v, t_v)
