@@ -246,6 +246,32 @@ def test_neo_hookean_answer_does_not_depend_on_the_load_path(sim, indenter):
     assert one.contact.pressures.min() > 0 and one.contact.gap.min() > -1e-9
 
 
+def test_the_tangent_couples_only_the_held_rods_and_answers_as_with_all(sim):
+    """A rod's base averages read every skin node under its base, so the neo-Hookean tangent
+    couples those nodes only for the rods the window holds (nh_blocks.covering). At a corner
+    pose deep enough for the window to hold pins (P1, 2 mm mesh), that pattern gives the
+    answer of the pattern with every rod coupled (the extra pairs carry zeros) to solver
+    precision, and it couples the held rods and not the others."""
+    from tactip_sim.fem.neohookean import solve_neo_hookean
+    from tactip_sim.fem.nh_blocks import BlockPattern
+
+    pose = ts.Pose(12, -8.8, 2.0)
+    results, patterns = [], []
+    for every in (False, True):
+        body = ts.Simulator(sim.scene, mesh=sim.mesh, element_order=1).body
+        if every:
+            body._neo_hookean_pattern = BlockPattern(body, range(body.markers.count))
+        pl = place(sim.indenter, pose, body.space.nodes[body.space.candidates],
+                   skin_thickness_mm=body.skin_thickness_mm)
+        results.append(solve_neo_hookean(body, pl, pose.depth_mm, markers=body.markers))
+        patterns.append(body._neo_hookean_pattern)
+    held = set(np.flatnonzero(results[0].window_forces > 0).tolist())
+    assert held and held <= patterns[0].rod_pins and len(patterns[0].rod_pins) < 20
+    assert len(patterns[0].keys) < len(patterns[1].keys)
+    assert np.abs(results[0].u - results[1].u).max() < 1e-8
+    np.testing.assert_allclose(results[0].window_forces, results[1].window_forces, atol=1e-6)
+
+
 def test_neo_hookean_pins_stop_at_the_window(sim):
     """A flat press deep enough for the pins to reach the window (3.7 mm on the P1 pad): with
     the pins in the solve no pin's end ends below the window, the held ends rest on it, the

@@ -150,8 +150,13 @@ class Markers:
             chord = tips - (self.roots_mm + v[:, 1])
             return tips, chord / np.linalg.norm(chord, axis=1, keepdims=True)
         turn = rodrigues(v[:, 1])
-        tips = self.anchors_mm + v[:, 0] + np.einsum("pij,pj->pi", turn, self.levers_mm)
-        return tips, np.einsum("pij,pj->pi", turn, self.directions)
+        return self._turned(v[:, 0], turn), np.einsum("pij,pj->pi", turn, self.directions)
+
+    def _turned(self, shift: np.ndarray, turn: np.ndarray) -> np.ndarray:
+        """(p, 3) rod tips whose anchors move by ``shift`` (p, 3) and turn by ``turn`` (p, 3,
+        3): ``c + U + R (tip - c)``, written as the rest tip plus ``U + (R - I)(tip - c)`` so
+        that no displacement gives the rest tips exactly."""
+        return self.rest_mm + shift + np.einsum("pij,pj->pi", turn - np.eye(3), self.levers_mm)
 
     def from_field(self, u: np.ndarray, *, finite: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Markers and directions from full nodal displacements ``u`` (n_dofs,) mm.
@@ -165,9 +170,8 @@ class Markers:
         h = (self.gradient @ u).reshape(self.count, 3, 3)
         uu, _, vt = np.linalg.svd(np.eye(3) + h)
         turn = uu @ vt
-        tips = (self.anchors_mm + vals.reshape(self.count, 2, 3)[:, 0]
-                + np.einsum("pij,pj->pi", turn, self.levers_mm))
-        return tips, np.einsum("pij,pj->pi", turn, self.directions)
+        return (self._turned(vals.reshape(self.count, 2, 3)[:, 0], turn),
+                np.einsum("pij,pj->pi", turn, self.directions))
 
 
 def rodrigues(w: np.ndarray) -> np.ndarray:
@@ -183,30 +187,49 @@ def rodrigues(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
 
 
-SUB_MM = 0.25
+SUB_MM = 0.5
 """Size (mm) of the sub-tets on which a skin element's share of a rod's base weight is
-integrated (:func:`_base_average`): the weight's support, the pin's radius, spans a few of them
-(docs/convergence.md, "The rod's coupling")."""
+integrated (:func:`_base_average`), with at most :data:`SUB_LEVELS` splits. On the default
+pad's 2 mm mesh, three splits instead of two moved the markers by at most 1.4e-4 mm and the
+force by 1e-5 at three poses (12/-8.8 deg at 1 and 2 mm, -16/3 deg at 1.5 mm); one split
+instead of two by up to 5.4e-3 mm (measured 2026-11-28)."""
+SUB_LEVELS = 2
+
+
+def _split(v: np.ndarray) -> list[tuple[np.ndarray, float]]:
+    """A tet ``v`` (4 corners, rows) cut into its 4 corner tets (1/8 of its volume each) and
+    the 8 tets joining the inner octahedron's faces to its centre (1/16 each): a split that
+    does not depend on the order of the corners, so that a rule built from it is the same
+    on a tet and on its mirror image (the red refinement's split of the octahedron along one
+    diagonal is not)."""
+    m = {(a, b): 0.5 * (v[a] + v[b]) for a in range(4) for b in range(a + 1, 4)}
+
+    def mid(a: int, b: int) -> np.ndarray:
+        return m[min(a, b), max(a, b)]
+
+    centre = v.mean(axis=0)
+    out = [(np.array([v[i], *(mid(i, j) for j in range(4) if j != i)]), 1.0 / 8.0)
+           for i in range(4)]
+    for i in range(4):  # the octahedron's face at corner i and the one opposite it
+        others = [j for j in range(4) if j != i]
+        out.append((np.array([centre, *(mid(i, j) for j in others)]), 1.0 / 16.0))
+        a, b, c = others
+        out.append((np.array([centre, mid(a, b), mid(b, c), mid(a, c)]), 1.0 / 16.0))
+    return out
 
 
 @functools.cache
 def _subtet_rule(levels: int) -> tuple[np.ndarray, np.ndarray]:
     """Barycentric points (q, 4) and weights (q,) (summing to 1) of the degree-2 rule
-    (:func:`~.elements.quadrature`) on each of the ``8^levels`` equal tets of ``levels``
-    regular (red) refinements of a tet."""
-    tets = [np.eye(4)]
+    (:func:`~.elements.quadrature`) on each tet of ``levels`` successive splits of a tet
+    (:func:`_split`: 12 tets a level, each about half its parent's size). The point set is
+    the same whatever the order of the tet's corners."""
+    tets = [(np.eye(4), 1.0)]
     for _ in range(levels):
-        split = []
-        for v in tets:
-            m = {(a, b): 0.5 * (v[a] + v[b]) for a in range(4) for b in range(a + 1, 4)}
-            split += [np.array(t) for t in (
-                (v[0], m[0, 1], m[0, 2], m[0, 3]), (v[1], m[0, 1], m[1, 2], m[1, 3]),
-                (v[2], m[0, 2], m[1, 2], m[2, 3]), (v[3], m[0, 3], m[1, 3], m[2, 3]),
-                (m[0, 1], m[0, 2], m[0, 3], m[1, 3]), (m[0, 1], m[0, 2], m[1, 2], m[1, 3]),
-                (m[0, 2], m[0, 3], m[1, 3], m[2, 3]), (m[0, 2], m[1, 2], m[1, 3], m[2, 3]))]
-        tets = split
+        tets = [(t, w * f) for v, w in tets for t, f in _split(v)]
     lam, w = quadrature(2)
-    return np.concatenate([lam @ t for t in tets]), np.tile(w, len(tets)) / len(tets)
+    return (np.concatenate([lam @ t for t, _ in tets]),
+            np.concatenate([w * f for _, f in tets]))
 
 
 def _pin_sums(pin: np.ndarray, weights: np.ndarray, width: int, p: int) -> sp.csr_matrix:
@@ -246,7 +269,7 @@ def _base_average(space: Space, pins, radius_mm: float, thickness_mm: float):
     centre = verts.mean(axis=1)
     size = np.linalg.norm(verts - centre[:, None], axis=2).max(axis=1)
     volume = np.abs(np.linalg.det(verts[:, 1:] - verts[:, :1])) / 6.0
-    levels = np.clip(np.ceil(np.log2(2.0 * size / SUB_MM)), 0, 3).astype(np.int64)
+    levels = np.clip(np.ceil(np.log2(2.0 * size / SUB_MM)), 0, SUB_LEVELS).astype(np.int64)
     p = len(pins.roots)
     per_pin = []
     for root, axis in zip(pins.roots, pins.directions, strict=True):

@@ -51,7 +51,7 @@ from .friction import indenter_motion
 from .indenters import Placement
 from .markers import Markers
 from .model import ElasticBody
-from .nh_blocks import BlockPattern, node_stiffness
+from .nh_blocks import BlockPattern, covering, node_stiffness
 from .nh_friction import (
     PENALTY,
     SLIP_ROUNDS,
@@ -533,6 +533,9 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     # the iterations may go on with it, and the last iteration's increment (mm)
     reuse, change = None, np.inf
     for it in range(1, tol.newton_max_iter + 1):
+        # a rod the window holds couples the nodes its base averages read: a new pattern
+        # (and symbolic analysis) only when it holds one the pattern does not couple yet
+        pattern = _pattern(nh, tips, held)
         x = rest + u.reshape(-1, 3)[cand]
         g, nu = placement.gap(x)
         try:
@@ -764,10 +767,8 @@ class _Linearised:
         return a, q, r, react
 
 
-def _pattern(nh: NeoHookeanBody) -> BlockPattern:
-    """The body's block pattern, built on first use and kept on the body."""
-    pattern = getattr(nh.body, "_neo_hookean_pattern", None)
-    if pattern is None:
-        pattern = BlockPattern(nh.body)
-        nh.body._neo_hookean_pattern = pattern
-    return pattern
+def _pattern(nh: NeoHookeanBody, tips: RodTips | None = None, held=()) -> BlockPattern:
+    """The body's block pattern, kept on the body, coupling at least the rods whose end points
+    ``held`` (numbered as ``tips``) the window holds (:func:`~.nh_blocks.covering`)."""
+    pins = () if tips is None or not len(held) else np.unique(np.asarray(held) // tips.per_pin)
+    return covering(nh.body, pins)

@@ -12,29 +12,36 @@ from .model import ElasticBody
 from .nh_tips import rod_pairs
 from .tolerances import factor_threads
 
-__all__ = ["BlockPattern", "node_stiffness"]
+__all__ = ["BlockPattern", "covering", "node_stiffness"]
 
 
 class BlockPattern:
     """The tangent's sparsity as 3x3 node blocks, built once per body.
 
-    Every element adds a full 3x3 block to each pair of its nodes; so does every rod pin for
-    each pair of the nodes its mean skin rotation reads (the tips' curvature term when they
-    press on the window couples them; :func:`rod_pairs`). These node-pair blocks are the
-    tangent's whole pattern. Assembly is one ``bincount`` into the blocks; a change of
-    basis at some nodes and the elimination of prescribed dofs act on the blocks in place, so
-    the CSC pattern (and with it CHOLMOD's symbolic analysis) never changes between Newton
-    iterations or active sets.
+    Every element adds a full 3x3 block to each pair of its nodes; so does each rod of
+    ``rod_pins`` for each pair of the nodes its base averages read (a rod the window holds
+    couples them, through the curvature term and the stabiliser; :func:`rod_pairs`). These
+    node-pair blocks are the tangent's whole pattern. Assembly is one ``bincount`` into the
+    blocks; a change of basis at some nodes and the elimination of prescribed dofs act on the
+    blocks in place, so the CSC pattern (and with it CHOLMOD's symbolic analysis) never
+    changes between Newton iterations or active sets; a new pattern (:func:`covering`) is
+    built only when the window holds a rod the pattern does not couple.
+
+    A rod's base averages read every node of the skin within a pin's radius of its axis: a
+    dense block of ~150 nodes on the 1 mm mesh and ~1 200 where the mesh is refined to 0.6 mm
+    around the pin. With all 97 rods in the pattern the factor of a mesh refined around 10
+    pins did not fit in 24 GB (docs/fem.md, "Markers"); hence only the held rods.
     """
 
-    def __init__(self, body: ElasticBody) -> None:
+    def __init__(self, body: ElasticBody, rod_pins=()) -> None:
         space = body.space
         nodes = space.elements.astype(np.int64)  # (m, nl)
         m, nl = nodes.shape
         n = space.n_nodes
+        self.rod_pins = frozenset(int(j) for j in rod_pins)
         pair = (nodes[:, :, None] * n + nodes[:, None, :]).ravel()  # (m nl nl,)
-        keys, inverse = np.unique(np.concatenate([pair, rod_pairs(body.markers, n)]),
-                                  return_inverse=True)
+        rods = rod_pairs(body.markers, n, sorted(self.rod_pins))
+        keys, inverse = np.unique(np.concatenate([pair, rods]), return_inverse=True)
         self.block_of = inverse[:len(pair)]
         self.keys = keys
         self.bi, self.bj = keys // n, keys % n
@@ -148,3 +155,14 @@ class BlockPattern:
 def node_stiffness(blocks: np.ndarray, pattern: BlockPattern, nodes: np.ndarray) -> np.ndarray:
     """(k,) mN/mm, a stiffness scale of each node: the mean diagonal of its tangent block."""
     return np.trace(blocks[pattern.diag[nodes]], axis1=1, axis2=2) / 3.0
+
+
+def covering(body: ElasticBody, rod_pins) -> BlockPattern:
+    """The body's block pattern, kept on the body, built anew (with the rods it coupled and
+    ``rod_pins``) when it does not couple every rod of ``rod_pins``."""
+    pattern = getattr(body, "_neo_hookean_pattern", None)
+    need = {int(j) for j in rod_pins}
+    if pattern is None or not need <= pattern.rod_pins:
+        pattern = BlockPattern(body, need | (pattern.rod_pins if pattern is not None else set()))
+        body._neo_hookean_pattern = pattern
+    return pattern

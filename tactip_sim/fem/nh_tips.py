@@ -307,17 +307,17 @@ def _skew(b: np.ndarray) -> np.ndarray:
     return cross
 
 
-def rod_pairs(markers: Markers, n_nodes: int) -> np.ndarray:
+def rod_pairs(markers: Markers, n_nodes: int, pins=None) -> np.ndarray:
     """Node-pair keys (``a n + b``) of every pair of nodes one rod's end heights read (its
-    root's and its gradient rows' columns): a rod pressed on the window couples them in the
-    tangent (the curvature term, :meth:`RodTips.curvature`, and the stabiliser,
-    :meth:`RodTips.stabiliser`)."""
+    anchor's and its gradient rows' columns), for the rods ``pins`` (default: all): a rod
+    pressed on the window couples them in the tangent (the curvature term,
+    :meth:`RodTips.curvature`, and the stabiliser, :meth:`RodTips.stabiliser`)."""
     if markers.model != "rod" or markers.count == 0:
         return np.zeros(0, dtype=np.int64)
     grad = markers.gradient.tocsr()
     root = markers.operator.tocsr()
-    out = []
-    for tip in range(markers.count):
+    out = [np.zeros(0, dtype=np.int64)]
+    for tip in range(markers.count) if pins is None else pins:
         cols = np.concatenate([grad[9 * tip:9 * tip + 9].indices, root[6 * tip + 2].indices])
         nodes = np.unique(cols // 3).astype(np.int64)
         out.append((nodes[:, None] * n_nodes + nodes[None, :]).ravel())
