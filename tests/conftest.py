@@ -50,14 +50,16 @@ def sigint_as_at_a_terminal() -> None:
 
 def rod_end_points(markers, u):
     """(p, n, 3) the rods' end points at the nodal displacements ``u``, written out here from
-    the definition (root + R m_k, R the polar rotation of the base's mean F = I + grad u),
-    not with the solver's own kinematics: a second method for its derivatives and forces."""
+    the definition (anchor + U + R m_k: the base's centroid moved by its mean displacement,
+    R the polar rotation of the base's mean F = I + grad u, m_k the end point from the anchor
+    at rest), not with the solver's own kinematics: a second method for its derivatives and
+    forces."""
     import numpy as np
 
     f = np.eye(3) + (markers.gradient @ u).reshape(-1, 3, 3)
     left, _, right = np.linalg.svd(f)
-    root = markers.roots_mm + (markers.operator @ u).reshape(-1, 2, 3)[:, 0]
-    return root[:, None, :] + np.einsum("pij,pkj->pki", left @ right, markers.end_offsets)
+    anchor = markers.anchors_mm + (markers.operator @ u).reshape(-1, 2, 3)[:, 0]
+    return anchor[:, None, :] + np.einsum("pij,pkj->pki", left @ right, markers.end_offsets)
 
 
 def rod_end_heights(markers, u):
