@@ -6,9 +6,10 @@ Two models (``scene.pins.model``):
     The tip is a material point of the gel: its displacement is interpolated from the element
     that contains it. Its direction is the deformed root -> tip chord.
 ``rod``
-    The pin is a rigid rod bonded to the skin by its base: the tip is the base's mean
-    displacement plus the skin's mean rotation under the base applied to the rest pin vector,
-    ``tip = root + U + L R d``. Both means weigh the skin with ``(1 - (rho/r)^2)^2`` in the
+    The pin is a rigid rod bonded to the skin by its base, moved by the rigid motion that best
+    fits the base: ``tip = c + U + R (tip0 - c)``, ``c`` the base's weighted centroid (the
+    rod's anchor), ``U`` the base's mean displacement and ``R`` the skin's mean rotation under
+    the base. Both means weigh the skin with ``(1 - (rho/r)^2)^2`` in the
     distance ``rho`` from the pin's axis (``r`` the pin's radius) through the skin's thickness
     (:func:`_base_average`). ``R`` is, for linear elasticity, the rotation by the
     small-rotation vector ``w = 1/2 curl u`` of the mean gradient (exact Rodrigues formula),
