@@ -239,10 +239,10 @@ def test_reusing_a_factorisation_changes_the_cost_not_the_answer(sim, stuck, mon
     # it saves factorisations: a quarter and more with the rods turned about their roots,
     # 11 % (212 against 237) since they read their bases' averages (2026-11-28)
     assert reused < factorised
-    # the same state to within where the stuck ends were anchored: a pin sticks at the close
-    # of the touch step in which it reached the window, and the two iterations can see a pin
-    # reach it one step apart (with the rods' base averages, 2026-11-28: 5.4e-4 mm apart;
-    # with the rods turned about their roots they agreed to 1e-8 mm)
+    # the same state to within a touch step: a pin sticks at the close of the touch step in
+    # which it reached the window. With the rods' base averages (2026-11-28) the two ended
+    # 5.4e-4 mm apart (with the rods turned about their roots, 1e-8 mm); the cause was not
+    # traced further
     from tactip_sim.fem.nh_stick import WINDOW_TOUCH_STEP_MM
 
     assert np.abs(full.u - stuck.u).max() < WINDOW_TOUCH_STEP_MM
