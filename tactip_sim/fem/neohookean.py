@@ -51,7 +51,7 @@ from .friction import indenter_motion
 from .indenters import Placement
 from .markers import Markers
 from .model import ElasticBody
-from .nh_blocks import BlockPattern, covering, node_stiffness
+from .nh_blocks import BlockPattern, node_stiffness
 from .nh_friction import (
     PENALTY,
     SLIP_ROUNDS,
@@ -61,8 +61,9 @@ from .nh_friction import (
     normal_basis,
     tangential_part,
 )
+from .nh_lowrank import LowRankSolve, PinTerms
 from .nh_stick import WindowStick, approach, lowest_heights, touched
-from .nh_tips import LinearisedWindow, RodTips
+from .nh_tips import LinearisedWindow, RodTips, local_frames
 from .pose import Pose
 from .tolerances import TOL, Tolerances, single_threaded_blas
 
@@ -533,9 +534,6 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     # the iterations may go on with it, and the last iteration's increment (mm)
     reuse, change = None, np.inf
     for it in range(1, tol.newton_max_iter + 1):
-        # a rod the window holds couples the nodes its base averages read: a new pattern
-        # (and symbolic analysis) only when it holds one the pattern does not couple yet
-        pattern = _pattern(nh, tips, held)
         x = rest + u.reshape(-1, 3)[cand]
         g, nu = placement.gap(x)
         try:
@@ -568,8 +566,10 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             blocks = blocks.copy()
             blocks[pattern.diag[nodes_a]] += k_fric
             f_ext[nodes_a] = f_fric
-        if wf is not None:
-            blocks = wf.linearise(u, held, blocks, pattern)
+        # the tangent's terms on the held pins' base functionals (nh_lowrank): the springs
+        # of the ends stuck along the window, the window's curvature, the stabiliser
+        stuck = PinTerms.none() if wf is None else wf.linearise(u, held)
+        pins = np.zeros(0, dtype=np.int64) if tips is None else np.unique(held // tips.per_pin)
         basis = np.broadcast_to(np.eye(3), (space.n_nodes, 3, 3)).copy()
         moved = np.zeros(space.n_nodes, dtype=bool)
         basis[nodes_a] = normal_basis(nu[active])
@@ -587,44 +587,47 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
         if curvature is not None:
             tries = [(curvature, 0.0)] + [(curvature, 10.0 ** k)
                                           for k in range(STABILISER_TRIES)] + tries
-        stab = None  # built on first need: (pairs, values scaled to the curvature term)
+        stab = None  # built on first need: (terms, their scale against the curvature's)
+        rot = pattern.rotate(blocks, basis, moved)
         # near the solution, with the same sets, the last factorisation still serves (a
         # modified Newton iteration: the same solution, a few solves instead of a factorisation)
         stale = (reuse is not None and friction is None and change <= REUSE_FACTOR_MM
                  and np.array_equal(active, reuse[1]) and np.array_equal(held, reuse[2]))
+        rows = None if not len(pins) else (tips.base_rows(pins) @ local_frames(basis)).tocsr()
         if stale:
-            curv = tries[0][0]
-            full = blocks if curv is None else pattern.add_dofs(blocks, curv[0], curv[1],
-                                                                -curv[2])
-            rot, solve = pattern.rotate(full, basis, moved), reuse[0]
+            solve = reuse[0]
+            terms = stuck if tries[0][0] is None else stuck.plus(tries[0][0], -1.0)
         else:
             # let the last factor go before the next is made: CHOLMOD's factor is most of a
             # press's memory, and two at once were its peak (docs/fem.md)
-            reuse = solve = linear = window = None
+            reuse = solve = linear = window = low = k_solve = None
+            try:
+                k_solve = pattern.factor(rot, fixed)
+            except (np.linalg.LinAlgError, RuntimeError):
+                raise _NoConvergence from None
+            if rows is not None:
+                low = LowRankSolve(k_solve, rows @ sp.diags((~fixed).ravel().astype(float)))
         for k in range(min(first_try, len(tries) - 1), len(tries) * (not stale)):
             curv, weight = tries[k]
-            full = blocks if curv is None else pattern.add_dofs(blocks, curv[0], curv[1],
-                                                                -curv[2])
+            terms = stuck if curv is None else stuck.plus(curv, -1.0)  # the forces push up
             if weight:
                 if stab is None:
-                    a_s, b_s, v_s = tips.stabiliser(u, held)
-                    rho = (np.abs(curvature[2]).max(initial=0.0)
-                           / max(v_s.max(initial=0.0), 1e-300))
-                    stab = (a_s, b_s, rho * v_s)
-                full = pattern.add_dofs(full, stab[0], stab[1], weight * stab[2])
-            rot = pattern.rotate(full, basis, moved)
+                    stab = tips.stabiliser(u, held)
+                    stab = (stab, curvature.scale() / max(stab.scale(), 1e-300))
+                terms = terms.plus(stab[0], weight * stab[1])
             try:
-                solve = pattern.factor(rot, fixed)
+                solve = k_solve if low is None else low.with_terms(terms.on(pins))
                 first_try = max(k - 1, 0) if curv is not None else first_try
                 reuse = (solve, active.copy(), held.copy())
                 break
-            except (np.linalg.LinAlgError, RuntimeError):
+            except np.linalg.LinAlgError:
                 if curv is None:
                     raise _NoConvergence from None
         window = None if not len(held) else LinearisedWindow(tips, u, held, basis, fixed,
                                                               solve, tol.gap_mm)
+        coupled = None if rows is None else (rows, terms.on(pins))
         linear = _Linearised(pattern, rot, basis, f_int, fixed, a_fixed, solve, nodes_a,
-                             window)
+                             window, coupled)
         a, q, r, react = linear.step(_external(f_ext, wf, space.n_nodes))
         if friction is not None and friction.mu > 0 and np.any(~stick):
             # the slip forces' magnitudes mu p follow the pressures they produce: a fixed point
@@ -740,12 +743,20 @@ class _Linearised:
 
     def __init__(self, pattern: BlockPattern, rot: np.ndarray, basis: np.ndarray,
                  f_int: np.ndarray, fixed: np.ndarray, a_fixed: np.ndarray, solve,
-                 nodes_a: np.ndarray, window: LinearisedWindow | None) -> None:
+                 nodes_a: np.ndarray, window: LinearisedWindow | None,
+                 coupled: tuple[sp.csr_matrix, np.ndarray] | None = None) -> None:
         self.pattern, self.rot, self.basis, self.f_int = pattern, rot, basis, f_int
         self.fixed, self.a_fixed, self.solve, self.nodes_a = fixed, a_fixed, solve, nodes_a
-        self.window = window
-        self.k_fixed = pattern.matvec(rot, a_fixed)
+        self.window, self.coupled = window, coupled
+        self.k_fixed = pattern.matvec(rot, a_fixed) + self._coupled(a_fixed)
         self.rows = pattern.rows_of(nodes_a)
+
+    def _coupled(self, a: np.ndarray) -> np.ndarray | float:
+        """(n_nodes, 3) the pins' terms ``B' S B a`` of the tangent (local bases), 0 without."""
+        if self.coupled is None:
+            return 0.0
+        b, s = self.coupled
+        return np.asarray(b.T @ (s @ (b @ a.ravel()))).reshape(-1, 3)
 
     def step(self, f_ext: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The increment under the external forces ``f_ext`` (n_nodes, 3), rotated; the
@@ -762,13 +773,16 @@ class _Linearised:
         if self.window is not None:
             da, q, window_rot = self.window.forces(a)
             a = a + da
+        coupled = self._coupled(a)
         react = (self.pattern.rows_matvec(self.rot, a, self.rows)
+                 + (coupled[self.nodes_a] if self.coupled is not None else 0.0)
                  - (r + window_rot)[self.nodes_a])
         return a, q, r, react
 
 
-def _pattern(nh: NeoHookeanBody, tips: RodTips | None = None, held=()) -> BlockPattern:
-    """The body's block pattern, kept on the body, coupling at least the rods whose end points
-    ``held`` (numbered as ``tips``) the window holds (:func:`~.nh_blocks.covering`)."""
-    pins = () if tips is None or not len(held) else np.unique(np.asarray(held) // tips.per_pin)
-    return covering(nh.body, pins)
+def _pattern(nh: NeoHookeanBody) -> BlockPattern:
+    """The body's block pattern, made once and kept on the body."""
+    pattern = getattr(nh.body, "_neo_hookean_pattern", None)
+    if pattern is None:
+        pattern = nh.body._neo_hookean_pattern = BlockPattern(nh.body)
+    return pattern

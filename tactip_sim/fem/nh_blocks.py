@@ -9,41 +9,30 @@ import scipy.sparse as sp
 
 from .elasticity import Factor
 from .model import ElasticBody
-from .nh_tips import rod_pairs
 from .tolerances import factor_threads
 
-__all__ = ["BlockPattern", "covering", "node_stiffness"]
+__all__ = ["BlockPattern", "node_stiffness"]
 
 
 class BlockPattern:
     """The tangent's sparsity as 3x3 node blocks, built once per body.
 
-    Every element adds a full 3x3 block to each pair of its nodes; so does each rod of
-    ``rod_pins`` for each pair of the nodes its base averages read (a rod the window holds
-    couples them, through the curvature term and the stabiliser; :func:`rod_pairs`). These
-    node-pair blocks are the tangent's whole pattern. Assembly is one ``bincount`` into the
-    blocks; a change of basis at some nodes and the elimination of prescribed dofs act on the
-    blocks in place, so the CSC pattern (and with it CHOLMOD's symbolic analysis) never
-    changes between Newton iterations or active sets; a new pattern (:func:`covering`) is
-    built only when the window holds a rod the pattern does not couple.
-
-    A rod's base averages read every node of the skin within a pin's radius of its axis: a
-    dense block of ~150 nodes on the 1 mm mesh and ~1 200 where the mesh is refined to 0.6 mm
-    around the pin. On the 1 mm mesh refined around 7 pins, all 97 rods' pairs were 12.8 M
-    node blocks against the elements' 3.4 M (docs/fem.md, "Markers"); hence only the held
-    rods.
+    Every element adds a full 3x3 block to each pair of its nodes: these node-pair blocks are
+    the tangent's whole pattern. (The terms of the pins the window holds, which would couple
+    every pair of nodes a rod's base averages read, are kept out of it: :mod:`.nh_lowrank`.)
+    Assembly is one ``bincount`` into the blocks; a change of basis at some nodes and the
+    elimination of prescribed dofs act on the blocks in place, so the CSC pattern (and with
+    it CHOLMOD's symbolic analysis) never changes between Newton iterations or active sets.
     """
 
-    def __init__(self, body: ElasticBody, rod_pins=()) -> None:
+    def __init__(self, body: ElasticBody) -> None:
         space = body.space
         nodes = space.elements.astype(np.int64)  # (m, nl)
         m, nl = nodes.shape
         n = space.n_nodes
-        self.rod_pins = frozenset(int(j) for j in rod_pins)
         pair = (nodes[:, :, None] * n + nodes[:, None, :]).ravel()  # (m nl nl,)
-        rods = rod_pairs(body.markers, n, sorted(self.rod_pins))
-        keys, inverse = np.unique(np.concatenate([pair, rods]), return_inverse=True)
-        self.block_of = inverse[:len(pair)]
+        keys, inverse = np.unique(pair, return_inverse=True)
+        self.block_of = inverse
         self.keys = keys
         self.bi, self.bj = keys // n, keys % n
         self.n_blocks, self.n_nodes, self.nl = len(keys), n, nl
@@ -72,21 +61,6 @@ class BlockPattern:
         """(n_blocks, 3, 3) blocks of the element matrices ``ke`` (m, nl, 3, nl, 3)."""
         data = np.bincount(self.slot, weights=ke.ravel(), minlength=9 * self.n_blocks)
         return data.reshape(-1, 3, 3)
-
-    def add_dofs(self, blocks: np.ndarray, dofs_a: np.ndarray, dofs_b: np.ndarray,
-                 values: np.ndarray) -> np.ndarray:
-        """``blocks`` plus the entries ``values`` at dof pairs (``dofs_a``, ``dofs_b``), which
-        must lie in the pattern (nodes of one element, or read by one rod's rotation)."""
-        # int64: the pair key n_a * n_nodes + n_b passes 2^31 from ~46 000 nodes (P2, 1 mm)
-        na, ca = np.divmod(np.asarray(dofs_a, dtype=np.int64), 3)
-        nb, cb = np.divmod(np.asarray(dofs_b, dtype=np.int64), 3)
-        key = na * self.n_nodes + nb
-        block = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
-        if not np.array_equal(self.keys[block], key):
-            raise ValueError("add_dofs: a dof pair outside the tangent's pattern")
-        slot = 9 * block + 3 * ca + cb
-        extra = np.bincount(slot, weights=values, minlength=9 * self.n_blocks)
-        return blocks + extra.reshape(-1, 3, 3)
 
     def rotate(self, blocks: np.ndarray, basis: np.ndarray, moved: np.ndarray) -> np.ndarray:
         """``Q_i' B_ij Q_j`` for the blocks touching the nodes ``moved`` (others unchanged)."""
@@ -156,14 +130,3 @@ class BlockPattern:
 def node_stiffness(blocks: np.ndarray, pattern: BlockPattern, nodes: np.ndarray) -> np.ndarray:
     """(k,) mN/mm, a stiffness scale of each node: the mean diagonal of its tangent block."""
     return np.trace(blocks[pattern.diag[nodes]], axis1=1, axis2=2) / 3.0
-
-
-def covering(body: ElasticBody, rod_pins) -> BlockPattern:
-    """The body's block pattern, kept on the body, built anew (with the rods it coupled and
-    ``rod_pins``) when it does not couple every rod of ``rod_pins``."""
-    pattern = getattr(body, "_neo_hookean_pattern", None)
-    need = {int(j) for j in rod_pins}
-    if pattern is None or not need <= pattern.rod_pins:
-        pattern = BlockPattern(body, need | (pattern.rod_pins if pattern is not None else set()))
-        body._neo_hookean_pattern = pattern
-    return pattern

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .nh_blocks import BlockPattern
 from .nh_friction import PENALTY, WindowFrictionState
+from .nh_lowrank import PinTerms
 from .nh_tips import RodTips, local_frames
 
 __all__ = ["ON_WINDOW_MM", "WINDOW_TOUCH_STEP_MM", "WindowStick", "approach", "lowest_heights",
@@ -56,23 +56,20 @@ class WindowStick:
         self.force = np.zeros((0, 2))
         self.jac = None
 
-    def linearise(self, u: np.ndarray, held: np.ndarray, blocks: np.ndarray,
-                  pattern: BlockPattern) -> np.ndarray:
+    def linearise(self, u: np.ndarray, held: np.ndarray) -> PinTerms:
         """The forces and stiffness of the anchored points among ``held`` at ``u``; returns
-        ``blocks`` with the stiffness added."""
+        the stiffness, a term on their pins' base functionals."""
         held = np.asarray(held, dtype=np.int64)
         self.points = held = held[~np.isnan(self.anchor[held, 0])]
         if not len(held):
             self.force, self.jac = np.zeros((0, 2)), None
-            return blocks
+            return PinTerms.none()
         self.jac = self.tips.position_jacobian(u, held)
         k_pen = self._penalty(held)
         self.force = -k_pen[:, None] * (self.tips.positions(u)[held] - self.anchor[held])
-        k = len(held)
-        stiff = k_pen[:, None, None] * np.eye(2)
-        block = sp.bsr_matrix((stiff, np.arange(k), np.arange(k + 1)), shape=(2 * k, 2 * k))
-        extra = (self.jac.T @ block @ self.jac).tocoo()
-        return pattern.add_dofs(blocks, extra.row, extra.col, extra.data)
+        s = sum(k_pen[:, None, None] * c[:, :, None] * c[:, None, :]
+                for c in (self.tips.point_coefficients(u, held, axis) for axis in (0, 1)))
+        return PinTerms.summed(held // self.tips.per_pin, s)
 
     def nodal(self, n_nodes: int) -> np.ndarray:
         """(n_nodes, 3) the points' tangential forces on the nodes (global frame)."""

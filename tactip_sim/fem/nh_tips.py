@@ -5,7 +5,8 @@ A rod turns with the polar rotation of the skin's deformation gradient at its ba
 (:meth:`~.markers.Markers.from_field` with ``finite=True``); the points of its end that meet
 the window are its flat end's rim vertices (:attr:`~.markers.Markers.end_offsets`, as in
 :mod:`.window`), points of the rod. A point held on the window couples every node that its
-rod's rotation reads, which :func:`rod_pairs` adds to the tangent's pattern.
+rod's base averages read; those terms of the tangent are kept on the pin's 12 base functionals
+(:class:`~.nh_lowrank.PinTerms`) and added to the factor's solves (:mod:`.nh_lowrank`).
 """
 
 from __future__ import annotations
@@ -15,10 +16,11 @@ import scipy.sparse as sp
 
 from .contact import solve_lcp
 from .markers import Markers
+from .nh_lowrank import BASE_ROWS, PinTerms
 from .window import END_COMPLIANCE, WINDOW_Z_MM, entering_points, pin_forces
 
 __all__ = ["LinearisedWindow", "RodTips", "local_frames", "point_height_gradient",
-           "point_position_gradient", "rod_pairs"]
+           "point_position_gradient"]
 
 
 class RodTips:
@@ -38,6 +40,11 @@ class RodTips:
         # root (tip) x and y, rows 2 j and 2 j + 1
         self.root_xy = op[(6 * np.arange(self.pins)[:, None] + np.arange(2)).ravel()]
         self.gradient = markers.gradient.tocsr()
+        # the pins' base functionals, 12 a pin: root (tip) z, x, y, then the 9 gradient rows
+        order = np.concatenate([
+            (np.arange(self.pins) * 6)[:, None] + np.array([2, 0, 1]),
+            op.shape[0] + 9 * np.arange(self.pins)[:, None] + np.arange(9)], axis=1)
+        self.base = sp.vstack([op, self.gradient]).tocsr()[order.ravel()]
         # rows a pin in pin_rows: its root's (tip's) z and, for rods, its 3 turn rows
         self.rows_per_pin = 4 if markers.model == "rod" else 1
 
@@ -71,20 +78,38 @@ class RodTips:
         (y) for point ``points[i]``: the root's (tip's) displacement and, for a rod, the turn
         of its end offset (:func:`point_position_gradient`)."""
         points = np.asarray(points, dtype=np.int64)
-        pin, k = np.divmod(points, self.per_pin)
-        rows_xy = self.root_xy[np.column_stack([2 * pin, 2 * pin + 1]).ravel()]
-        if self.markers.model != "rod" or len(points) == 0:
-            return rows_xy.tocsr()
-        grad = (self.gradient @ u).reshape(self.pins, 9)[pin]
-        offsets = self.markers.end_offsets[pin, k]
-        d = np.stack([point_position_gradient(grad, offsets, c) for c in (0, 1)], axis=1)
-        shape = (len(points), 2, 9)  # (point, x/y, gradient row)
+        coef = np.stack([self.point_coefficients(u, points, c) for c in (0, 1)], axis=1)
+        pin = points // self.per_pin
+        shape = coef.shape  # (point, x/y, base row)
         rows = np.broadcast_to(2 * np.arange(len(points))[:, None, None]
                                + np.arange(2)[None, :, None], shape)
-        cols = np.broadcast_to(9 * pin[:, None, None] + np.arange(9)[None, None, :], shape)
-        mix = sp.csr_matrix((d.ravel(), (rows.ravel(), cols.ravel())),
-                            shape=(2 * len(points), 9 * self.pins))
-        return (rows_xy + mix @ self.gradient).tocsr()
+        cols = np.broadcast_to(BASE_ROWS * pin[:, None, None] + np.arange(BASE_ROWS), shape)
+        mix = sp.csr_matrix((coef.ravel(), (rows.ravel(), cols.ravel())),
+                            shape=(2 * len(points), BASE_ROWS * self.pins))
+        return (mix @ self.base).tocsr()
+
+    def base_rows(self, pins: np.ndarray) -> sp.csr_matrix:
+        """(12 len(pins), n_dofs) the base functionals of ``pins`` (:data:`~.nh_lowrank.
+        BASE_ROWS` a pin: its root's (tip's) z, x, y and its 9 mean-gradient rows), which
+        every derivative of its end points' positions combines."""
+        pins = np.asarray(pins, dtype=np.int64)
+        return self.base[(BASE_ROWS * pins[:, None] + np.arange(BASE_ROWS)).ravel()]
+
+    def point_coefficients(self, u: np.ndarray, points: np.ndarray, component: int
+                           ) -> np.ndarray:
+        """(len(points), 12) the derivative of the points' coordinate ``component`` (0 x,
+        1 y, 2 z) with respect to their pins' base functionals (:meth:`base_rows`) at ``u``:
+        1 on the root's (tip's) coordinate and, for a rod, the turn of the point's end offset
+        (:func:`point_position_gradient`) on the gradient rows."""
+        points = np.asarray(points, dtype=np.int64)
+        pin, k = np.divmod(points, self.per_pin)
+        out = np.zeros((len(points), BASE_ROWS))
+        out[:, (1, 2, 0)[component]] = 1.0
+        if self.markers.model == "rod" and len(points):
+            grad = (self.gradient @ u).reshape(self.pins, 9)[pin]
+            out[:, 3:] = point_position_gradient(grad, self.markers.end_offsets[pin, k],
+                                                 component)
+        return out
 
     def entering(self, z: np.ndarray, held: np.ndarray, tol: float) -> np.ndarray:
         """Points to add to ``held``: each pin's lowest point below ``-tol`` not yet held."""
@@ -108,23 +133,28 @@ class RodTips:
         ``<R [e_c]x, dH>`` of its mean gradient ``H`` (``R`` the polar rotation of
         ``I + H``): a point's height changes by ``dz_root + b . (those 3)``
         (:func:`point_height_gradient`), with its weights ``b`` in :meth:`mixing`. So however
-        many points of a rod's end touch the window, their derivatives span 4 rows."""
+        many points of a rod's end touch the window, their derivatives span 4 rows. They are
+        ``pin_coefficients(u, pins) @ base_rows(pins)``."""
+        return (self.pin_coefficients(u, pins) @ self.base_rows(pins)).tocsr()
+
+    def pin_coefficients(self, u: np.ndarray, pins: np.ndarray) -> sp.csr_matrix:
+        """(r len(pins), 12 len(pins)) :meth:`pin_rows` in terms of :meth:`base_rows`."""
         pins = np.asarray(pins, dtype=np.int64)
+        r, k = self.rows_per_pin, len(pins)
+        z = sp.csr_matrix((np.ones(k), (r * np.arange(k), BASE_ROWS * np.arange(k))),
+                          shape=(r * k, BASE_ROWS * k))
         if self.markers.model != "rod":
-            return self.pin_z[pins]
+            return z
         grad = (self.gradient @ u).reshape(self.pins, 9)[pins]
-        rot = _turn_weights(grad, np.zeros((len(pins), 3)))[0]
-        turn = np.einsum("pij,cjk->pcik", rot, _skew(np.eye(3))).reshape(len(pins), 3, 9)
-        shape = (len(pins), 3, 9)  # (pin, turn row c, gradient row)
-        rows = np.broadcast_to(3 * np.arange(len(pins))[:, None, None]
+        rot = _turn_weights(grad, np.zeros((k, 3)))[0]
+        turn = np.einsum("pij,cjk->pcik", rot, _skew(np.eye(3))).reshape(k, 3, 9)
+        shape = (k, 3, 9)  # (pin, turn row c, gradient row)
+        rows = np.broadcast_to(4 * np.arange(k)[:, None, None] + 1
                                + np.arange(3)[None, :, None], shape)
-        cols = np.broadcast_to(9 * pins[:, None, None] + np.arange(9)[None, None, :], shape)
-        mix = sp.csr_matrix((turn.ravel(), (rows.ravel(), cols.ravel())),
-                            shape=(3 * len(pins), 9 * self.pins))
-        turned = (mix @ self.gradient).tocsr()
-        order = np.column_stack([np.arange(len(pins)),
-                                 len(pins) + 3 * np.arange(len(pins))[:, None] + np.arange(3)])
-        return sp.vstack([self.pin_z[pins], turned]).tocsr()[order.ravel()]
+        cols = np.broadcast_to(BASE_ROWS * np.arange(k)[:, None, None] + 3
+                               + np.arange(9)[None, None, :], shape)
+        return z + sp.csr_matrix((turn.ravel(), (rows.ravel(), cols.ravel())),
+                                 shape=(r * k, BASE_ROWS * k))
 
     def mixing(self, u: np.ndarray, pins: np.ndarray) -> sp.csr_matrix:
         """(len(pins) n, r len(pins)): the derivative of the heights of every end point of
@@ -145,65 +175,51 @@ class RodTips:
         return sp.csr_matrix((values.ravel(), (np.repeat(np.arange(k), r), cols.ravel())),
                              shape=(k, r * len(pins)))
 
-    def stabiliser(self, u: np.ndarray, points: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Dof pairs and values of ``C' C``, ``C`` the height jacobian of the end points
-        ``points`` at ``u`` (rods; the pairs are in the tangent's pattern, :func:`rod_pairs`).
-        Added to the tangent times a stiffness, it leaves the Newton step unchanged as long
-        as the points stay on the window (``C du = -z`` there: it only shifts their forces),
-        and it holds the rods' tilt, which the window's curvature term can make unstable."""
+    def stabiliser(self, u: np.ndarray, points: np.ndarray) -> PinTerms:
+        """``C' C`` on the pins' base functionals, ``C`` the height jacobian of the end points
+        ``points`` at ``u``. Added to the tangent times a stiffness, it leaves the Newton step
+        unchanged as long as the points stay on the window (``C du = -z`` there: it only
+        shifts their forces), and it holds the rods' tilt, which the window's curvature term
+        can make unstable."""
         points = np.asarray(points, dtype=np.int64)
-        pins, local = np.unique(points // self.per_pin, return_inverse=True)
-        rows = local * self.per_pin + points % self.per_pin
-        jac = (self.mixing(u, pins)[rows] @ self.pin_rows(u, pins)).tocsr()
-        ctc = (jac.T @ jac).tocoo()
-        return ctc.row.astype(np.int64), ctc.col.astype(np.int64), ctc.data
+        c = self.point_coefficients(u, points, 2)
+        return PinTerms.summed(points // self.per_pin, c[:, :, None] * c[:, None, :])
 
-    def curvature(self, u: np.ndarray, rows: np.ndarray, forces: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Dof pairs and values of ``sum_i q_i d2 z_i / du2`` for points ``rows`` with forces
-        ``q`` (rods only: the height is linear in ``u`` for embedded markers). The pairs of a
-        rod's gradient nodes are in the tangent's pattern (:func:`rod_pairs`)."""
-        empty = np.zeros(0, dtype=np.int64)
-        if self.markers.model != "rod" or len(rows) == 0:
-            return empty, empty, np.zeros(0)
-        rows = np.asarray(rows, dtype=np.int64)
-        pin, k = np.divmod(rows, self.per_pin)
+    def curvature(self, u: np.ndarray, points: np.ndarray, forces: np.ndarray) -> PinTerms:
+        """``sum_i q_i d2 z_i / du2`` for the end points ``points`` with forces ``q``, on
+        their pins' base functionals (rods only: the height is linear in ``u`` for embedded
+        markers). It lies on the 9 gradient rows."""
+        points = np.asarray(points, dtype=np.int64)
+        if self.markers.model != "rod" or len(points) == 0:
+            return PinTerms.none()
+        pin, k = np.divmod(points, self.per_pin)
         grad = (self.gradient @ u).reshape(self.pins, 9)[pin]
         offsets = self.markers.end_offsets[pin, k]
         h = 1e-6  # central differences of the exact gradient
-        hess = np.zeros((len(rows), 9, 9))
+        hess = np.zeros((len(points), 9, 9))
         for c in range(9):
             e = np.zeros(9)
             e[c] = h
             hess[:, c] = (point_height_gradient(grad + e, offsets)
                           - point_height_gradient(grad - e, offsets)) / (2 * h)
-        hess = 0.5 * (hess + hess.transpose(0, 2, 1))
-        # one block per pin: its points' forces weigh their curvatures
-        weighted = np.zeros((self.pins, 9, 9))
-        np.add.at(weighted, pin, np.asarray(forces)[:, None, None] * hess)
-        out_a, out_b, out_v = [], [], []
-        for j in np.unique(pin):
-            g = self.gradient[9 * j:9 * j + 9]
-            cols = np.unique(g.indices)
-            dense = np.asarray(g[:, cols].todense())  # (9, k)
-            block = dense.T @ weighted[j] @ dense
-            out_a.append(np.repeat(cols, len(cols)))
-            out_b.append(np.tile(cols, len(cols)))
-            out_v.append(block.ravel())
-        return np.concatenate(out_a), np.concatenate(out_b), np.concatenate(out_v)
+        s = np.zeros((len(points), BASE_ROWS, BASE_ROWS))
+        s[:, 3:, 3:] = np.asarray(forces)[:, None, None] * hess
+        return PinTerms.summed(pin, s)
 
 
 class LinearisedWindow:
     """The window against the pins' end points on one Newton linearisation (``K a = r``,
     ``K`` factorised as ``solve``, in the local bases ``basis`` (n_nodes, 3, 3) with the dofs
-    ``fixed`` (n_nodes, 3) prescribed).
+    ``fixed`` (n_nodes, 3) prescribed). ``solve`` is :meth:`~.nh_lowrank.LowRankSolve.
+    with_terms`' solver on the base functionals of the pins that have a point in ``held``,
+    whose ``basis`` gives ``K^-1 B'`` without further solves.
 
     Every end point of the pins that have a point in ``held`` is a candidate, and the
     derivative of their heights factors through their pins' rows (:meth:`RodTips.pin_rows`,
     4 a rod): ``C = M B``. So the Schur complement of any set of those points,
-    ``M_H (B K^-1 B') M_H'``, costs 4 solves a pin however many of its points lie on
-    the window (a flat end has 64), and the points can be taken in and let go within the
+    ``M_H (B K^-1 B') M_H'``, costs no solve beyond the low-rank update's however many of
+    its points lie on the window (a flat end has 64), and the points can be taken in and let
+    go within the
     linearisation, as :func:`~.window.stop_at_window` does on the reduced model: the held
     points' forces solve an LCP, and each pin's lowest point that the answer leaves below
     ``-tol`` joins them, until none does. Points of other pins enter at the next iterate.
@@ -216,10 +232,10 @@ class LinearisedWindow:
         self.pins = np.unique(np.asarray(held, dtype=np.int64) // n)
         self.points = (self.pins[:, None] * n + np.arange(n)).ravel()
         nodes = len(basis)
-        self.rows = (tips.pin_rows(u, self.pins) @ local_frames(basis)).tocsr()  # B, local
+        coef = tips.pin_coefficients(u, self.pins)
+        self.rows = (coef @ tips.base_rows(self.pins) @ local_frames(basis)).tocsr()  # B, local
         free = self.rows @ sp.diags((~fixed).ravel().astype(np.float64))
-        self.w = np.asarray(solve(np.ascontiguousarray(free.T.toarray())))  # K^-1 B'
-        self.w = self.w.reshape(3 * nodes, -1)
+        self.w = solve.basis(coef.toarray()).reshape(3 * nodes, -1)  # K^-1 B'
         self.mix = tips.mixing(u, self.pins)  # M
         self.coupling = self.mix @ (free @ self.w)  # M (B K^-1 B')
         self.z = tips.heights(u)[self.points]
@@ -305,20 +321,3 @@ def _skew(b: np.ndarray) -> np.ndarray:
     cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -b[:, 2], b[:, 1], -b[:, 0]
     cross[:, 1, 0], cross[:, 2, 0], cross[:, 2, 1] = b[:, 2], -b[:, 1], b[:, 0]
     return cross
-
-
-def rod_pairs(markers: Markers, n_nodes: int, pins=None) -> np.ndarray:
-    """Node-pair keys (``a n + b``) of every pair of nodes one rod's end heights read (its
-    anchor's and its gradient rows' columns), for the rods ``pins`` (default: all): a rod
-    pressed on the window couples them in the tangent (the curvature term,
-    :meth:`RodTips.curvature`, and the stabiliser, :meth:`RodTips.stabiliser`)."""
-    if markers.model != "rod" or markers.count == 0:
-        return np.zeros(0, dtype=np.int64)
-    grad = markers.gradient.tocsr()
-    root = markers.operator.tocsr()
-    out = [np.zeros(0, dtype=np.int64)]
-    for tip in range(markers.count) if pins is None else pins:
-        cols = np.concatenate([grad[9 * tip:9 * tip + 9].indices, root[6 * tip + 2].indices])
-        nodes = np.unique(cols // 3).astype(np.int64)
-        out.append((nodes[:, None] * n_nodes + nodes[None, :]).ravel())
-    return np.concatenate(out)
