@@ -130,7 +130,7 @@ class Simulator:
         """Build everything the default solver needs now; returns timings in seconds."""
         t0 = time.perf_counter()
         if self.solver == "reduced":
-            self.reduced  # noqa: B018
+            self.reduced.warm_up()
         elif self.solver == "full":
             with single_threaded_blas():  # as press builds it: the same factor bits
                 self.body.factor  # noqa: B018

@@ -201,6 +201,19 @@ class ReducedModel:
         q = op @ x
         return np.ascontiguousarray(x[body.candidate_free].T), 0.5 * (q + q.T)
 
+    def warm_up(self) -> None:
+        """Load (or compile) the compiled loops a press runs, on one candidate, so that the
+        first press times its solve alone (their first call took ~0.7 s, measured
+        2026-11-28, which the fidelity study had counted as the first pose's physics)."""
+        from .contact_kernels import active_block
+
+        one = np.zeros(1, dtype=np.int64)
+        self.normal_block(one, one, np.array([0.0, 0.0, 1.0]))
+        self.surface(one, np.zeros((1, 3)), at=one)
+        self.at_nodes(one, np.zeros((1, 3)))
+        self.marker_values(one, np.zeros((1, 3)))
+        active_block(np.eye(2), one)
+
     # --- the ComplianceOperator protocol -----------------------------------------------------
     def block(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         return self.compliance[np.ix_(_node_dofs(rows), _node_dofs(cols))]
