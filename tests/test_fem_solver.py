@@ -284,6 +284,14 @@ def test_neo_hookean_pins_stop_at_the_window(sim):
     assert state.tips_below_window == 0
 
 
+def turning_field(x: np.ndarray, seed: int) -> np.ndarray:
+    """(3 n,) a homogeneous finite deformation of the nodes ``x`` (gradient entries up to
+    ~0.2, turning the rods by ~10 degrees) plus noise."""
+    rng = np.random.default_rng(seed)
+    grad = rng.uniform(-0.2, 0.2, (3, 3))
+    return ((x - x.mean(axis=0)) @ grad.T).ravel() + 0.02 * rng.standard_normal(x.size)
+
+
 def test_neo_hookean_end_heights_derivative(sim):
     """The Newton iteration's derivative of the rods' end heights, factored through 4 rows a
     pin (``mixing @ pin_rows``), against central differences of the kinematics written out
@@ -293,11 +301,8 @@ def test_neo_hookean_end_heights_derivative(sim):
     body = sim.body
     m = body.markers
     tips = RodTips(m)
-    rng = np.random.default_rng(11)
     x = body.space.nodes
-    # a homogeneous finite deformation (gradient entries up to ~0.2) plus noise
-    grad = rng.uniform(-0.2, 0.2, (3, 3))
-    u = ((x - x.mean(axis=0)) @ grad.T).ravel() + 0.02 * rng.standard_normal(x.size)
+    u = turning_field(x, 11)
     pins = np.array([0, 7, 40, 96])
     jac = (tips.mixing(u, pins) @ tips.pin_rows(u, pins)).toarray()
     assert jac.shape == (len(pins) * m.end_offsets.shape[1], x.size)
@@ -319,10 +324,9 @@ def test_neo_hookean_window_terms_are_the_heights_second_derivatives(sim):
     body = sim.body
     m = body.markers
     tips = RodTips(m)
-    rng = np.random.default_rng(12)
     x = body.space.nodes
-    grad = rng.uniform(-0.2, 0.2, (3, 3))
-    u = ((x - x.mean(axis=0)) @ grad.T).ravel() + 0.02 * rng.standard_normal(x.size)
+    u = turning_field(x, 12)
+    rng = np.random.default_rng(12)
     n = m.end_offsets.shape[1]
     points = np.array([0 * n + 3, 0 * n + 40, 7 * n + 11, 96 * n + 60])
     q = rng.uniform(100.0, 1000.0, len(points))
