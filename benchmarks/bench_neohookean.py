@@ -8,6 +8,7 @@ Usage::
     python benchmarks/bench_neohookean.py --order 1          # quick
     python benchmarks/bench_neohookean.py --baseline abb2079 # also time revision abb2079
     python benchmarks/bench_neohookean.py --friction 0.5     # with friction, along paths
+    python benchmarks/bench_neohookean.py --order 1 --window # poses where the window holds pins
 
 With ``--baseline REF`` the package at git revision REF is exported to a temporary folder and
 the same poses are solved there in a second process, one pose at a time in alternation with
@@ -40,15 +41,18 @@ SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
 # (roll, pitch, depth mm, sphere radius mm or None for the scene's plate)
 POSES = ((2.0, -3.0, 1.0, None), (-5.0, 4.0, 1.0, 8.0), (0.0, 0.0, 2.0, None),
          (10.0, -10.0, 1.5, None))
+# the corner pose pressed until the window holds pins (--window): 2, 7 and 8 pins at P1
+WINDOW_POSES = ((12.0, -8.8, 2.0, None), (12.0, -8.8, 2.6, None), (12.0, -8.8, 3.0, None))
 
 
-def worker(order: int, index: int, out: str) -> None:
-    """Solve pose ``index`` with the package on ``sys.path``; write times and u to ``out``."""
+def worker(order: int, index: int, out: str, poses=POSES) -> None:
+    """Solve pose ``index`` of ``poses`` with the package on ``sys.path``; write times and u
+    to ``out``."""
     import tactip_sim as ts
 
     scene = ts.load_scene(SCENE)
     sim = ts.Simulator(scene, element_order=order, solver="full")
-    roll, pitch, depth, radius = POSES[index]
+    roll, pitch, depth, radius = poses[index]
     pose = ts.Pose(roll, pitch, depth)
     indenter = None if radius is None else ts.Sphere(radius)
     load = os.getloadavg()[0]
@@ -56,7 +60,7 @@ def worker(order: int, index: int, out: str) -> None:
     nh = sim.press(pose, indenter, solver="neo_hookean", full_field=True)
     dt = time.perf_counter() - t0
     np.savez(out, u=nh.vertex_displacements_mm, seconds=dt, iterations=nh.iterations,
-             markers=nh.marker_displacements_mm, load=load)
+             markers=nh.marker_displacements_mm, load=load, held=nh.pins_on_window)
 
 
 def friction_run(order: int, mu: float, steps: int) -> None:
@@ -93,11 +97,11 @@ def friction_run(order: int, mu: float, steps: int) -> None:
     print(f"median {np.median(per_step):.1f} s per step with friction (P{order})")
 
 
-def run(python_path: Path, order: int, index: int, tmp: Path, tag: str) -> dict:
+def run(python_path: Path, order: int, index: int, tmp: Path, tag: str, window: bool) -> dict:
     out = tmp / f"{tag}_{index}.npz"
     env = dict(os.environ, PYTHONPATH=str(python_path))
     subprocess.run([sys.executable, __file__, "--worker", str(index), "--order", str(order),
-                    "--out", str(out)], env=env, check=True)
+                    "--out", str(out)] + (["--window"] if window else []), env=env, check=True)
     with np.load(out) as z:
         return {k: z[k] for k in z.files}
 
@@ -110,11 +114,13 @@ def main() -> None:
     ap.add_argument("--friction", type=float, metavar="MU",
                     help="reach each pose along load paths with this Coulomb coefficient")
     ap.add_argument("--steps", type=int, default=4, help="steps per path (with --friction)")
+    ap.add_argument("--window", action="store_true",
+                    help="the corner pose at 2, 2.6 and 3 mm, where the window holds pins")
     ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.worker is not None:
-        worker(a.order, a.worker, a.out)
+        worker(a.order, a.worker, a.out, WINDOW_POSES if a.window else POSES)
         return
     if a.friction is not None:
         friction_run(a.order, a.friction, a.steps)
@@ -136,17 +142,18 @@ def main() -> None:
         print(f"P{a.order}, {sim.body.space.n_dofs} dofs; seconds per pose: one press in a fresh "
               "process (its first solve, so once-per-body set-up included)")
         rows, ratios = [], []
-        for i, (roll, pitch, depth, radius) in enumerate(POSES):
-            now = run(ROOT, a.order, i, tmp, "now")
+        for i, (roll, pitch, depth, radius) in enumerate(WINDOW_POSES if a.window else POSES):
+            now = run(ROOT, a.order, i, tmp, "now", a.window)
             pose = ts.Pose(roll, pitch, depth)
             lin = sim.press(pose, None if radius is None else ts.Sphere(radius))
             dl = lin.marker_displacements_mm
             rms = 100 * np.linalg.norm(now["markers"] - dl) / np.linalg.norm(dl)
             row = (f"{pose!s:40s} {'plate' if radius is None else f'sphere {radius:g}':10s} "
                    f"{float(now['seconds']):7.1f} s {int(now['iterations']):3d} its  "
-                   f"vs linear {rms:4.1f} % RMS  load {float(now['load']):.1f}")
+                   f"vs linear {rms:4.1f} % RMS  {int(now['held']):2d} pins held  "
+                   f"load {float(now['load']):.1f}")
             if base is not None:
-                old = run(base, a.order, i, tmp, "old")
+                old = run(base, a.order, i, tmp, "old", a.window)
                 ratio = float(old["seconds"]) / float(now["seconds"])
                 ratios.append(ratio)
                 diff = float(np.abs(old["u"] - now["u"]).max())
