@@ -477,8 +477,10 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     is one sparse factorisation with a fixed pattern (CHOLMOD's symbolic analysis is reused).
     The contact pressures are the normal reactions. The pins' end points on the window
     (``tips``) obey the linearised ``z + C du >= 0`` with forces ``q >= 0``, solved on the
-    Schur complement ``C K^-1 C'`` (:class:`~.nh_tips.LinearisedWindow`: 4 solves with the
-    same factor a pin, whose points enter and leave within the linearisation). The active
+    Schur complement ``C K^-1 C'`` (:class:`~.nh_tips.LinearisedWindow`, whose points enter
+    and leave within the linearisation). The tangent's terms on the held pins (the window's
+    curvature on the turned rods, the stabiliser, the springs of stuck ends) stay out of the
+    factor: a low-rank update of its solves (:mod:`.nh_lowrank`, 12 solves a held pin). The active
     sets then keep the nodes and points pushed (``p > 0``, ``q > 0``) and take in those
     that penetrate; the iteration stops when the sets repeat and the increment is below
     ``tol.geometry_mm``.
@@ -751,10 +753,11 @@ class _Linearised:
         self.k_fixed = pattern.matvec(rot, a_fixed) + self._coupled(a_fixed)
         self.rows = pattern.rows_of(nodes_a)
 
-    def _coupled(self, a: np.ndarray) -> np.ndarray | float:
-        """(n_nodes, 3) the pins' terms ``B' S B a`` of the tangent (local bases), 0 without."""
+    def _coupled(self, a: np.ndarray) -> np.ndarray:
+        """(n_nodes, 3) the pins' terms ``B' S B a`` of the tangent (local bases) times the
+        increment ``a`` (n_nodes, 3)."""
         if self.coupled is None:
-            return 0.0
+            return np.zeros_like(a)
         b, s = self.coupled
         return np.asarray(b.T @ (s @ (b @ a.ravel()))).reshape(-1, 3)
 
@@ -773,9 +776,7 @@ class _Linearised:
         if self.window is not None:
             da, q, window_rot = self.window.forces(a)
             a = a + da
-        coupled = self._coupled(a)
-        react = (self.pattern.rows_matvec(self.rot, a, self.rows)
-                 + (coupled[self.nodes_a] if self.coupled is not None else 0.0)
+        react = (self.pattern.rows_matvec(self.rot, a, self.rows) + self._coupled(a)[self.nodes_a]
                  - (r + window_rot)[self.nodes_a])
         return a, q, r, react
 
