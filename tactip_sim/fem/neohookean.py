@@ -625,7 +625,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             except np.linalg.LinAlgError:
                 if curv is None:
                     raise _NoConvergence from None
-        window = None if not len(held) else LinearisedWindow(tips, u, held, basis, fixed,
+        window = None if not len(held) else LinearisedWindow(tips, u, held, rows, fixed,
                                                               solve, tol.gap_mm)
         coupled = None if rows is None else (rows, terms.on(pins))
         linear = _Linearised(pattern, rot, basis, f_int, fixed, a_fixed, solve, nodes_a,

@@ -209,33 +209,33 @@ class RodTips:
 
 class LinearisedWindow:
     """The window against the pins' end points on one Newton linearisation (``K a = r``,
-    ``K`` factorised as ``solve``, in the local bases ``basis`` (n_nodes, 3, 3) with the dofs
-    ``fixed`` (n_nodes, 3) prescribed). ``solve`` is :meth:`~.nh_lowrank.LowRankSolve.
-    with_terms`' solver on the base functionals of the pins that have a point in ``held``,
-    whose ``basis`` gives ``K^-1 B'`` without further solves.
+    ``K`` factorised as ``solve``, in the nodes' local bases with the dofs ``fixed``
+    (n_nodes, 3) prescribed). ``base`` holds the base functionals (:meth:`RodTips.base_rows`)
+    of the pins that have a point in ``held``, in those local bases, and ``solve`` is
+    :meth:`~.nh_lowrank.LowRankSolve.with_terms`' solver on them, whose ``basis`` gives
+    ``K^-1 B'`` without further solves.
 
     Every end point of the pins that have a point in ``held`` is a candidate, and the
     derivative of their heights factors through their pins' rows (:meth:`RodTips.pin_rows`,
     4 a rod): ``C = M B``. So the Schur complement of any set of those points,
     ``M_H (B K^-1 B') M_H'``, costs no solve beyond the low-rank update's however many of
     its points lie on the window (a flat end has 64), and the points can be taken in and let
-    go within the
-    linearisation, as :func:`~.window.stop_at_window` does on the reduced model: the held
-    points' forces solve an LCP, and each pin's lowest point that the answer leaves below
-    ``-tol`` joins them, until none does. Points of other pins enter at the next iterate.
+    go within the linearisation, as :func:`~.window.stop_at_window` does on the reduced
+    model: the held points' forces solve an LCP, and each pin's lowest point that the answer
+    leaves below ``-tol`` joins them, until none does. Points of other pins enter at the next
+    iterate.
     """
 
-    def __init__(self, tips: RodTips, u: np.ndarray, held: np.ndarray, basis: np.ndarray,
+    def __init__(self, tips: RodTips, u: np.ndarray, held: np.ndarray, base: sp.csr_matrix,
                  fixed: np.ndarray, solve, tol: float) -> None:
         self.tips, self.tol = tips, tol
         n = tips.per_pin
         self.pins = np.unique(np.asarray(held, dtype=np.int64) // n)
         self.points = (self.pins[:, None] * n + np.arange(n)).ravel()
-        nodes = len(basis)
         coef = tips.pin_coefficients(u, self.pins)
-        self.rows = (coef @ tips.base_rows(self.pins) @ local_frames(basis)).tocsr()  # B, local
+        self.rows = (coef @ base).tocsr()  # B, local
         free = self.rows @ sp.diags((~fixed).ravel().astype(np.float64))
-        self.w = solve.basis(coef.toarray()).reshape(3 * nodes, -1)  # K^-1 B'
+        self.w = solve.basis(coef.toarray()).reshape(base.shape[1], -1)  # K^-1 B'
         self.mix = tips.mixing(u, self.pins)  # M
         self.coupling = self.mix @ (free @ self.w)  # M (B K^-1 B')
         self.z = tips.heights(u)[self.points]
