@@ -256,3 +256,22 @@ def test_what_tactip_scene_prints_is_a_whole_scene_file(tmp_path, capsys):
     path.write_text("".join(printed.splitlines(keepends=True)[:-2]))  # the [end] line lost
     assert main(["scene", str(path)]) == 0
     assert "resolved.toml" in capsys.readouterr().err
+
+
+def test_ctrl_c_while_the_launcher_loads_ends_with_one_line_and_130(tmp_path):
+    """The Ctrl-C of the flaky window above, made certain: a KeyboardInterrupt raised by the
+    import of the launcher itself (an import hook raises it), as SIGINT under load landed
+    once, 20 ms after ``site``. Through ``python -m`` that ended in a traceback."""
+    code = ("import runpy, sys\n"
+            "class Interrupt:\n"
+            "    def find_spec(self, name, path=None, target=None):\n"
+            "        if name == 'tactip_sim.commands.launch':\n"
+            "            raise KeyboardInterrupt\n"
+            "sys.meta_path.insert(0, Interrupt())\n"
+            "sys.argv = ['tactip', 'scene']\n"
+            "runpy.run_module('tactip_sim.commands', run_name='__main__', alter_sys=True)\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=_env(tmp_path),
+                          capture_output=True, text=True, timeout=120)
+    said = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert proc.returncode == 130, proc.stderr
+    assert len(said) == 1 and "tactip: interrupted" in said[0], proc.stderr

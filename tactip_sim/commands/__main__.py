@@ -1,8 +1,16 @@
 """``python -m tactip_sim.commands ...`` runs ``tactip ...`` (through the same entry point as
-the console script, :func:`.launch.main`)."""
+the console script, :func:`.launch.main`).
+
+A Ctrl-C while the launcher itself loads (before :func:`.launch.main` takes over SIGINT; a
+millisecond or two, longer on a loaded machine) ends the run like one after it: one line,
+exit status 130 (docs/robustness.md)."""
 
 import sys
 
-from .launch import main
+try:
+    from .launch import main
+except KeyboardInterrupt:
+    print("\ntactip: interrupted", file=sys.stderr)
+    sys.exit(130)
 
 sys.exit(main())
