@@ -8,7 +8,7 @@ Usage::
     python benchmarks/bench_neohookean.py --order 1          # quick
     python benchmarks/bench_neohookean.py --baseline abb2079 # also time revision abb2079
     python benchmarks/bench_neohookean.py --friction 0.5     # with friction, along paths
-    python benchmarks/bench_neohookean.py --order 1 --window # poses where the window holds pins
+    python benchmarks/bench_neohookean.py --order 1 --window # deep poses, the window holding pins
 
 With ``--baseline REF`` the package at git revision REF is exported to a temporary folder and
 the same poses are solved there in a second process, one pose at a time in alternation with
@@ -41,8 +41,10 @@ SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
 # (roll, pitch, depth mm, sphere radius mm or None for the scene's plate)
 POSES = ((2.0, -3.0, 1.0, None), (-5.0, 4.0, 1.0, 8.0), (0.0, 0.0, 2.0, None),
          (10.0, -10.0, 1.5, None))
-# the corner pose pressed until the window holds pins (--window): 2, 7 and 8 pins at P1
-WINDOW_POSES = ((12.0, -8.8, 2.0, None), (12.0, -8.8, 2.6, None), (12.0, -8.8, 3.0, None))
+# poses pressed until the window holds pins (--window): the corner pose (2, 7, 8 and 8 pins at
+# P1) and two more deep presses (7 and 9), whose load steps are halved on the way
+WINDOW_POSES = ((12.0, -8.8, 2.0, None), (12.0, -8.8, 2.6, None), (12.0, -8.8, 2.8, None),
+                (12.0, -8.8, 3.0, None), (-10.0, 10.0, 3.0, None), (8.0, 8.0, 3.2, None))
 
 
 def worker(order: int, index: int, out: str, poses=POSES) -> None:
@@ -115,7 +117,7 @@ def main() -> None:
                     help="reach each pose along load paths with this Coulomb coefficient")
     ap.add_argument("--steps", type=int, default=4, help="steps per path (with --friction)")
     ap.add_argument("--window", action="store_true",
-                    help="the corner pose at 2, 2.6 and 3 mm, where the window holds pins")
+                    help="deep poses where the window holds pins (WINDOW_POSES)")
     ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     a = ap.parse_args()

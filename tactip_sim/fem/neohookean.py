@@ -16,8 +16,9 @@ factorisation of the tangent, whose pattern never changes (CHOLMOD's symbolic an
 once per body). The contact pressures are the normal reactions; the active set keeps the nodes
 pushed (``p > 0``) and takes in those that penetrate. ``u += alpha du`` with ``alpha`` halved
 until every ``J > 0``; it stops when the set repeats and the increment is below
-``tol.geometry_mm``. The whole depth is tried in one load step, halved on failure; failure
-with ``tol.max_load_steps`` steps raises :class:`~.contact.ContactError` naming the pose.
+``tol.geometry_mm``. The whole depth is tried in one load step, halved on failure and doubled
+again (up to the first) after :data:`GROW_AFTER` accepted ones; failure with
+``tol.max_load_steps`` steps raises :class:`~.contact.ContactError` naming the pose.
 
 An earlier version solved each iteration's linear contact problem with compliance columns of
 the tangent (one solve per dof of every contact node): the same answers (1e-15 mm plate,
@@ -344,6 +345,7 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
     if not first > 0:
         raise ValueError(f"load_step_mm={load_step_mm!r} is not allowed: it must be > 0 mm")
     done, step, iterations, steps = 0.0, min(depth_mm, first), 0, 0
+    grown = 0  # accepted steps since the step was last halved or doubled (frictionless ends)
     # with the ends sticking: the accepted (depth, each pin's lowest end height), last two
     accepted = [] if tips is None else [(0.0, lowest_heights(tips, u))]
     # with the ends sticking: the nearest depth at which a step found an end newly touching
@@ -363,6 +365,7 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
                 window_t0=window_t, guess=_predicted(nh, before, done, u, target))
         except _NoConvergence:
             step = (target - done) / 2 if window_stick else step / 2
+            grown = 0
             steps += 1
             if steps > tol.max_load_steps:
                 raise ContactError(
@@ -388,6 +391,10 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
             if touch or (touched_at is not None and done >= touched_at - 1e-12):
                 touched_at = None
             step = min(first, 2 * step)
+        else:
+            grown += 1
+            if grown >= GROW_AFTER:
+                step, grown = min(first, 2 * step), 0
     if contact is None:  # depth 0: touching, no force
         cand = body.space.candidates
         g, _ = placement.gap(body.space.nodes[cand])
@@ -450,6 +457,14 @@ STABILISER_TRIES = 8
 # iteration on it shrinks the increment by less than REUSE_CONTRACTION
 REUSE_FACTOR_MM = 1e-2
 REUSE_CONTRACTION = 0.1
+
+
+# after a halving, the load step doubles again (up to the first) every GROW_AFTER accepted
+# steps; with the ends sticking, after every one (their touch steps set the pace). It never
+# grew before 2026-11-28: P1, frictionless, four poses pressed until 7-9 pins were held
+# (BENCHMARKS.md), the same answers to 1e-10 mm, -10/10 deg at 3 mm 2.4x faster, the others
+# within the machine's noise; doubling after every step was no better
+GROW_AFTER = 2
 
 
 class _NoConvergence(Exception):
