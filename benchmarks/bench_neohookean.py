@@ -118,6 +118,8 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=4, help="steps per path (with --friction)")
     ap.add_argument("--window", action="store_true",
                     help="deep poses where the window holds pins (WINDOW_POSES)")
+    ap.add_argument("--only", type=int, nargs="+", metavar="I",
+                    help="solve only these poses (indices into the list, from 0)")
     ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -145,6 +147,8 @@ def main() -> None:
               "process (its first solve, so once-per-body set-up included)")
         rows, ratios = [], []
         for i, (roll, pitch, depth, radius) in enumerate(WINDOW_POSES if a.window else POSES):
+            if a.only is not None and i not in a.only:
+                continue
             now = run(ROOT, a.order, i, tmp, "now", a.window)
             pose = ts.Pose(roll, pitch, depth)
             lin = sim.press(pose, None if radius is None else ts.Sphere(radius))
