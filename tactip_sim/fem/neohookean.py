@@ -471,32 +471,6 @@ class _NoConvergence(Exception):
     pass
 
 
-# where the elements' tangent is not positive definite, it is factorised with a diagonal shift
-# of these fractions of its mean diagonal, in turn (a damped Newton step, towards the same
-# equilibrium: the residual is exact); empty: no shift, the step fails
-SHIFTS = (1e-4, 1e-3, 1e-2, 1e-1)
-
-
-def _factor_shifted(pattern: BlockPattern, rot: np.ndarray, fixed: np.ndarray):
-    """The solver of the tangent blocks ``rot`` (``fixed`` dofs eliminated), shifted by
-    :data:`SHIFTS` of the mean diagonal where it is not positive definite; raises
-    :class:`_NoConvergence` if none serves."""
-    scale = None
-    for shift in (0.0, *SHIFTS):
-        blocks = rot
-        if shift:
-            if scale is None:
-                d = np.trace(rot[pattern.diag], axis1=1, axis2=2) / 3.0
-                scale = float(np.mean(d[~fixed.all(axis=1)]))
-            blocks = rot.copy()
-            blocks[pattern.diag] += shift * scale * np.eye(3)
-        try:
-            return pattern.factor(blocks, fixed)
-        except (np.linalg.LinAlgError, RuntimeError):
-            continue
-    raise _NoConvergence
-
-
 def _tangent_blocks(nh: NeoHookeanBody, pattern: BlockPattern, u: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Internal force (n_nodes, 3) and the tangent's (n_blocks, 3, 3) blocks at ``u``."""
@@ -644,7 +618,10 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             # let the last factor go before the next is made: CHOLMOD's factor is most of a
             # press's memory, and two at once were its peak (docs/fem.md)
             reuse = solve = linear = window = low = k_solve = None
-            k_solve = _factor_shifted(pattern, rot, fixed)
+            try:
+                k_solve = pattern.factor(rot, fixed)
+            except (np.linalg.LinAlgError, RuntimeError):
+                raise _NoConvergence from None
             if rows is not None:
                 low = LowRankSolve(k_solve, rows @ sp.diags((~fixed).ravel().astype(float)))
         for k in range(min(first_try, len(tries) - 1), len(tries) * (not stale)):
