@@ -461,9 +461,10 @@ REUSE_CONTRACTION = 0.1
 
 # after a halving, the load step doubles again (up to the first) every GROW_AFTER accepted
 # steps; with the ends sticking, after every one (their touch steps set the pace). It never
-# grew before 2026-11-28: P1, frictionless, four poses pressed until 7-9 pins were held
-# (BENCHMARKS.md), the same answers to 1e-10 mm, -10/10 deg at 3 mm 2.4x faster, the others
-# within the machine's noise; doubling after every step was no better
+# grew before 2026-11-28. P1, six deep poses with 2-9 pins held (BENCHMARKS.md, "Load steps
+# that grow back"): the same answers to 6e-11 mm, -10/10 deg at 3 mm 2.5x faster, the others
+# within the machine's noise; P2 at -10/10 deg, 3 mm: no gain. Doubling after every accepted
+# step was no better (a one-off P1 run)
 GROW_AFTER = 2
 
 
