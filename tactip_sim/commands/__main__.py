@@ -9,7 +9,7 @@ import sys
 
 try:
     from .launch import main
-except KeyboardInterrupt:
+except KeyboardInterrupt:  # launch.py's own line and INTERRUPTED: it did not load
     print("\ntactip: interrupted", file=sys.stderr)
     sys.exit(130)
 
