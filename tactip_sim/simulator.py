@@ -202,9 +202,10 @@ class Simulator:
                 "not repeated" if first else "")
 
     def _press(self, pose: Pose, indenter: Indenter | None, solver: str | None,
-               full_field: bool, surface: bool = True) -> ContactState:
+               full_field: bool, surface: bool = True, initial: np.ndarray | None = None
+               ) -> ContactState:
         t0 = time.perf_counter()
-        state = self._solve(pose, indenter, solver, full_field, surface)
+        state = self._solve(pose, indenter, solver, full_field, surface, initial)
         tolerance = self.scene.fidelity.marker_tolerance_mm
         if (self.scene.fidelity.pin_refinement == "auto"
                 and state.marker_error_estimate_mm > tolerance):
@@ -220,8 +221,10 @@ class Simulator:
         return state
 
     def _solve(self, pose: Pose, indenter: Indenter | None, solver: str | None,
-               full_field: bool, surface: bool = True) -> ContactState:
-        """One solve on this simulator's mesh (or the contact's refined one)."""
+               full_field: bool, surface: bool = True, initial: np.ndarray | None = None
+               ) -> ContactState:
+        """One solve on this simulator's mesh (or the contact's refined one); ``initial``, a
+        guess of the neo-Hookean answer (:func:`~.fem.neohookean.solve_neo_hookean`'s)."""
         t0 = time.perf_counter()
         indenter = self.indenter if indenter is None else indenter
         solver = self.solver if solver is None else _check_solver(solver)
@@ -240,7 +243,8 @@ class Simulator:
 
             result = solve_neo_hookean(self.body, placement, pose.depth_mm, label=str(pose),
                                        tol=self.tol, markers=self.body.markers,
-                                       window_stick=self._window_stick(solver))
+                                       window_stick=self._window_stick(solver),
+                                       initial=initial)
             markers, dirs = self.body.markers.from_field(result.u, finite=True)
             return self._state(pose, indenter, solver, result.contact, markers, dirs,
                                result.u, result.iterations, t0, result.window_forces,

@@ -192,7 +192,8 @@ def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, 
                       label: str = "", tol: Tolerances = TOL,
                       load_step_mm: float | None = None,
                       markers: Markers | None = None,
-                      window_stick: bool = False) -> NeoHookeanResult:
+                      window_stick: bool = False,
+                      initial: np.ndarray | None = None) -> NeoHookeanResult:
     """Press the neo-Hookean pad with a placed indenter (load-stepped Newton).
 
     Parameters
@@ -213,16 +214,31 @@ def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, 
         :data:`~.nh_stick.WINDOW_TOUCH_STEP_MM`, where it is anchored
         (:class:`~.nh_stick.WindowStick`); between touches a stuck end is a spring to its
         anchor, so the other steps are as long as Newton converges
+    initial : (n_dofs,) an estimate of the answer at ``depth_mm`` (a coarser mesh's solution
+        carried onto this one, :func:`~.refine.carried_field`): Newton first goes to the whole
+        depth from it in one step; if that fails, the load steps start from rest as without
+        it. Not with ``window_stick``, whose answer depends on the path (its anchors are where
+        the ends touched on the way), so a single step from a guess would change it
 
     Raises
     ------
     ContactError
         Newton did not converge even with ``tol.max_load_steps`` load steps.
+    ValueError
+        ``initial`` with ``window_stick``, or of the wrong size.
     """
+    if initial is not None:
+        initial = np.asarray(initial, dtype=float)
+        if window_stick:
+            raise ValueError("initial: a guess would change the answer with the pins' ends "
+                             "sticking (window.pin_friction = 'stick'): give None")
+        if initial.shape != (body.space.n_dofs,) or not np.all(np.isfinite(initial)):
+            raise ValueError(f"initial: {initial.shape} must be ({body.space.n_dofs},) finite "
+                             "displacements, mm")
     with single_threaded_blas():  # threaded BLAS on a busy machine: factorisations ~10x slower
         tips = None if markers is None or markers.count == 0 else RodTips(markers)
         return _load_steps(NeoHookeanBody(body), placement, depth_mm, label, tol, load_step_mm,
-                           tips, bool(window_stick))
+                           tips, bool(window_stick), initial)
 
 
 def neo_hookean_path(body: ElasticBody, poses: list[Pose],
@@ -332,7 +348,8 @@ def _friction_step(nh: NeoHookeanBody, rest: np.ndarray, history: NeoHookeanHist
 
 def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label: str,
                 tol: Tolerances, load_step_mm: float | None, tips: RodTips | None,
-                window_stick: bool = False) -> NeoHookeanResult:
+                window_stick: bool = False, initial: np.ndarray | None = None
+                ) -> NeoHookeanResult:
     body = nh.body
     m = placement.approach
     origin_first = placement.origin_mm + depth_mm * m  # the indenter at first contact
@@ -353,6 +370,16 @@ def _load_steps(nh: NeoHookeanBody, placement: Placement, depth_mm: float, label
     touched_at, missed = None, False
     touch_states: dict[int, np.ndarray] = {}  # with the ends sticking: NeoHookeanResult's
     before = None  # (depth, u) of the accepted state before the last: the steps' predictor
+    if initial is not None and depth_mm > 0 and nh.min_jacobian(initial) > 0:
+        try:  # the whole depth at once from the estimate (a frictionless, stick-free answer
+            # does not depend on the path to it)
+            u_new, contact, window, its, _, _ = _newton(nh, placement, u, active, tips,
+                                                        window, tol, guess=initial)
+        except _NoConvergence:
+            steps += 1  # counted like a failed load step; the steps below start from rest
+        else:
+            return NeoHookeanResult(u_new, contact, its, steps + 1, _per_pin(tips, window),
+                                    end_forces=_per_point(tips, window))
     while done < depth_mm - 1e-12:
         target = min(depth_mm, done + step)
         if window_stick:

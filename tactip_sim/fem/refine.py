@@ -36,7 +36,8 @@ from .resolution import (
 
 log = logging.getLogger(__name__)
 
-__all__ = ["MAX_EXTRA_LEVELS", "MAX_PIN_LEVELS", "ContactRefiner", "PinRefiner", "Plan", "plan"]
+__all__ = ["MAX_EXTRA_LEVELS", "MAX_PIN_LEVELS", "ContactRefiner", "PinRefiner", "Plan",
+           "carried_field", "plan"]
 
 MAX_EXTRA_LEVELS = 2  # refinements beyond the first, when a refined solve still estimates high
 MEAN_TO_MAX_EDGE = 0.6  # bisected zones' mean surface edge over their largest (measured, fem.md)
@@ -135,6 +136,28 @@ PIN_EDGE_FRACTION = 0.6  # the refined skin's largest edge / fidelity.mesh_edge_
 PIN_RADIUS_MM = 1.5  # the balls around the flagged pins' roots
 PIN_LEVEL_FACTOR = 0.75  # the next level's edge, when refined pins still estimate high
 MAX_PIN_LEVELS = 2  # refined solves per press at most
+CARRY_CHUNK = 20_000  # points located at a time by carried_field (bounds its memory)
+
+
+def carried_field(space, vertex_displacements: np.ndarray, onto) -> np.ndarray:
+    """(n_dofs,) of space ``onto``: the displacements ``vertex_displacements`` (n_vertices,
+    3) of ``space``'s vertices, interpolated linearly at every node of ``onto`` (a point just
+    outside ``space``, where a refined mesh was snapped onto a curved surface, takes its
+    nearest element's value). A coarser solution carried onto a refined mesh: the refined
+    neo-Hookean solve's first iterate (:func:`~.neohookean.solve_neo_hookean`'s ``initial``).
+    """
+    from .space import locate
+
+    v = np.asarray(vertex_displacements, dtype=float)
+    if v.shape != (space.n_vertices, 3):
+        raise ValueError(f"vertex_displacements: {v.shape} must be ({space.n_vertices}, 3)")
+    out = np.empty((len(onto.nodes), 3))
+    for i in range(0, len(onto.nodes), CARRY_CHUNK):
+        sl = slice(i, i + CARRY_CHUNK)
+        elements, lam, _ = locate(space, onto.nodes[sl])
+        out[sl] = np.einsum("pa,pac->pc", lam, v[space.elements[elements, :4]])
+    out[onto.fixed] = 0.0
+    return out.ravel()
 
 
 class PinRefiner:
@@ -181,9 +204,18 @@ class PinRefiner:
         Returns the last state, the pins refined and the finest zone's edge."""
         edge = PIN_EDGE_FRACTION * self.sim.scene.fidelity.mesh_edge_mm
         edges = {int(p): edge for p in np.flatnonzero(first.marker_errors_mm > tolerance_mm)}
-        state = first
+        state, parent = first, self.sim
+        # a neo-Hookean solve starts from the last level's answer (its steps from rest only if
+        # that fails): frictionless, without stuck ends, the answer does not depend on the way
+        carry = (solver == "neo_hookean" and self.sim.scene.window.pin_friction == "none")
         for level in range(MAX_PIN_LEVELS):
-            state = self.child(edges)._press(pose, indenter, solver, False)
+            child = self.child(edges)
+            initial = None
+            if carry and state.vertex_displacements_mm is not None:
+                initial = carried_field(parent.body.space, state.vertex_displacements_mm,
+                                        child.body.space)
+            state = child._press(pose, indenter, solver, False, initial=initial)
+            parent = child
             high = np.flatnonzero(np.asarray(state.marker_errors_mm) > tolerance_mm)
             if len(high) == 0 or level == MAX_PIN_LEVELS - 1:
                 break
