@@ -53,15 +53,34 @@ MESHES = ("1 mm", "second 1 mm")  # instance 0: the bundled mesh; 1: a fresh pyt
 
 
 NEXT = "next level"  # the edge of a case refined by the product's rule for a second level
+ZONES = "zones"  # the edge of the case refined by --zones (one edge a pin)
 
 
-def cases(edges, radius: float, instances, next_level: bool = False
+def cases(edges, radius: float, instances, next_level: bool = False, zones: bool = False
           ) -> list[tuple[str, int, float | str | None]]:
-    """(label, instance, refined edge, or None, or :data:`NEXT`) for every mesh of the study."""
-    levels = (None, *edges) + ((NEXT,) if next_level else ())
+    """(label, instance, refined edge, or None, or :data:`NEXT`, or :data:`ZONES`) for every
+    mesh of the study."""
+    levels = (None, *edges) + ((NEXT,) if next_level else ()) + ((ZONES,) if zones else ())
     return [(MESHES[i] + ("" if e is None else f" refined {edges[-1]:g}/{radius:g}, {e}"
-                          if e == NEXT else f" refined {e:g}/{radius:g}"), i, e)
+                          if e in (NEXT, ZONES) else f" refined {e:g}/{radius:g}"), i, e)
             for i in instances for e in levels]
+
+
+def zones(tokens: list[str]) -> tuple[list[int], list[float]]:
+    """``--zones`` tokens ``PIN:EDGE`` as (pins, edges), sorted by pin."""
+    out = {}
+    for t in tokens:
+        pin, _, edge = t.partition(":")
+        try:
+            pin, edge = int(pin), float(edge)
+        except ValueError:
+            raise SystemExit(f"--zones {t!r}: give PIN:EDGE, e.g. 0:0.45") from None
+        if not (0 <= pin < 97 and 0.1 <= edge <= 1.0):
+            raise SystemExit(f"--zones {t!r}: the pin must be in 0-96 and the edge in "
+                             "0.1-1.0 mm")
+        out[pin] = edge
+    pins = sorted(out)
+    return pins, [out[q] for q in pins]
 
 
 def next_level(out: Path, first: str, edge: float, tolerance: float
@@ -128,8 +147,11 @@ def refined_pins(a, out: Path, instance: int, edges) -> list[int]:
 
 
 def solve(label: str, instance: int, edge: float | tuple[float, ...] | None, pose, a,
-          out: Path, pins: list[int]) -> Path:
+          out: Path, pins: list[int], start=None) -> Path:
+    """Press one mesh of the study and store it in ``out`` (unless stored); ``start``, a
+    (simulator, state) whose answer the press starts from (``--warm``)."""
     import tactip_sim as ts
+    from tactip_sim.fem.refine import carried_field
     from tactip_sim.geometry import build_pad
 
     path = case_path(out, label)
@@ -150,7 +172,9 @@ def solve(label: str, instance: int, edge: float | tuple[float, ...] | None, pos
         mesh = refine(mesh, build_pad(scene).pins.roots[pins], edge, a.radius)
     sim = ts.Simulator(scene, mesh=mesh)
     t0 = time.perf_counter()
-    state = sim.press(ts.Pose(*pose))
+    initial = None if start is None else carried_field(
+        start[0].body.space, start[1].vertex_displacements_mm, sim.body.space)
+    state = sim.press(ts.Pose(*pose), initial=initial)
     seconds = time.perf_counter() - t0
     # the same solution's vertex values, interpolated linearly (P1) on the same mesh: how much
     # a marker owes to the quadratic part of the field, a hierarchical error indicator
@@ -163,9 +187,24 @@ def solve(label: str, instance: int, edge: float | tuple[float, ...] | None, pos
              tets=len(mesh.tets), dofs=sim.body.space.n_dofs, pose=np.array(pose),
              pins=np.array(pins, dtype=int), pin_friction=a.pin_friction,
              pin_edges=np.broadcast_to(np.asarray(edge if pins else [], dtype=float),
-                                       (len(pins),)))
+                                       (len(pins),)),
+             vertex_displacements=state.vertex_displacements_mm, warm=start is not None)
     tmp.replace(path)
     return path
+
+
+def unrefined_start(out: Path, label: str, instance: int, pose, a):
+    """(simulator, state) of the instance's unrefined press, which ``--warm`` presses start
+    from: solved again (not stored again) if its stored file predates the stored field."""
+    import tactip_sim as ts
+
+    sim = ts.Simulator(_scene(a.pin_friction), mesh=base_mesh(instance, out))
+    with np.load(case_path(out, label)) as z:
+        if "vertex_displacements" in z.files:
+            from types import SimpleNamespace
+
+            return sim, SimpleNamespace(vertex_displacements_mm=z["vertex_displacements"])
+    return sim, sim.press(ts.Pose(*pose))
 
 
 def main() -> None:
@@ -190,26 +229,44 @@ def main() -> None:
                     help="one more mesh per instance: the finest --edges press's pins, those "
                     "its estimate still puts above --tolerance refined 0.75x finer (newly "
                     "flagged pins joining at that edge), the product's second level")
+    ap.add_argument("--zones", nargs="+", metavar="PIN:EDGE",
+                    help="one more mesh per instance, last: every listed pin's zone at its own "
+                    "edge (mm), e.g. 0:0.45 2:0.45 1:0.6")
+    ap.add_argument("--warm", action="store_true",
+                    help="each refined press starts from the instance's unrefined answer, "
+                    "carried onto its mesh (Simulator.press's initial; frictionless window "
+                    "only): the same answer, fewer Newton iterations")
     ap.add_argument("--pin-friction", choices=("none", "stick"), default="none",
                     help="window.pin_friction of the presses: the pins' ends slide on the "
                     "window (none, the default) or stay where they touched it (stick)")
     a = ap.parse_args()
     if any(not 0 <= p < 97 for p in a.pins):
         ap.error(f"--pins {a.pins}: allowed 0-96")
+    if a.warm and a.pin_friction != "none":
+        ap.error("--warm: only with --pin-friction none (stuck ends depend on the path)")
     a.out.mkdir(parents=True, exist_ok=True)
     pose = (a.roll, a.pitch, a.depth)
     edges = sorted(a.edges, reverse=True)
-    study = cases(edges, a.radius, sorted(set(a.instances)), a.next_level)
+    study = cases(edges, a.radius, sorted(set(a.instances)), a.next_level, bool(a.zones))
     if not a.no_solve:
         from tqdm import tqdm
 
+        start = {}  # instance -> (simulator, state) of its unrefined press, with --warm
         for label, instance, edge in tqdm(study, desc="presses", unit="press"):
             pins = [] if edge is None else refined_pins(a, a.out, instance, a.edges)
             if edge == NEXT:
                 first = next(lab for lab, i, e in study if i == instance and e == edges[-1])
                 pins, zone = next_level(a.out, first, edges[-1], a.tolerance)
                 edge = tuple(zone)
-            solve(label, instance, edge, pose, a, a.out, pins)
+            elif edge == ZONES:
+                pins, zone = zones(a.zones)
+                edge = tuple(zone)
+            if a.warm and edge is not None and not case_path(a.out, label).is_file():
+                if instance not in start:
+                    base = next(lab for lab, i, e in study if i == instance and e is None)
+                    start[instance] = unrefined_start(a.out, base, instance, pose, a)
+            solve(label, instance, edge, pose, a, a.out, pins,
+                  start.get(instance) if a.warm and edge is not None else None)
     runs = {}
     for label, _, _ in study:
         if case_path(a.out, label).is_file():

@@ -141,7 +141,8 @@ class Simulator:
 
     # --- pressing --------------------------------------------------------------------------
     def press(self, pose: Pose, indenter: Indenter | None = None, *, solver: str | None = None,
-              full_field: bool = False, surface: bool = True) -> ContactState:
+              full_field: bool = False, surface: bool = True,
+              initial: np.ndarray | None = None) -> ContactState:
         """Press the pad at ``pose`` and return the contact state.
 
         Parameters
@@ -156,6 +157,10 @@ class Simulator:
             markers, forces and contact are the same numbers; a plate pressed with the reduced
             solver then skips reading the compliance of every surface vertex, ~0.6-1 ms of a
             ~6 ms press of the default pad, what a calibration sweep does not use)
+        initial : (n_dofs,) a guess of the answer, for the neo-Hookean solver only: a coarser
+            mesh's solution carried onto this one (:func:`~.fem.refine.carried_field`), from
+            which Newton goes to the whole depth in one step (the load steps from rest if that
+            fails); not with ``window.pin_friction = "stick"``
 
         Raises
         ------
@@ -163,11 +168,16 @@ class Simulator:
             A pose value is out of range, or the depth exceeds what the pad can take.
         ContactError
             The solve did not converge (the message names the pose).
+        ValueError
+            ``initial`` with a linear solver, with stuck pin ends, or of the wrong size.
         """
         if not isinstance(pose, Pose):
             raise TypeError(f"pose must be a tactip_sim.Pose, got {type(pose).__name__}")
+        if initial is not None and (self.solver if solver is None else solver) != "neo_hookean":
+            raise ValueError("initial: a guess is for solver 'neo_hookean' only (the linear "
+                             "solvers are direct)")
         with single_threaded_blas():
-            state = self._press(pose, indenter, solver, full_field, surface)
+            state = self._press(pose, indenter, solver, full_field, surface, initial)
         if not surface and state.surface_displacements_mm is not None:  # (other solvers)
             state = dataclasses.replace(state, surface_displacements_mm=None)
         tolerance = self.scene.fidelity.contact_tolerance
