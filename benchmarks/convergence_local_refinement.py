@@ -172,8 +172,8 @@ def solve(label: str, instance: int, edge: float | tuple[float, ...] | None, pos
         mesh = refine(mesh, build_pad(scene).pins.roots[pins], edge, a.radius)
     sim = ts.Simulator(scene, mesh=mesh)
     t0 = time.perf_counter()
-    initial = None if start is None else carried_field(
-        start[0].body.space, start[1].vertex_displacements_mm, sim.body.space)
+    initial = None if start is None else carried_field(start[0].body.space, start[1],
+                                                       sim.body.space)
     state = sim.press(ts.Pose(*pose), initial=initial)
     seconds = time.perf_counter() - t0
     # the same solution's vertex values, interpolated linearly (P1) on the same mesh: how much
@@ -188,23 +188,26 @@ def solve(label: str, instance: int, edge: float | tuple[float, ...] | None, pos
              pins=np.array(pins, dtype=int), pin_friction=a.pin_friction,
              pin_edges=np.broadcast_to(np.asarray(edge if pins else [], dtype=float),
                                        (len(pins),)),
-             vertex_displacements=state.vertex_displacements_mm, warm=start is not None)
+             field=state.field_mm, warm=start is not None)
     tmp.replace(path)
     return path
 
 
 def unrefined_start(out: Path, label: str, instance: int, pose, a):
-    """(simulator, state) of the instance's unrefined press, which ``--warm`` presses start
-    from: solved again (not stored again) if its stored file predates the stored field."""
+    """(simulator, its whole field) of the instance's unrefined press, which ``--warm`` presses
+    start from; if its stored file predates the stored field, it is solved again and the field
+    kept beside it (``<label>.field.npy``)."""
     import tactip_sim as ts
 
     sim = ts.Simulator(_scene(a.pin_friction), mesh=base_mesh(instance, out))
     with np.load(case_path(out, label)) as z:
-        if "vertex_displacements" in z.files:
-            from types import SimpleNamespace
-
-            return sim, SimpleNamespace(vertex_displacements_mm=z["vertex_displacements"])
-    return sim, sim.press(ts.Pose(*pose))
+        if "field" in z.files:
+            return sim, z["field"]
+    side = case_path(out, label).with_suffix(".field.npy")
+    if not side.is_file():
+        np.save(out / f".{side.name}", sim.press(ts.Pose(*pose)).field_mm)
+        (out / f".{side.name}").replace(side)
+    return sim, np.load(side)
 
 
 def main() -> None:

@@ -549,7 +549,7 @@ class Simulator:
             iterations=iterations, seconds=time.perf_counter() - t0,
             window_forces_N=None if window is None else window / 1000.0,
             error_estimate=res.error_estimate, node_spacing_mm=res.node_spacing_mm,
-            marker_errors_mm=errors)
+            marker_errors_mm=errors, field_mm=u)
 
 
 def _check_solver(solver: str) -> str:

@@ -139,23 +139,30 @@ MAX_PIN_LEVELS = 2  # refined solves per press at most
 CARRY_CHUNK = 20_000  # points located at a time by carried_field (bounds its memory)
 
 
-def carried_field(space, vertex_displacements: np.ndarray, onto) -> np.ndarray:
-    """(n_dofs,) of space ``onto``: the displacements ``vertex_displacements`` (n_vertices,
-    3) of ``space``'s vertices, interpolated linearly at every node of ``onto`` (a point just
-    outside ``space``, where a refined mesh was snapped onto a curved surface, takes its
-    nearest element's value). A coarser solution carried onto a refined mesh: the refined
+def carried_field(space, field: np.ndarray, onto) -> np.ndarray:
+    """(n_dofs,) of space ``onto``: the displacement ``field`` of ``space`` at every node of
+    ``onto``. ``field`` is either ``space``'s whole field (n_dofs,), interpolated with its own
+    shape functions (a P2 field's quadratic part too), or its vertices' displacements
+    (n_vertices, 3), interpolated linearly. A point just outside ``space`` (where a refined
+    mesh was snapped onto a curved surface) takes its nearest element's value, clipped to it;
+    the clamped nodes stay at 0. A coarser solution carried onto a refined mesh: the refined
     neo-Hookean solve's first iterate (:func:`~.neohookean.solve_neo_hookean`'s ``initial``).
     """
-    from .space import locate
+    from .space import interpolation_operator, locate
 
-    v = np.asarray(vertex_displacements, dtype=float)
-    if v.shape != (space.n_vertices, 3):
-        raise ValueError(f"vertex_displacements: {v.shape} must be ({space.n_vertices}, 3)")
+    f = np.asarray(field, dtype=float)
+    whole = f.shape == (space.n_dofs,)
+    if not whole and f.shape != (space.n_vertices, 3):
+        raise ValueError(f"field: {f.shape} must be ({space.n_dofs},), the whole field, or "
+                         f"({space.n_vertices}, 3), the vertices' displacements")
     out = np.empty((len(onto.nodes), 3))
     for i in range(0, len(onto.nodes), CARRY_CHUNK):
         sl = slice(i, i + CARRY_CHUNK)
         elements, lam, _ = locate(space, onto.nodes[sl])
-        out[sl] = np.einsum("pa,pac->pc", lam, v[space.elements[elements, :4]])
+        if whole:
+            out[sl] = (interpolation_operator(space, elements, lam) @ f).reshape(-1, 3)
+        else:
+            out[sl] = np.einsum("pa,pac->pc", lam, f[space.elements[elements, :4]])
     out[onto.fixed] = 0.0
     return out.ravel()
 
@@ -211,9 +218,8 @@ class PinRefiner:
         for level in range(MAX_PIN_LEVELS):
             child = self.child(edges)
             initial = None
-            if carry and state.vertex_displacements_mm is not None:
-                initial = carried_field(parent.body.space, state.vertex_displacements_mm,
-                                        child.body.space)
+            if carry and state.field_mm is not None:
+                initial = carried_field(parent.body.space, state.field_mm, child.body.space)
             state = child._press(pose, indenter, solver, False, initial=initial)
             parent = child
             high = np.flatnonzero(np.asarray(state.marker_errors_mm) > tolerance_mm)

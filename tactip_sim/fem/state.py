@@ -68,6 +68,9 @@ class ContactState:
     refined_pins : pins around whose roots the mesh was refined for this solve
         (``fidelity.pin_refinement = "auto"``); empty when solved on the scene's mesh
     pin_edge_mm : largest edge of the finest zone around those pins (0 when none was refined)
+    field_mm : (n_dofs,) the solve's whole displacement field, node-major (P2: the edge nodes'
+        too), or ``None`` where ``vertex_displacements_mm`` is: what a refined neo-Hookean solve
+        starts from (:func:`~tactip_sim.fem.refine.carried_field`)
     """
 
     pose: Pose
@@ -99,13 +102,15 @@ class ContactState:
     marker_errors_mm: np.ndarray | None = None
     refined_pins: tuple[int, ...] = ()
     pin_edge_mm: float = 0.0
+    field_mm: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.window_forces_N is None:
             object.__setattr__(self, "window_forces_N",
                                np.full(len(np.asarray(self.markers_mm)), np.nan))
         names = [n for n in _FLOAT_ARRAYS if n != "surface_displacements_mm"]
-        for name in ("surface_displacements_mm", "vertex_displacements_mm", "marker_errors_mm"):
+        for name in ("surface_displacements_mm", "vertex_displacements_mm", "marker_errors_mm",
+                     "field_mm"):
             if getattr(self, name) is not None:
                 names.append(name)
         for name in names:
