@@ -258,7 +258,7 @@ class Simulator:
             markers, dirs = self.body.markers.from_field(result.u, finite=True)
             return self._state(pose, indenter, solver, result.contact, markers, dirs,
                                result.u, result.iterations, t0, result.window_forces,
-                               touch_states=result.touch_states)
+                               touch_states=result.touch_states, keep_field=True)
         window = None
         if solver == "reduced":
             op = self.reduced
@@ -515,7 +515,8 @@ class Simulator:
     def _state(self, pose: Pose, indenter: Indenter, solver: str, sol: ContactSolution,
                markers: np.ndarray, dirs: np.ndarray, u: np.ndarray | None, iterations: int,
                t0: float, window: np.ndarray | None = None, *, surface: bool = True,
-               touch_states: dict[int, np.ndarray] | None = None) -> ContactState:
+               touch_states: dict[int, np.ndarray] | None = None, keep_field: bool = False
+               ) -> ContactState:
         space = self.body.space
         nodes = space.candidates[sol.active]
         points = self._cand_rest[sol.active] + sol.u[sol.active]
@@ -549,7 +550,7 @@ class Simulator:
             iterations=iterations, seconds=time.perf_counter() - t0,
             window_forces_N=None if window is None else window / 1000.0,
             error_estimate=res.error_estimate, node_spacing_mm=res.node_spacing_mm,
-            marker_errors_mm=errors, field_mm=u)
+            marker_errors_mm=errors, field_mm=u if keep_field else None)
 
 
 def _check_solver(solver: str) -> str:

@@ -68,9 +68,10 @@ class ContactState:
     refined_pins : pins around whose roots the mesh was refined for this solve
         (``fidelity.pin_refinement = "auto"``); empty when solved on the scene's mesh
     pin_edge_mm : largest edge of the finest zone around those pins (0 when none was refined)
-    field_mm : (n_dofs,) the solve's whole displacement field, node-major (P2: the edge nodes'
-        too), or ``None`` where ``vertex_displacements_mm`` is: what a refined neo-Hookean solve
-        starts from (:func:`~tactip_sim.fem.refine.carried_field`)
+    field_mm : (n_dofs,) a neo-Hookean press's whole displacement field, node-major (P2:
+        the edge nodes' too), what a refined solve starts from
+        (:func:`~tactip_sim.fem.refine.carried_field`); ``None`` for the linear solvers and
+        load paths
     """
 
     pose: Pose
