@@ -149,7 +149,7 @@ def refined_pins(a, out: Path, instance: int, edges) -> list[int]:
 def solve(label: str, instance: int, edge: float | tuple[float, ...] | None, pose, a,
           out: Path, pins: list[int], start=None) -> Path:
     """Press one mesh of the study and store it in ``out`` (unless stored); ``start``, a
-    (simulator, state) whose answer the press starts from (``--warm``)."""
+    (simulator, its whole field) whose answer the press starts from (``--warm``)."""
     import tactip_sim as ts
     from tactip_sim.fem.refine import carried_field
     from tactip_sim.geometry import build_pad
@@ -193,17 +193,35 @@ def solve(label: str, instance: int, edge: float | tuple[float, ...] | None, pos
     return path
 
 
-def unrefined_start(out: Path, label: str, instance: int, pose, a):
-    """(simulator, its whole field) of the instance's unrefined press, which ``--warm`` presses
-    start from; if its stored file predates the stored field, it is solved again and the field
-    kept beside it (``<label>.field.npy``)."""
+def warm_start(out: Path, study, label: str, instance: int, pose, a):
+    """(simulator, its whole field) that the press ``label`` starts from with ``--warm``: the
+    last press of the instance before it in ``study`` whose field is stored (its mesh built
+    again from its pins and edges; the refined meshes are cached); if there is none, the
+    instance's unrefined press solved again, its field kept beside it
+    (``<label>.field.npy``)."""
     import tactip_sim as ts
 
-    sim = ts.Simulator(_scene(a.pin_friction), mesh=base_mesh(instance, out))
-    with np.load(case_path(out, label)) as z:
-        if "field" in z.files:
-            return sim, z["field"]
-    side = case_path(out, label).with_suffix(".field.npy")
+    before = [lab for lab, i, _ in study[: [q for q, _, _ in study].index(label)]
+              if i == instance]
+    scene = _scene(a.pin_friction)
+    for lab in reversed(before):
+        path = case_path(out, lab)
+        if not path.is_file():
+            continue
+        with np.load(path) as z:
+            if "field" not in z.files:
+                continue
+            pins, edges, field = z["pins"].tolist(), z["pin_edges"], z["field"]
+        mesh = base_mesh(instance, out)
+        if pins:
+            from tactip_sim.geometry import build_pad
+
+            edge = float(edges[0]) if np.unique(edges).size == 1 else tuple(edges.tolist())
+            mesh = refine(mesh, build_pad(scene).pins.roots[pins], edge, a.radius)
+        return ts.Simulator(scene, mesh=mesh), field
+    base = before[0]
+    sim = ts.Simulator(scene, mesh=base_mesh(instance, out))
+    side = case_path(out, base).with_suffix(".field.npy")
     if not side.is_file():
         np.save(out / f".{side.name}", sim.press(ts.Pose(*pose)).field_mm)
         (out / f".{side.name}").replace(side)
@@ -236,9 +254,10 @@ def main() -> None:
                     help="one more mesh per instance, last: every listed pin's zone at its own "
                     "edge (mm), e.g. 0:0.45 2:0.45 1:0.6")
     ap.add_argument("--warm", action="store_true",
-                    help="each refined press starts from the instance's unrefined answer, "
-                    "carried onto its mesh (Simulator.press's initial; frictionless window "
-                    "only): the same answer, fewer Newton iterations")
+                    help="each refined press starts from the answer of the instance's last "
+                    "press before it whose field is stored (else its unrefined press, solved "
+                    "again), carried onto its mesh (Simulator.press's initial; frictionless "
+                    "window only): the same answer, fewer Newton iterations")
     ap.add_argument("--pin-friction", choices=("none", "stick"), default="none",
                     help="window.pin_friction of the presses: the pins' ends slide on the "
                     "window (none, the default) or stay where they touched it (stick)")
@@ -254,7 +273,6 @@ def main() -> None:
     if not a.no_solve:
         from tqdm import tqdm
 
-        start = {}  # instance -> (simulator, state) of its unrefined press, with --warm
         for label, instance, edge in tqdm(study, desc="presses", unit="press"):
             pins = [] if edge is None else refined_pins(a, a.out, instance, a.edges)
             if edge == NEXT:
@@ -264,12 +282,10 @@ def main() -> None:
             elif edge == ZONES:
                 pins, zone = zones(a.zones)
                 edge = tuple(zone)
+            start = None
             if a.warm and edge is not None and not case_path(a.out, label).is_file():
-                if instance not in start:
-                    base = next(lab for lab, i, e in study if i == instance and e is None)
-                    start[instance] = unrefined_start(a.out, base, instance, pose, a)
-            solve(label, instance, edge, pose, a, a.out, pins,
-                  start.get(instance) if a.warm and edge is not None else None)
+                start = warm_start(a.out, study, label, instance, pose, a)
+            solve(label, instance, edge, pose, a, a.out, pins, start)
     runs = {}
     for label, _, _ in study:
         if case_path(a.out, label).is_file():
