@@ -74,6 +74,10 @@ class Simulator:
     markers_under_resolved : presses so far whose largest estimated marker error exceeded
         ``fidelity.marker_tolerance_mm`` (full-field solves; reported the same way)
     warn_under_resolved : set False to log none of them as warnings (the caller reports them)
+    p1_guess : a P2 neo-Hookean press given no ``initial`` starts from the P1 press of the same
+        mesh (carried onto the P2 space, :func:`~.fem.refine.carried_field`), where the
+        answer does not depend on the path (no stuck ends); set False for the load steps
+        from rest alone (docs/fem.md, "A refined solve from the coarse answer")
     """
 
     def __init__(self, scene: Scene, *, pad: Pad | None = None, mesh: TetMesh | None = None,
@@ -103,7 +107,9 @@ class Simulator:
         self.under_resolved = 0
         self.markers_under_resolved = 0
         self.warn_under_resolved = True
+        self.p1_guess = True
         self._lean_op = None
+        self._p1_twin = None  # the P1 simulator on this mesh, for p1_guess
 
     def __getstate__(self) -> dict:
         """Pickle without the renderer (Mitsuba objects); the factorisation is dropped by the
@@ -113,6 +119,7 @@ class Simulator:
         state["_refiner"] = None
         state["_pin_refiner"] = None
         state["_lean_op"] = None
+        state["_p1_twin"] = None
         return state
 
     # --- lazily built parts ----------------------------------------------------------------
@@ -251,10 +258,12 @@ class Simulator:
         if solver == "neo_hookean":
             from .fem.neohookean import solve_neo_hookean
 
+            stick = self._window_stick(solver)
+            if initial is None and self.p1_guess and self.body.order == 2 and not stick:
+                initial = self._p1_answer(pose, indenter)
             result = solve_neo_hookean(self.body, placement, pose.depth_mm, label=str(pose),
                                        tol=self.tol, markers=self.body.markers,
-                                       window_stick=self._window_stick(solver),
-                                       initial=initial)
+                                       window_stick=stick, initial=initial)
             markers, dirs = self.body.markers.from_field(result.u, finite=True)
             return self._state(pose, indenter, solver, result.contact, markers, dirs,
                                result.u, result.iterations, t0, result.window_forces,
@@ -290,6 +299,26 @@ class Simulator:
             markers, dirs = self.body.markers.from_field(u)
         return self._state(pose, indenter, solver, sol, markers, dirs, u, sol.iterations, t0,
                            window, surface=surface)
+
+    def _p1_answer(self, pose: Pose, indenter: Indenter) -> np.ndarray | None:
+        """The neo-Hookean P1 press of ``pose`` on this mesh, carried onto this (P2) space:
+        the P2 press's first iterate (:attr:`p1_guess`); None if the P1 press fails. Where
+        the window takes pins the P2 press from rest halves its load steps, and from this
+        answer it does not: the corner pose at 2 mm, 84 s from rest, 16 s with the P1 press
+        (docs/fem.md)."""
+        from .fem.contact import ContactError
+        from .fem.refine import carried_field
+
+        if self._p1_twin is None:
+            self._p1_twin = type(self)(self.scene, pad=self.pad, mesh=self.mesh, element_order=1,
+                                       solver="neo_hookean", use_cache=self.use_cache,
+                                       tol=self.tol)
+        twin = self._p1_twin
+        try:
+            state = twin._solve(pose, indenter, "neo_hookean", False)
+        except ContactError:
+            return None
+        return carried_field(twin.body.space, state.field_mm, self.body.space)
 
     def _press_refined(self, pose: Pose, indenter: Indenter, placement, t0: float
                        ) -> ContactState | None:

@@ -142,3 +142,51 @@ def test_bad_initial_is_named(scene, coarse, refined):
         stick.press(POSE, initial=np.zeros(stick.body.space.n_dofs))
     with pytest.raises(ValueError, match="field"):
         carried_field(coarse[0].body.space, np.zeros((3, 3)), sim.body.space)
+
+
+@pytest.fixture(scope="module")
+def p2_scene():
+    return ts.replace_in(ts.load_scene(SCENE), fidelity={
+        "element_order": 2, "material_model": "neo_hookean"})
+
+
+def _p1_guess_against_rest(scene, pose, monkeypatch):
+    """The P2 press with ``p1_guess`` (default) and without it, on one mesh: (with, without,
+    whether the P2 solve was given a guess)."""
+    import tactip_sim.fem.neohookean as nh
+
+    given = []
+
+    def spy(body, placement, depth_mm, **kw):
+        given.append((body.order, kw.get("initial") is not None))
+        return solve(body, placement, depth_mm, **kw)
+
+    solve = nh.solve_neo_hookean
+    monkeypatch.setattr(nh, "solve_neo_hookean", spy)
+    guided = ts.Simulator(scene)
+    with_guess = guided.press(pose)
+    assert given == [(1, False), (2, True)], given  # the P1 press, then the P2 one from it
+    plain = ts.Simulator(scene, mesh=guided.mesh)
+    plain.p1_guess = False
+    return with_guess, plain.press(pose)
+
+
+def test_a_p2_press_starts_from_the_p1_answer(p2_scene, monkeypatch):
+    """A P2 neo-Hookean press is first solved at P1 on the same mesh, and the P2 answer from
+    there is the P2 answer from rest (the second method), to solver precision."""
+    warm, cold = _p1_guess_against_rest(p2_scene, ts.Pose(2, -3, 1.0), monkeypatch)
+    d = np.linalg.norm(warm.markers_mm - cold.markers_mm, axis=1)
+    assert d.max() < 1e-6, d.max()
+    assert warm.force_N == pytest.approx(cold.force_N, rel=1e-6)
+
+
+@pytest.mark.slow
+def test_a_p2_press_with_a_pin_on_the_window_from_the_p1_answer(p2_scene, monkeypatch):
+    """Where the window takes a pin (10/-10 deg at 1.5 mm) the press from rest halves its load
+    steps; from the P1 answer it reaches the same answer in fewer iterations."""
+    warm, cold = _p1_guess_against_rest(p2_scene, ts.Pose(10, -10, 1.5), monkeypatch)
+    assert cold.pins_on_window >= 1
+    d = np.linalg.norm(warm.markers_mm - cold.markers_mm, axis=1)
+    assert d.max() < 1e-6, d.max()
+    np.testing.assert_allclose(warm.window_forces_N, cold.window_forces_N, atol=1e-6)
+    assert warm.iterations < cold.iterations
