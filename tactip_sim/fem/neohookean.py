@@ -18,7 +18,11 @@ pushed (``p > 0``) and takes in those that penetrate. ``u += alpha du`` with ``a
 until every ``J > 0``; it stops when the set repeats and the increment is below
 ``tol.geometry_mm``. The whole depth is tried in one load step, halved on failure and doubled
 again (up to the first) after :data:`GROW_AFTER` accepted ones; failure with
-``tol.max_load_steps`` steps raises :class:`~.contact.ContactError` naming the pose.
+``tol.max_load_steps`` steps raises :class:`~.contact.ContactError` naming the pose. Given a
+guess of the answer (``initial``: a coarser mesh's or the P1 solve's, carried onto this
+space), Newton first goes to the whole depth from it, with the candidates within
+:data:`GUESS_TOUCH_MM` of the indenter in the contact set; the load steps from rest follow
+only if that fails.
 
 An earlier version solved each iteration's linear contact problem with compliance columns of
 the tangent (one solve per dof of every contact node): the same answers (1e-15 mm plate,
