@@ -24,6 +24,10 @@ Usage::
     python benchmarks/convergence_local_refinement.py --out /tmp/stick2 --depth 2 --pins 2 3 9 \
         10 19 20 30 --instances 0 --pin-friction stick --radius 1.5 --next-level
                                          # then the product's second level after it
+    python benchmarks/convergence_local_refinement.py --out /tmp/w2 --depth 2 --pins 2 3 9 10 \
+        19 20 30 --radius 1.5 --instances 0 --next-level --warm --zones 0:0.45 1:0.6 2:0.45
+                 # and a last mesh with a zone edge per pin; refined presses start from the
+                 # last stored answer (docs/convergence.md, the corner pose at 2 mm)
 
 Each press is stored in ``OUT`` as it finishes (the fresh mesh too); a rerun solves only the
 missing ones. Prints the largest / mean marker difference of each pair (mm), the leading
@@ -266,6 +270,7 @@ def main() -> None:
         ap.error(f"--pins {a.pins}: allowed 0-96")
     if a.warm and a.pin_friction != "none":
         ap.error("--warm: only with --pin-friction none (stuck ends depend on the path)")
+    zone_spec = zones(a.zones) if a.zones else None  # checked before any press
     a.out.mkdir(parents=True, exist_ok=True)
     pose = (a.roll, a.pitch, a.depth)
     edges = sorted(a.edges, reverse=True)
@@ -280,7 +285,7 @@ def main() -> None:
                 pins, zone = next_level(a.out, first, edges[-1], a.tolerance)
                 edge = tuple(zone)
             elif edge == ZONES:
-                pins, zone = zones(a.zones)
+                pins, zone = zone_spec
                 edge = tuple(zone)
             start = None
             if a.warm and edge is not None and not case_path(a.out, label).is_file():
