@@ -77,6 +77,8 @@ def main() -> None:
                          PIN_RADIUS_MM)
         sim = ts.Simulator(scene, mesh=refined_mesh(scene, ref, base=base.mesh))
         sim.warn_under_resolved = False
+        sim.p1_guess = False  # "from rest": the load steps alone (a P2 press would else start
+        # from the P1 answer, Simulator.p1_guess, since a3de65d)
         t0 = time.perf_counter()
         cold = sim.press(pose)
         t_cold = time.perf_counter() - t0
