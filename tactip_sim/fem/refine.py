@@ -136,7 +136,6 @@ PIN_EDGE_FRACTION = 0.6  # the refined skin's largest edge / fidelity.mesh_edge_
 PIN_RADIUS_MM = 1.5  # the balls around the flagged pins' roots
 PIN_LEVEL_FACTOR = 0.75  # the next level's edge, when refined pins still estimate high
 MAX_PIN_LEVELS = 2  # refined solves per press at most
-CARRY_CHUNK = 20_000  # points located at a time by carried_field (bounds its memory)
 
 
 def carried_field(space, field: np.ndarray, onto) -> np.ndarray:
@@ -155,14 +154,11 @@ def carried_field(space, field: np.ndarray, onto) -> np.ndarray:
     if not whole and f.shape != (space.n_vertices, 3):
         raise ValueError(f"field: {f.shape} must be ({space.n_dofs},), the whole field, or "
                          f"({space.n_vertices}, 3), the vertices' displacements")
-    out = np.empty((len(onto.nodes), 3))
-    for i in range(0, len(onto.nodes), CARRY_CHUNK):
-        sl = slice(i, i + CARRY_CHUNK)
-        elements, lam, _ = locate(space, onto.nodes[sl])
-        if whole:
-            out[sl] = (interpolation_operator(space, elements, lam) @ f).reshape(-1, 3)
-        else:
-            out[sl] = np.einsum("pa,pac->pc", lam, f[space.elements[elements, :4]])
+    elements, lam, _ = locate(space, onto.nodes)  # (in chunks: its memory is bounded)
+    if whole:
+        out = (interpolation_operator(space, elements, lam) @ f).reshape(-1, 3)
+    else:
+        out = np.einsum("pa,pac->pc", lam, f[space.elements[elements, :4]])
     out[onto.fixed] = 0.0
     return out.ravel()
 

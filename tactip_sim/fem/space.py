@@ -164,6 +164,9 @@ def morton_code(points: np.ndarray, bits: int = 10) -> np.ndarray:
     return code
 
 
+LOCATE_CHUNK = 20_000  # points located at a time by locate (bounds its memory)
+
+
 def locate(space: Space, points: np.ndarray, *, region: int | None = None,
            k: int = 24) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Find the element containing each point.
@@ -188,20 +191,25 @@ def locate(space: Space, points: np.ndarray, *, region: int | None = None,
     verts = space.nodes[space.elements[allowed, :4]]
     grad, _ = barycentric_gradients(verts)
     tree = cKDTree(verts.mean(axis=1))
-    _, near = tree.query(pts, k=min(k, len(allowed)))
-    near = np.atleast_2d(near)
 
     def bary(idx: np.ndarray, x: np.ndarray) -> np.ndarray:
         l123 = np.einsum("...ij,...j->...i", grad[idx][..., 1:, :], x - verts[idx][..., 0, :])
         return np.concatenate([1.0 - l123.sum(-1, keepdims=True), l123], axis=-1)
 
-    lam_near = bary(near, pts[:, None, :])  # (p, k, 4)
-    score = lam_near.min(axis=-1)
-    best = np.argmax(score, axis=1)
-    rows = np.arange(len(pts))
-    elem = near[rows, best]
-    lam = lam_near[rows, best]
-    worst = score[rows, best]
+    elem = np.empty(len(pts), dtype=np.int64)
+    lam = np.empty((len(pts), 4))
+    worst = np.empty(len(pts))
+    for start in range(0, len(pts), LOCATE_CHUNK):  # bounds the (chunk, k, 4, 3) gathers
+        sl = slice(start, start + LOCATE_CHUNK)
+        _, near = tree.query(pts[sl], k=min(k, len(allowed)))
+        near = np.atleast_2d(near).reshape(len(pts[sl]), -1)
+        lam_near = bary(near, pts[sl, None, :])  # (chunk, k, 4)
+        score = lam_near.min(axis=-1)
+        best = np.argmax(score, axis=1)
+        rows = np.arange(len(near))
+        elem[sl] = near[rows, best]
+        lam[sl] = lam_near[rows, best]
+        worst[sl] = score[rows, best]
     for i in np.flatnonzero(worst < -TOL.locate):  # rare: brute force over all elements
         lam_all = bary(np.arange(len(allowed)), pts[i][None, :])
         j = int(np.argmax(lam_all.min(axis=1)))
