@@ -28,9 +28,9 @@ def main() -> None:
     args = ap.parse_args()
 
     import tactip_sim as ts
-    from calibration.executor import close_client, open_client
-    from calibration.protocol import PoseSet
-    from calibration.sweep import SweepSpec, run_sweep, warm_up
+    from tactip_lab.sampling.executor import close_client, open_client
+    from tactip_lab.sampling.poses import PoseSet
+    from tactip_lab.sampling.sweep import SweepSpec, run_sweep, warm_up
 
     scene = ts.load_scene(ROOT / "scenes" / "shadow_fingertip.toml")
     p = scene.protocol

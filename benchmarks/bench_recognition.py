@@ -6,7 +6,7 @@
   contact positions) and how many presses failed to converge; for the objects with an
   extruded outline the same press with the outline's (unrounded) triangle mesh as a
   ``MeshIndenter`` is timed beside it, and the capsule mesh with and without the far-field
-  bound (:class:`calibration.recognition.indenters.BoundedMesh`);
+  bound (:class:`tactip_lab.recognition.object_indenters.BoundedMesh`);
 * ``contact``: one whole contact through the chain (press, render, noise, perceive), median;
 * with ``--contacts DIR`` (a contacts data set of ``tactip recognise``): LogitBoost (ours,
   100 iterations of stumps) against scikit-learn's histogram gradient boosting with depth-1
@@ -40,16 +40,16 @@ def _time(fn, *args):
 
 
 def bench_presses(poses: int, quick_camera: bool) -> None:
-    from calibration.recognition.cli import QUICK_CAMERA
-    from calibration.recognition.contacts import (
+    from tactip_lab.recognition.contacts import (
         ContactSpec,
         chain_for,
         contact,
         draw_pose,
         press_object,
     )
-    from calibration.recognition.indenters import BoundedMesh, Prism
-    from calibration.recognition.objects import load_library
+    from tactip_lab.recognition.library import load_library
+    from tactip_lab.recognition.object_indenters import BoundedMesh, Prism
+    from tactip_lab.recognition.recognition_cli import QUICK_CAMERA
     from tactip_sim.fem.indenters import MeshIndenter
 
     scene = ts.load_scene(ROOT / "scenes" / "shadow_fingertip.toml")
@@ -89,10 +89,10 @@ def bench_learning(folder: str, epochs: int) -> None:
     import cv2
     from sklearn.ensemble import HistGradientBoostingClassifier
 
-    from calibration.recognition.boost import LogitBoost
-    from calibration.recognition.cnn import SmallCNN
-    from calibration.recognition.contacts import load_contacts
-    from calibration.recognition.features import difference_images, marker_field
+    from tactip_lab.recognition.boost import LogitBoost
+    from tactip_lab.recognition.cnn import SmallCNN
+    from tactip_lab.recognition.contacts import load_contacts
+    from tactip_lab.recognition.features import difference_images, marker_field
 
     cs = load_contacts(folder)
     X = marker_field(cs.disp_px, cs.growth, cs.rest_pins_px).reshape(len(cs), -1)

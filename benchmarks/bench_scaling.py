@@ -5,7 +5,7 @@ Run:  python benchmarks/bench_scaling.py [--small 50] [--large 5000] [--workers 
 
 Issue 21 asks that the cost per sample stay flat with the sweep's size (50 against 5 000
 samples within 10 %) and that adding workers pay (1 -> 2 workers >= 1.8x; a local cluster of N
-processes measured). Everything goes through ``calibration.sweep.run_sweep`` into temporary
+processes measured). Everything goes through ``tactip_lab.sampling.sweep.run_sweep`` into temporary
 dataset folders: the press, the render, the camera noise, the perception and the files written
 per sample (a PNG and a record), and the tables written when a sweep completes.
 
@@ -14,7 +14,7 @@ per sample (a PNG and a record), and the tables written when a sweep completes.
    shows as a difference between the small sweeps before and after). Wall time per sample,
    including the final tables.
 2. **Workers.** The same ``--scaling-poses`` sweep on a Dask ``LocalCluster`` of 1, 2, 3, ...
-   single-threaded processes (``calibration.executor.open_client``). Each cluster's start-up
+   single-threaded processes (``tactip_lab.sampling.executor.open_client``). Each cluster's start-up
    and every worker's chain set-up (``warm_up``) are timed apart from the sweep; the speed-up is
    of the steady sweep against the 1-process cluster's.
 
@@ -71,9 +71,9 @@ def main(argv: list[str] | None = None) -> int:
                  ">= 1")
 
     import tactip_sim as ts
-    from calibration.executor import close_client, open_client
-    from calibration.protocol import PoseSet
-    from calibration.sweep import SweepSpec, run_sweep, warm_up
+    from tactip_lab.sampling.executor import close_client, open_client
+    from tactip_lab.sampling.poses import PoseSet
+    from tactip_lab.sampling.sweep import SweepSpec, run_sweep, warm_up
 
     scene = ts.replace_in(ts.load_scene(ROOT / "scenes" / "shadow_fingertip.toml"),
                           imaging={"cap_layer": args.cap_layer})

@@ -32,9 +32,9 @@ STAGES = ("press_ms", "render_ms", "perceive_ms", "control_ms")
 
 
 def small_model(scene, folder: Path) -> Path:
-    from calibration.fit import features, fit_model, save_model
-    from calibration.protocol import PoseSet
-    from calibration.sweep import SweepSpec, run_sweep
+    from tactip_lab.fitting.fit import features, fit_model, save_model
+    from tactip_lab.sampling.poses import PoseSet
+    from tactip_lab.sampling.sweep import SweepSpec, run_sweep
     from tactip_sim.scene import scene_hash
 
     rr, pp = np.meshgrid([-14.0, -7.0, 0.0, 7.0, 14.0], [-10.0, -6.0, -2.0, 2.0],
@@ -49,7 +49,7 @@ def small_model(scene, folder: Path) -> Path:
 
 
 def report(label: str, fingers, wall_s: float, frames: int) -> None:
-    from calibration.servo.loop import TRACE_COLUMNS
+    from tactip_lab.servo.loop import TRACE_COLUMNS
 
     rows = np.concatenate([np.asarray(f.rows, float).reshape(-1, len(TRACE_COLUMNS))
                            for f in fingers])
@@ -85,9 +85,9 @@ def main() -> None:
     args = ap.parse_args()
 
     import tactip_sim as ts
-    from calibration.servo import ServoParams, load_servo_model, servo_chain
-    from calibration.servo.grasp import run_object, run_surface
-    from calibration.servo.objects import grasp
+    from tactip_lab.servo import ServoParams, load_servo_model, servo_chain
+    from tactip_lab.servo.grasp import run_object, run_surface
+    from tactip_lab.servo.grasp_objects import grasp
 
     print(f"load average before: {os.getloadavg()}")
     scene = ts.load_scene(ROOT / "scenes" / "shadow_fingertip.toml")

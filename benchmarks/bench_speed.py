@@ -3,7 +3,8 @@
     python benchmarks/bench_speed.py [--poses 40] [--skip-hd] [--json out.json]
 
 One sample = FEM press of a new pose + render (radiance, ground truth, camera model) +
-perception of one frame: ``calibration.chain.Chain.sample`` with ``frames=1``, nominal tip A,
+perception of one frame: ``tactip_lab.sampling.chain.Chain.sample`` with ``frames=1``, nominal tip
+A,
 the default scene at 640x480 and at the hardware's 1920x1080 (pixel pitch divided by 3, so the
 optics are the same). The two cap layers run the same random poses interleaved pose by pose
 (load from other processes falls on both alike), each chain pressing its own poses. The first
@@ -50,7 +51,7 @@ def main() -> None:
     args = ap.parse_args()
 
     import tactip_sim as ts
-    from calibration.chain import Chain, set_tag
+    from tactip_lab.sampling.chain import Chain, set_tag
 
     print(f"load average before: {os.getloadavg()}; cores {os.cpu_count()}")
     results: dict[str, dict] = {}

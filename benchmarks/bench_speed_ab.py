@@ -38,7 +38,7 @@ STAGES = ("physics", "render", "perception", "total")
 
 def _chain():
     import tactip_sim as ts
-    from calibration.chain import Chain
+    from tactip_lab.sampling.chain import Chain
 
     base = ts.load_scene(ROOT / "scenes" / "shadow_fingertip.toml")
     scene = ts.replace_in(base, imaging={"cap_layer": "raster"})
@@ -131,7 +131,7 @@ def main() -> None:
         sys.exit(f"--against {other}: no tactip_sim package there")
 
     sys.path.insert(0, str(ROOT))
-    from calibration.chain import set_tag
+    from tactip_lab.sampling.chain import set_tag
 
     env = {**os.environ, "PYTHONPATH": str(other),
            "TACTIP_CACHE_DIR": os.environ.get("TACTIP_CACHE_DIR",

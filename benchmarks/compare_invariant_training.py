@@ -8,8 +8,8 @@ DIR: a `tactip calibrate ... --depth-invariant --out DIR` folder. Prints, per ti
 test depth, the R² of both training sets, of the model without the array's shift (both grids)
 and of the paper's one-depth growth-CoP model (fitted on the training grid alone), all on the
 same test samples, the tip's depth signal (how much of the spread grid's depth the pressure
-inputs carry, `calibration.fit.depth_signal`) and the orders at which the model on both grids
-kept the deformation's terms (`calibration.fit.fit_invariant`). ``--bootstrap N`` adds, per
+inputs carry, `tactip_lab.fitting.fit.depth_signal`) and the orders at which the model on both grids
+kept the deformation's terms (`tactip_lab.fitting.fit.fit_invariant`). ``--bootstrap N`` adds, per
 order and depth, a paired bootstrap (N resamples of the test poses, seed 0) of the difference
 between the model on both grids and the paper's: its 95 % interval. ``--pool`` (with
 ``--bootstrap``) ends with that difference averaged over every tip of every DIR, per order
@@ -25,9 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.calibrate import deformation_note
-from calibration.dataset import Dataset
-from calibration.fit import (
+from perception.regression import score_predictions
+from tactip_lab.fitting.fit import (
     DEFORMATION,
     depth_signal,
     features,
@@ -38,7 +37,8 @@ from calibration.fit import (
     pressure_part,
     score,
 )
-from perception.regression import score_predictions
+from tactip_lab.protocol.calibrate import deformation_note
+from tactip_lab.sampling.dataset import Dataset
 
 ORDERS = (1, 2, 3)
 ANGLES = ("roll_deg", "pitch_deg")

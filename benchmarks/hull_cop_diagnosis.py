@@ -68,9 +68,9 @@ def sweep_hull(folder: Path, detection=None):
     from scipy.spatial import cKDTree
 
     import perception as pc
-    from calibration.dataset import Dataset
-    from calibration.frames import dataset_pipeline
     from perception.hull_cop import hull_cop
+    from tactip_lab.sampling.dataset import Dataset
+    from tactip_lab.sampling.reperceive import dataset_pipeline
 
     ds = Dataset(folder)
     pipe = dataset_pipeline(ds, detection=detection)
@@ -197,8 +197,8 @@ def main(argv: list[str] | None = None) -> None:
         if args.orders:
             print_orders(args.tip_dir, train, params, {"test+0p0mm": test})
 
-    from calibration.dataset import Dataset
-    from calibration.frames import dataset_pipeline
+    from tactip_lab.sampling.dataset import Dataset
+    from tactip_lab.sampling.reperceive import dataset_pipeline
 
     ds = Dataset(args.tip_dir / "train")
     recs = ds.records()
@@ -214,7 +214,7 @@ def main(argv: list[str] | None = None) -> None:
     report_split("simulated, true projections", rest, frames,
                  np.array([[r.roll_deg, r.pitch_deg] for r in recs]))
 
-    from calibration.bristol import BristolFolder, tap_pipeline
+    from tactip_lab.fitting.bristol import BristolFolder, tap_pipeline
 
     folder = BristolFolder.open(args.real)
     pipe = tap_pipeline(folder.reference)

@@ -4,7 +4,8 @@
 
 FOLDER: a labelled Bristol-layout folder of taps at several depths (default
 ../shared/real/tactip331_tap128: 1 000 taps, 2-5 mm, roll/pitch within ±15°). Every frame is
-perceived as `tactip fit` perceives a folder of taps (`calibration.bristol`: each tap tracked
+perceived as `tactip fit` perceives a folder of taps (`tactip_lab.fitting.bristol`: each tap
+tracked
 from the folder's reference), giving the growth CoP, the deformation and the array's mean
 shift. Prints:
 
@@ -41,8 +42,8 @@ BANDS = ((2.0, 3.0), (3.0, 4.0), (4.0, 5.01))
 def perceive(folder_path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(X (n, 5), angles (n, 2), depth (n,)) of the reliably perceived taps."""
     import perception as pc
-    from calibration.bristol import BristolFolder, tap_pipeline
     from perception.flow import SHIFT_COLUMNS
+    from tactip_lab.fitting.bristol import BristolFolder, tap_pipeline
 
     folder = BristolFolder.open(folder_path)
     pipe = tap_pipeline(folder.reference)

@@ -3,7 +3,7 @@
     PYTHONPATH=$PWD python benchmarks/sim2real_127_residual.py [--scene FILE] [--image FILE]
 
 The identified scene's projected rest markers are paired one to one with the markers detected
-on the real rest frame (`calibration.identify.pair`, a gate of one spacing). Their residual is
+on the real rest frame (`tactip_lab.real.identify.pair`, a gate of one spacing). Their residual is
 then taken again after mapping the projected markers onto the real ones by ever more flexible
 smooth maps, fitted by least squares: a similarity, an affine map, a homography, a
 homography with a 3-term radial polynomial about a free centre (a lens profile), and 2-D
@@ -91,8 +91,8 @@ def main() -> None:
     import cv2
 
     import tactip_sim as ts
-    from calibration.identify import _marker_spacing, pair, simulated_markers
     from perception import detect_markers_detailed
+    from tactip_lab.real.identify import _marker_spacing, pair, simulated_markers
 
     grey = cv2.imread(a.image, cv2.IMREAD_GRAYSCALE)
     if grey is None:

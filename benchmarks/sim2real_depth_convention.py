@@ -2,7 +2,7 @@
 
 A tap pressed deeper spreads the marker field; at a fixed labelled depth, a tilted tap spreads
 it more or less than a square-on one depending on what the depth label measures
-(``calibration.sim2real.TAP_DEPTHS``). The field's RMS radius (px, all detected markers about
+(``tactip_lab.real.sim2real.TAP_DEPTHS``). The field's RMS radius (px, all detected markers about
 their centroid) needs no reference frame, so it compares a real data set (whose reference is a
 tilted tap) with simulated ones. Per folder, least squares
 
@@ -34,8 +34,8 @@ def field_spread(folder: str, expected_count: int) -> tuple[np.ndarray, np.ndarr
     from tqdm import tqdm
 
     import perception as pc
-    from calibration.bristol import BristolFolder
-    from calibration.sim2real import field_of
+    from tactip_lab.real.sim2real import field_of
+    from tactip_lab.fitting.bristol import BristolFolder
 
     f = BristolFolder.open(folder)
     radius = np.array([field_of(pc.detect_markers(str(p), expected_count=expected_count))[1]

@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 import perception as pc  # noqa: E402
 import tactip_sim as ts  # noqa: E402
-from calibration.identify import simulated_markers  # noqa: E402
+from tactip_lab.real.identify import simulated_markers  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "real"
@@ -41,7 +41,7 @@ def rest_figure(s2r: Path, dest: Path) -> None:
     real = cv2.imread(str(REAL / "tactip331_raw" / "raw_tactile_image.png"),
                       cv2.IMREAD_GRAYSCALE)
     r128 = cv2.imread(str(s2r / "sim128" / "images" / "rest.png"), cv2.IMREAD_GRAYSCALE)
-    from calibration.bristol import BristolFolder
+    from tactip_lab.fitting.bristol import BristolFolder
 
     real128 = BristolFolder.open(REAL / "tactip331_tap128").reference  # the folder's reference
     if isinstance(real128, str):
@@ -65,7 +65,7 @@ def rest_figure(s2r: Path, dest: Path) -> None:
 def rest_figure_127(dest: Path) -> None:
     """The identified 127-pin scene's rendered rest frame (Mitsuba) beside the real one, both
     through the same detector, with the layout measures of ``tactip identify --render-check``."""
-    from calibration.identify import compare_rest, render_rest
+    from tactip_lab.real.identify import compare_rest, render_rest
 
     scene = ts.load_scene(ROOT / "scenes" / "tactip_127_identified.toml")
     rendered = render_rest(scene)

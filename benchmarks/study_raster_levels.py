@@ -3,7 +3,7 @@ perception on linear physics (docs/speed.md, issue 21).
 
     python benchmarks/study_raster_levels.py [--out docs/speed/fidelity] [--scene SCENE]
 
-Runs ``calibration.studies.fidelity.run_fidelity_study`` on the levels ``balanced``,
+Runs ``tactip_lab.studies.fidelity.run_fidelity_study`` on the levels ``balanced``,
 ``1 frame``, ``raster caps``, ``raster caps + 1 frame``, ``image mean`` and ``raster caps +
 image mean``. The reference level is the
 ``reference`` preset (Lambert caps, 16 spp, 60 frames) with ``material_model = "linear"``: every
@@ -36,7 +36,7 @@ def main() -> None:
     args = ap.parse_args()
 
     import tactip_sim as ts
-    from calibration.studies.fidelity import REFERENCE, Level, run_fidelity_study
+    from tactip_lab.studies.fidelity import REFERENCE, Level, run_fidelity_study
 
     scene = ts.load_scene(args.scene)
     ref = Level(REFERENCE, "preset", {"fidelity": {"material_model": "linear"}},

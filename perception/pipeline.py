@@ -116,7 +116,7 @@ class FeaturePipeline:
         pushed outward across the region's edge is then still found and tracked (its cell is
         the part of its Voronoi cell inside ``region``). Labelled taps tracked straight from
         the rest frame with a gate of one spacing use half a spacing
-        (:data:`calibration.bristol.TAP_SEARCH_FRACTION`), so the search reaches one gate
+        (:data:`tactip_lab.fitting.bristol.TAP_SEARCH_FRACTION`), so the search reaches one gate
         beyond the rest markers' hull.
     expected_diameter_px : float, optional
         Marker diameter, px. When omitted it is measured on the rest frame, and the rest frame

@@ -25,7 +25,7 @@ def _imports(package: str) -> set[tuple[str, str]]:
 
 @pytest.mark.parametrize(
     ("package", "forbidden"),
-    [("perception", {"tactip_sim", "calibration"}), ("tactip_sim", {"calibration", "perception"})],
+    [("perception", {"tactip_sim", "tactip_lab"}), ("tactip_sim", {"tactip_lab", "perception"})],
 )
 def test_forbidden_imports(package, forbidden):
     bad = sorted((f, m) for f, m in _imports(package) if m in forbidden)

@@ -12,10 +12,10 @@ import pytest
 from scipy.spatial import cKDTree
 
 import perception as pc
-from calibration.bristol import BristolFolder, ColumnMap, cross_validate, folder_features
-from calibration.dataset import DatasetError
-from calibration.fit import FeatureTable
 from perception.synthetic import render_markers
+from tactip_lab.fitting.fit import FeatureTable
+from tactip_lab.fitting.bristol import BristolFolder, ColumnMap, cross_validate, folder_features
+from tactip_lab.sampling.dataset import DatasetError
 
 C = np.array([320.0, 240.0])
 SPACING = 26.0
@@ -75,7 +75,7 @@ def test_folder_reads_columns_images_and_picks_the_frame_without_contact_as_rest
 def test_median_of_binarised_frames_keeps_the_majority_level():
     """Five binarised frames of one bar shifted by -2 ... +2 px: each pixel takes the level
     at least half of the frames give it, so the median is the middle frame's bar."""
-    from calibration.bristol import median_reference
+    from tactip_lab.fitting.bristol import median_reference
 
     frames = []
     for dx in (-2, -1, 0, 1, 2):

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calibration.fit import PAPER_R2, ScoreRow, r2_table_markdown
-from calibration.protocol import evaluation_sets, make_tip, training_set
+from tactip_lab.fitting.fit import PAPER_R2, ScoreRow, r2_table_markdown
+from tactip_lab.sampling.poses import evaluation_sets, make_tip, training_set
 
 
 def test_training_grid_is_the_papers(scene):

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from calibration.runlog import RunLog
+from tactip_lab.sampling.runlog import RunLog
 
 
 def test_killed_invocation_keeps_its_samples_and_time(tmp_path):

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from calibration.dataset import TARGET_COLUMNS, Dataset, DatasetError
-from calibration.protocol import PoseSet
-from calibration.sweep import SweepSpec, run_sweep
+from tactip_lab.sampling.dataset import TARGET_COLUMNS, Dataset, DatasetError
+from tactip_lab.sampling.poses import PoseSet
+from tactip_lab.sampling.sweep import SweepSpec, run_sweep
 
 TINY = np.array([[0.0, 0.0, 1.0], [8.0, -4.0, 1.0], [-8.0, -8.0, 0.5], [0.0, 2.0, 1.5],
                  [12.0, 0.0, 1.0], [-4.0, -10.0, 1.0]])
@@ -142,7 +142,7 @@ def test_dask_cluster_by_address_is_byte_identical_to_serial(spec, serial, tmp_p
         run_sweep(spec, out, scheduler=cluster.scheduler_address, progress=False, chunk=3)
         # the sweep's worker settings reach a cluster it did not start (one OpenCV thread per
         # worker; a worker that joins later gets them too)
-        from calibration.executor import close_client, open_client
+        from tactip_lab.sampling.executor import close_client, open_client
 
         client = open_client(1, cluster.scheduler_address)
         try:
@@ -165,7 +165,7 @@ def test_local_cluster_workers_sample_their_diagnostics_slowly(spec, serial, tmp
     were, and the sweep's files (written by the workers themselves) are the serial run's."""
     import dask
 
-    from calibration.executor import close_client, open_client
+    from tactip_lab.sampling.executor import close_client, open_client
 
     before = dask.config.get("distributed.worker.profile.enabled")
     client = open_client(2, None)
@@ -190,7 +190,7 @@ _FAULTS = """
 import resource, sys
 import numpy as np
 if sys.argv[1] == "steady":
-    from calibration.dask_setup import steady_allocator
+    from tactip_lab.sampling.dask_setup import steady_allocator
     assert steady_allocator()
 def faults():
     return resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -226,7 +226,7 @@ def test_steady_allocator_stops_page_faults_under_dasks_trim_setting():
 _POOLS = """
 import drjit, threadpoolctl
 import scipy.linalg  # loads SciPy's own OpenBLAS beside NumPy's
-from calibration.dask_setup import one_thread_pools
+from tactip_lab.sampling.dask_setup import one_thread_pools
 before = max(d["num_threads"] for d in threadpoolctl.threadpool_info())
 one_thread_pools()
 after = [d["num_threads"] for d in threadpoolctl.threadpool_info()]
@@ -254,7 +254,11 @@ def test_worker_thread_pools_are_one_thread_each():
 def test_interrupt_warnings_are_dropped_and_nothing_else():
     import logging
 
-    from calibration.dask_setup import EXPECTED_ON_INTERRUPT, QuietInterrupt, quiet_interrupt
+    from tactip_lab.sampling.dask_setup import (
+        EXPECTED_ON_INTERRUPT,
+        QuietInterrupt,
+        quiet_interrupt,
+    )
 
     for name, fragment in EXPECTED_ON_INTERRUPT.items():
         quiet_interrupt(name)
@@ -352,7 +356,7 @@ def _boundary_nodes(tets):
 def test_warm_up_builds_the_worker_the_sweep_uses(spec, tmp_path):
     """A benchmark warms the chain up before timing the sweep; the sweep must find that very
     chain (same key, mesh included), not build a second one inside the timed part."""
-    from calibration.sweep import chain_for, warm_up
+    from tactip_lab.sampling.sweep import chain_for, warm_up
 
     warm_up(spec)
     warm = chain_for(spec.with_mesh())
@@ -365,8 +369,8 @@ def test_format_1_datasets_still_read_and_refuse_a_resume(tmp_path, spec):
     with its values under the new names, and a sweep will not append to it."""
     import json
 
-    from calibration.dataset import FORMAT_1_NAMES
-    from calibration.fit import features
+    from tactip_lab.fitting.fit import features
+    from tactip_lab.sampling.dataset import FORMAT_1_NAMES
 
     old_name = {new: old for old, new in FORMAT_1_NAMES.items()}
     header = [old_name.get(c, c) for c in TARGET_COLUMNS]
@@ -403,7 +407,7 @@ def test_a_resume_removes_orphaned_half_written_files_only(spec, tmp_path):
     import os
     import time
 
-    from calibration.dataset import STALE_TMP_S
+    from tactip_lab.sampling.dataset import STALE_TMP_S
 
     out = tmp_path / "ds"
     run_sweep(spec, out, progress=False)
@@ -427,7 +431,7 @@ def test_a_resume_removes_orphaned_half_written_files_only(spec, tmp_path):
 def test_damaged_samples_are_recomputed_and_damaged_tables_refused(spec, tmp_path):
     """A resume recomputes a sample whose record is torn or whose image is missing or
     empty; a truncated or duplicated targets.csv is refused, not used."""
-    from calibration.fit import features
+    from tactip_lab.fitting.fit import features
 
     out = tmp_path / "ds"
     run_sweep(spec, out, progress=False)
@@ -463,7 +467,7 @@ def test_a_sweep_that_failed_before_computing_anything_does_not_block_the_fix(sp
 def test_calibrate_refuses_unsafe_tip_names_and_a_feature_switch(scene, tmp_path):
     import json
 
-    from calibration.calibrate import calibrate
+    from tactip_lab.protocol.calibrate import calibrate
 
     for bad in ("x/../../../ESCAPED", "..", "", "a b"):
         with pytest.raises(ValueError, match="tip="):
@@ -482,7 +486,7 @@ def test_runs_json_counts_every_written_sample_without_a_clean_exit(tmp_path):
     sample (the log is rewritten per sample)."""
     import json
 
-    from calibration.runlog import RunLog
+    from tactip_lab.sampling.runlog import RunLog
 
     log = RunLog(tmp_path / "runs.json", frames=60)
     for i in range(7):

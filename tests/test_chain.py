@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from calibration.chain import MATCH_FRACTION, Chain, identify_markers, set_tag
-from calibration.dataset import SampleRecord
-from calibration.protocol import PoseSet
-from calibration.studies.fidelity import Level, LevelRunner
-from calibration.studies.stability import Rig
-from calibration.sweep import SweepSpec, run_sweep
+from tactip_lab.sampling.chain import MATCH_FRACTION, Chain, identify_markers, set_tag
+from tactip_lab.sampling.dataset import SampleRecord
+from tactip_lab.sampling.poses import PoseSet
+from tactip_lab.sampling.sweep import SweepSpec, run_sweep
+from tactip_lab.studies.fidelity import Level, LevelRunner
+from tactip_lab.studies.stability import Rig
 
 POSES = np.array([[6.0, -3.0, 1.0], [-10.0, -8.0, 0.5]])
 

@@ -9,16 +9,7 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from calibration.calibrate import (
-    calibrate,
-    deformation_note,
-    depth_signal_note,
-    detection_note,
-    detection_summary,
-    invariant_gain_note,
-)
-from calibration.dataset import Dataset, DatasetError
-from calibration.fit import (
+from tactip_lab.fitting.fit import (
     DEFORMATION,
     DEPTH_SIGNAL_LOW,
     INVARIANT_INPUTS,
@@ -30,8 +21,17 @@ from calibration.fit import (
     join_tables,
     load_any_model,
 )
-from calibration.frames import array_shift
-from calibration.protocol import span_training_set, training_set
+from tactip_lab.protocol.calibrate import (
+    calibrate,
+    deformation_note,
+    depth_signal_note,
+    detection_note,
+    detection_summary,
+    invariant_gain_note,
+)
+from tactip_lab.sampling.dataset import Dataset, DatasetError
+from tactip_lab.sampling.poses import span_training_set, training_set
+from tactip_lab.sampling.reperceive import array_shift
 
 
 def test_the_span_set_is_the_grid_spread_over_the_test_depths(scene):
@@ -104,7 +104,7 @@ def test_calibrate_with_the_depth_invariant_model(cal):
     assert np.isfinite(shift).all() and (shift <= span.cop_px[:, 2] + 0.05).all()
     # every test set is scored on its usable samples, and the model is a usable one there
     assert all(r.n >= 14 and r.r2 > 0.8 for r in rows if r.order == 2)
-    from calibration.report import invariant_chart, summary_charts
+    from tactip_lab.protocol.report import invariant_chart, summary_charts
 
     invariant_chart(out, res.rows, rows)
     summary_charts(out, res.rows)
@@ -220,7 +220,7 @@ def _shifted_dataset(root, jpeg_quality, shifts):
     for i, d in enumerate(shifts):
         img = render_markers(rest_pts + d, diameter_px=11.0, noise_sigma=0.01, rng=rng).image
         if jpeg_quality:
-            from calibration.rig import jpeg_roundtrip
+            from tactip_lab.rig.sources import jpeg_roundtrip
 
             img = jpeg_roundtrip(img, jpeg_quality)  # the sweep stores compressed frames
         (root / "images" / f"{i:05d}.png").write_bytes(cv2.imencode(".png", img)[1].tobytes())
@@ -256,7 +256,7 @@ def test_the_markers_detected_are_summed_over_every_sample():
 
 
 def test_the_gain_over_the_one_depth_model_is_per_cell():
-    from calibration.fit import ScoreRow
+    from tactip_lab.fitting.fit import ScoreRow
 
     def row(order, depth, r2):
         return ScoreRow("A", order, depth, r2, r2, r2, 1.0, 1.0, 30, 0)

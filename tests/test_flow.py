@@ -1,6 +1,7 @@
 """The whole-array motion feature (perception/flow.py), the polynomial regressor of a feature
 vector (perception/vector_regression.py) and the choice of feature and order by (nested)
-cross-validation (calibration/cv_select.py): known answers on synthetic marker arrays, a second
+cross-validation (tactip_lab/fitting/cv_select.py): known answers on synthetic marker arrays, a
+second
 implementation (scikit-learn) for the regression, a planted informative feature for the choice."""
 
 from __future__ import annotations
@@ -11,12 +12,12 @@ import numpy as np
 import pytest
 
 import perception as pc
-from calibration.bristol import FrameTable, cross_validate
-from calibration.cv_select import nested_cv, select_by_cv
-from calibration.fit import FeatureTable
 from perception.errors import ModelError, PerceptionError, PointsError
 from perception.flow import FLOW_NAMES, flow_features
 from perception.vector_regression import VectorRegressor
+from tactip_lab.fitting.cv_select import nested_cv, select_by_cv
+from tactip_lab.fitting.fit import FeatureTable
+from tactip_lab.fitting.bristol import FrameTable, cross_validate
 
 REST = pc.hex_lattice(61, 12.0, (64.0, 64.0))
 NO_COP = np.array([np.nan, np.nan])

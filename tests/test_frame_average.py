@@ -43,7 +43,7 @@ def test_image_mean_perceives_the_markers_and_cop_of_the_frame_by_frame_average(
     """One pose, 60 frames, both averaging orders: the mean image's markers sit on the
     analytic cap centroids as closely as the frame-by-frame average's, and the two CoPs
     agree to a small fraction of a pixel (the noise of 60 frames is ~0.02 px on a CoP)."""
-    from calibration.chain import Chain, set_tag
+    from tactip_lab.sampling.chain import Chain, set_tag
 
     base = ts.load_scene(SCENES / "shadow_fingertip.toml")
     out = {}
@@ -68,7 +68,7 @@ def test_image_mean_perceives_the_markers_and_cop_of_the_frame_by_frame_average(
 def test_recognition_images_of_a_frame_mean_are_on_the_rest_frames_8_bit_scale():
     # object recognition differences contact images against the (8-bit) rest frame: a 16-bit
     # frame mean must come back on the same scale
-    from calibration.recognition.contacts import downsample
+    from tactip_lab.recognition.contacts import downsample
 
     rng = np.random.default_rng(1)
     frame = rng.integers(0, 256, (48, 64), dtype=np.uint8)

@@ -1,4 +1,4 @@
-"""Real-to-sim identification (calibration.identify, tactip identify)."""
+"""Real-to-sim identification (tactip_lab.real.identify, tactip identify)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from calibration.identify import identify, rest_image, simulated_markers, write_identified
+from tactip_lab.real.identify import identify, rest_image, simulated_markers, write_identified
 from tactip_sim.scene import replace_in
 
 from .conftest import ROOT, SCENES, SHARED
@@ -95,8 +95,8 @@ def test_tilt_candidates_recover_a_known_tilt_and_offer_no_false_twin(tmp_path):
     identification recovers them; the search started from the mirrored tilt does not fit as
     well, so no second candidate is offered (on the real 331-pin frame both fit to 0.55 px,
     docs/sim2real.md)."""
-    from calibration.identify import tilt_candidates
     from perception.synthetic import render_markers
+    from tactip_lab.real.identify import tilt_candidates
 
     scene = ts.load_scene(SCENES / "tactip_331.toml")
     truth = replace_in(scene, camera={"distance_mm": 17.3, "principal_offset_px": [7.5, -4.0],

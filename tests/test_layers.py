@@ -16,7 +16,7 @@ import pytest
 
 from .conftest import ROOT
 
-PACKAGES = ("tactip_sim", "perception", "calibration")
+PACKAGES = ("tactip_sim", "perception", "tactip_lab")
 
 LAYERS = {
     "scene": 0, "cache": 0, "llvm": 0, "progress": 0, "_lazy": 0,
@@ -152,6 +152,57 @@ def test_no_import_cycle(graph):
                 if len(comp) > 1:
                     cycles.append(sorted(comp))
     assert not cycles, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+LAB_LAYERS = {"rig": 0, "sampling": 1, "fitting": 2, "protocol": 3, "real": 3,
+              "recognition": 3, "servo": 3, "studies": 3, "cli": 4}
+"""Layer of each part of ``tactip_lab``; the parts on layer 3 are its products."""
+
+PRODUCTS = {k for k, v in LAB_LAYERS.items() if v == 3}
+
+
+def _lab_part(mod: str) -> str | None:
+    parts = mod.split(".")
+    if parts[0] != "tactip_lab" or len(parts) == 1:
+        return None
+    if parts[1] not in LAB_LAYERS:
+        raise AssertionError(f"{mod}: tactip_lab.{parts[1]} has no layer in tests/test_layers.py "
+                             "(add it, and to docs/architecture.md)")
+    return parts[1]
+
+
+def _lab_violations(graph: dict[str, set[str]]) -> list[str]:
+    bad = []
+    for mod, deps in graph.items():
+        here = _lab_part(mod)
+        if here is None:
+            continue
+        for dep in deps:
+            there = _lab_part(dep)
+            if dep == "tactip_lab" and here != "cli":
+                bad.append(f"{mod} -> tactip_lab (the facade: import the module itself)")
+            elif there is None or there == here:
+                continue
+            elif here in PRODUCTS and there in PRODUCTS:
+                bad.append(f"{mod} -> {dep}: products never import each other")
+            elif LAB_LAYERS[there] > LAB_LAYERS[here]:
+                bad.append(f"{mod} (layer {LAB_LAYERS[here]}) -> {dep} (layer {LAB_LAYERS[there]})")
+    return sorted(bad)
+
+
+def test_lab_products_never_import_each_other_and_nothing_runs_up(graph):
+    bad = _lab_violations(graph)
+    assert not bad, "tactip_lab's layering broken:\n" + "\n".join(bad)
+
+
+def test_the_lab_checker_sees_a_product_importing_another():
+    g = {"tactip_lab.servo.loop": {"tactip_lab.recognition.store", "tactip_lab.sampling.chain"},
+         "tactip_lab.sampling.sweep": {"tactip_lab.fitting.fit"},
+         "tactip_lab.fitting.fit": {"tactip_lab.sampling.dataset"}}
+    bad = _lab_violations(g)
+    assert len(bad) == 2
+    assert "products never import each other" in bad[1] or "products never" in bad[0]
+    assert any("tactip_lab.sampling.sweep (layer 1)" in b for b in bad)
 
 
 def test_the_checker_sees_a_cycle_and_an_upward_import(tmp_path, monkeypatch):

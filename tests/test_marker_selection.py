@@ -1,4 +1,4 @@
-"""Marker selection (calibration.recognition.id3 / select): ID3 information gain, LogitBoost
+"""Marker selection (tactip_lab.recognition.id3 / select): ID3 information gain, LogitBoost
 stumps, the Table II evaluation and `tactip select-markers`. Known answers on synthetic
 marker fields; the command end to end on contacts made through the chain."""
 
@@ -15,7 +15,7 @@ from .conftest import ROOT
 
 
 def test_information_gain_known_answers():
-    from calibration.recognition.id3 import information_gain
+    from tactip_lab.recognition.id3 import information_gain
 
     y = np.array([0, 0, 1, 1])
     codes = np.array([[0, 0, 5], [0, 1, 5], [1, 0, 5], [1, 1, 5]])  # copy, independent, const
@@ -34,8 +34,8 @@ def _field(rng, n, q=20, informative=7, channel=2):
 
 
 def test_id3_picks_the_one_informative_marker():
-    from calibration.recognition.id3 import ID3, discretise
-    from calibration.recognition.select import select_markers
+    from tactip_lab.recognition.id3 import ID3, discretise
+    from tactip_lab.recognition.select import select_markers
 
     rng = np.random.default_rng(0)
     for seed, marker, channel in ((0, 7, 2), (1, 13, 0), (2, 0, 1)):
@@ -52,7 +52,7 @@ def test_id3_picks_the_one_informative_marker():
 
 
 def test_id3_and_discretise_refuse_bad_input():
-    from calibration.recognition.id3 import ID3, cv_accuracy, discretise
+    from tactip_lab.recognition.id3 import ID3, cv_accuracy, discretise
 
     with pytest.raises(ValueError, match="one class"):
         ID3().fit(np.zeros((5, 2), int), np.zeros(5, int))
@@ -67,8 +67,8 @@ def test_id3_and_discretise_refuse_bad_input():
 
 
 def test_boosted_stumps_learn_a_threshold():
-    from calibration.recognition.boost import LogitBoost
-    from calibration.recognition.id3 import cv_accuracy
+    from tactip_lab.recognition.boost import LogitBoost
+    from tactip_lab.recognition.id3 import cv_accuracy
 
     rng = np.random.default_rng(0)
     X = rng.normal(size=(160, 6))
@@ -84,7 +84,7 @@ def _contact_set(rng, n=120, pins=37):
     """A synthetic contact set of a 37-pin pad: pin 12's dx tells the object, pin 30's dy the
     roll, pin 5's growth the pitch; every other input is noise."""
     import perception as pc
-    from calibration.recognition.contacts import ContactSet
+    from tactip_lab.recognition.contacts import ContactSet
 
     rest = pc.hex_lattice(pins, 20.0, (320.0, 240.0))
     labels = rng.integers(0, 2, n)
@@ -106,7 +106,7 @@ def _contact_set(rng, n=120, pins=37):
 
 
 def test_selection_finds_each_tasks_marker_and_fills_table_ii(tmp_path):
-    from calibration.recognition.select import ROWS, run_selection
+    from tactip_lab.recognition.select import ROWS, run_selection
 
     cs = _contact_set(np.random.default_rng(1))
     s = run_selection(cs, tmp_path, min_samples_split=20, progress=False)
@@ -130,7 +130,7 @@ def test_selection_finds_each_tasks_marker_and_fills_table_ii(tmp_path):
 
 
 def test_selection_refuses_one_class_and_empty_data(tmp_path):
-    from calibration.recognition.select import run_selection, task_labels
+    from tactip_lab.recognition.select import run_selection, task_labels
 
     cs = _contact_set(np.random.default_rng(2), n=40)
     one = cs.subset(cs.labels == 0)
@@ -150,9 +150,9 @@ def test_selection_refuses_one_class_and_empty_data(tmp_path):
 def contacts_folder(tmp_path_factory):
     """Contacts with three objects through the chain (320x240, 1 frame, 3 repeats)."""
     import tactip_sim as ts
-    from calibration.recognition.cli import QUICK_CAMERA
-    from calibration.recognition.contacts import ContactSpec, generate
-    from calibration.recognition.objects import load_library
+    from tactip_lab.recognition.contacts import ContactSpec, generate
+    from tactip_lab.recognition.library import load_library
+    from tactip_lab.recognition.recognition_cli import QUICK_CAMERA
 
     scene = ts.replace_in(ts.load_scene(ROOT / "scenes" / "shadow_fingertip.toml"),
                           camera=QUICK_CAMERA)

@@ -108,7 +108,7 @@ def test_deep_tilted_128_taps_keep_their_rim_markers(tmp_path):
     # beyond the rest markers' Voronoi region: a labelled folder searches half a spacing
     # further (one tracking gate past the hull), so the issue's target holds on them: >= 99 %
     # of the 331 pins found in >= 95 % of the frames; and none loses > 10 % of its tracks
-    from calibration.bristol import BristolFolder, perceive_folder
+    from tactip_lab.fitting.bristol import BristolFolder, perceive_folder
 
     src = REAL / "tactip331_tap128"
     with (src / "targets.csv").open() as fh:

@@ -1,4 +1,4 @@
-"""Tactile object recognition (calibration.recognition): the object library, the contacts
+"""Tactile object recognition (tactip_lab.recognition): the object library, the contacts
 through the chain, the bag of features with Bayesian fusion and information gain, the moment
 BoW, the CNN and `tactip recognise`. Known answers where there are some; bad input refused."""
 
@@ -19,7 +19,7 @@ OBJECTS = ROOT / "scenes" / "objects"
 
 # ----------------------------------------------------------------------------- the library
 def test_library_has_the_objects_the_issue_asks_for():
-    from calibration.recognition.objects import load_library
+    from tactip_lab.recognition.library import load_library
 
     lib = load_library(OBJECTS)
     assert len(lib.objects) >= 12
@@ -37,7 +37,7 @@ def test_library_has_the_objects_the_issue_asks_for():
 
 
 def test_library_refuses_bad_input(tmp_path):
-    from calibration.recognition.objects import LibraryError, load_library
+    from tactip_lab.recognition.library import LibraryError, load_library
 
     lib = load_library(OBJECTS)
     with pytest.raises(ValueError, match="object='teapot' is not in the library"):
@@ -65,8 +65,8 @@ def test_prism_distance_and_lowest_point_match_its_mesh():
     closest points and ray casts on the extruded mesh."""
     import trimesh
 
-    from calibration.recognition.indenters import Prism
-    from calibration.recognition.shapes import outline
+    from tactip_lab.recognition.object_indenters import Prism
+    from tactip_lab.recognition.shapes import outline
 
     rng = np.random.default_rng(0)
     for name, axis, length in (("key.wkt", "z", 2.5), ("triangular_prism.wkt", "x", 16.0),
@@ -102,7 +102,7 @@ def test_soft_ball_depth_split_known_answer():
     """With a Hertzian pad F = c d^1.5 the split is analytic: d_pad / d_ball = (c_b/c)^(2/3)."""
     from types import SimpleNamespace
 
-    from calibration.recognition.compliance import hertz_force_N, split_depth
+    from tactip_lab.recognition.compliance import hertz_force_N, split_depth
 
     R, E, nu, depth = 20.0, 70.0, 0.5, 1.2
     c_ball = hertz_force_N(1.0, R, E, nu)
@@ -121,7 +121,7 @@ def test_soft_ball_depth_split_known_answer():
 
 # ------------------------------------------------------------------- fusion, information
 def test_fusion_and_information_gain_known_answers():
-    from calibration.recognition.fusion import ActionModel, entropy, fuse
+    from tactip_lab.recognition.fusion import ActionModel, entropy, fuse
 
     post = fuse(np.array([[0.5, 0.25, 0.25], [0.5, 0.5, 0.125]]))
     assert np.allclose(post, np.array([0.25, 0.125, 0.03125]) / 0.40625)
@@ -153,8 +153,8 @@ def _synthetic(rng, n_per=20, noise=0.3):
 
 
 def test_information_gain_never_worse_than_random_over_seeds():
-    from calibration.recognition.bof import BagOfFeatures
-    from calibration.recognition.fusion import ActionModel, run_trials
+    from tactip_lab.recognition.bof import BagOfFeatures
+    from tactip_lab.recognition.fusion import ActionModel, run_trials
 
     acc = {"informed": [], "random": []}
     for seed in range(5):
@@ -176,8 +176,8 @@ def test_information_gain_never_worse_than_random_over_seeds():
 
 
 def test_bag_of_features_refuses_bad_input():
-    from calibration.recognition.bof import BagOfFeatures
-    from calibration.recognition.fusion import ActionModel, run_trials
+    from tactip_lab.recognition.bof import BagOfFeatures
+    from tactip_lab.recognition.fusion import ActionModel, run_trials
 
     X = np.random.default_rng(0).normal(size=(10, 3))
     with pytest.raises(ValueError, match="k=11 is larger than the 10 training observations"):
@@ -197,7 +197,7 @@ def test_bag_of_features_refuses_bad_input():
 
 # ------------------------------------------------------------------------ images, CNN
 def test_moment_descriptors_known_answers():
-    from calibration.recognition.moments import moment_descriptors, patch_views
+    from tactip_lab.recognition.moments import moment_descriptors, patch_views
 
     p = np.zeros((1, 1, 5, 5))
     p[0, 0, 1, 3] = 2.0  # one bright pixel: centroid there, no spread
@@ -210,7 +210,7 @@ def test_moment_descriptors_known_answers():
 
 
 def test_cnn_gradients_match_finite_differences():
-    from calibration.recognition.cnn import SmallCNN
+    from tactip_lab.recognition.cnn import SmallCNN
 
     rng = np.random.default_rng(0)
     net = SmallCNN(3, (8, 12), channels=(2, 3), rng=1)
@@ -230,7 +230,7 @@ def test_cnn_gradients_match_finite_differences():
 
 
 def test_cnn_learns_where_the_blob_is_and_is_deterministic():
-    from calibration.recognition.cnn import SmallCNN
+    from tactip_lab.recognition.cnn import SmallCNN
 
     rng = np.random.default_rng(0)
     y = rng.integers(0, 2, 64)
@@ -251,9 +251,9 @@ def two_objects(tmp_path_factory):
     """Contacts with two very different objects (a flat plate and a straight edge), through the
     shared chain at 320x240, 1 frame, 4 repeats of the 7 positions."""
     import tactip_sim as ts
-    from calibration.recognition.cli import QUICK_CAMERA
-    from calibration.recognition.contacts import ContactSpec, generate
-    from calibration.recognition.objects import load_library
+    from tactip_lab.recognition.contacts import ContactSpec, generate
+    from tactip_lab.recognition.library import load_library
+    from tactip_lab.recognition.recognition_cli import QUICK_CAMERA
 
     scene = ts.replace_in(ts.load_scene(ROOT / "scenes" / "shadow_fingertip.toml"),
                           camera=QUICK_CAMERA)
@@ -265,8 +265,8 @@ def two_objects(tmp_path_factory):
     cs, info2 = generate(spec, out, progress=False)  # ... and resumed
     assert info2 == {**info2, "computed": spec.n_contacts - 5, "skipped": 5}
     # the folder keeps the mesh its contacts were computed with (a resume elsewhere uses it)
-    from calibration.dataset import stored_mesh
-    from calibration.recognition.store import ContactDataset
+    from tactip_lab.recognition.store import ContactDataset
+    from tactip_lab.sampling.dataset import stored_mesh
 
     kept = stored_mesh(out, spec.scene)
     assert kept.digest == ContactDataset(out).manifest()["identity"]["mesh_digest"]
@@ -274,7 +274,7 @@ def two_objects(tmp_path_factory):
 
 
 def test_two_very_different_objects_are_told_apart_with_one_contact(two_objects):
-    from calibration.recognition.studies import Settings, bof_fold, split_folds
+    from tactip_lab.recognition.studies import Settings, bof_fold, split_folds
 
     _, cs, _ = two_objects
     assert len(cs) == 2 * 7 * 4 and cs.disp_px.shape[1:] == (97, 2)
@@ -286,7 +286,7 @@ def test_two_very_different_objects_are_told_apart_with_one_contact(two_objects)
 
 
 def test_contacts_are_deterministic_and_resume_bit_for_bit(two_objects, tmp_path):
-    from calibration.recognition.contacts import chain_for, contact
+    from tactip_lab.recognition.contacts import chain_for, contact
 
     spec, cs, out = two_objects
     chain, sim = chain_for(spec.with_mesh())
@@ -299,8 +299,8 @@ def test_contacts_are_deterministic_and_resume_bit_for_bit(two_objects, tmp_path
 def test_contact_dataset_refuses_other_contacts_and_empty_folders(two_objects, tmp_path):
     from dataclasses import replace
 
-    from calibration.dataset import DatasetError
-    from calibration.recognition.contacts import generate, load_contacts
+    from tactip_lab.recognition.contacts import generate, load_contacts
+    from tactip_lab.sampling.dataset import DatasetError
 
     spec, _, out = two_objects
     with pytest.raises(DatasetError, match="already holds other contacts"):
@@ -313,8 +313,8 @@ def test_contact_dataset_refuses_other_contacts_and_empty_folders(two_objects, t
 
 
 def test_soft_ball_takes_part_of_the_commanded_depth(two_objects):
-    from calibration.recognition.contacts import chain_for, draw_pose, press_object
-    from calibration.recognition.objects import load_library
+    from tactip_lab.recognition.contacts import chain_for, draw_pose, press_object
+    from tactip_lab.recognition.library import load_library
 
     spec, _, _ = two_objects
     _, sim = chain_for(spec.with_mesh())
@@ -323,7 +323,7 @@ def test_soft_ball_takes_part_of_the_commanded_depth(two_objects):
     soft, pad_soft = press_object(sim, lib.objects[lib.index("soft_ball")], pose)
     stiff, pad_stiff = press_object(sim, lib.objects[lib.index("stiff_ball")], pose)
     assert pad_stiff == pose.depth_mm and 0.2 * pose.depth_mm < pad_soft < 0.8 * pose.depth_mm
-    from calibration.recognition.compliance import hertz_force_N
+    from tactip_lab.recognition.compliance import hertz_force_N
 
     ball = hertz_force_N(pose.depth_mm - pad_soft, 20.0, 70.0, 0.5)
     assert soft.force_N == pytest.approx(ball, rel=1e-3)  # forces match across the spring
@@ -402,8 +402,8 @@ def test_quick_study_of_the_whole_library(tmp_path):
 def test_a_torn_contacts_file_is_named_and_rebuilt_from_the_records(two_objects, tmp_path):
     import shutil
 
-    from calibration.dataset import DatasetError
-    from calibration.recognition.store import ContactDataset, _readable
+    from tactip_lab.recognition.store import ContactDataset, _readable
+    from tactip_lab.sampling.dataset import DatasetError
 
     spec, cs, out = two_objects
     copy = tmp_path / "contacts"

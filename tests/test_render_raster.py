@@ -243,8 +243,8 @@ def test_bad_cap_layer_is_refused(scene):
 
 # ----------------------------------------------------------------------------- fidelity study
 def test_raster_levels_are_in_the_fidelity_study_and_auto_applies_them(scene):
-    from calibration.fidelity_auto import scene_for_level
-    from calibration.studies.fidelity import study_levels
+    from tactip_lab.sampling.fidelity_auto import scene_for_level
+    from tactip_lab.studies.fidelity import study_levels
 
     levels = {lv.name: lv for lv in study_levels(scene)}
     one, fast = levels["raster caps"], levels["raster caps + 1 frame"]

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from calibration.chain import Chain
-from calibration.protocol import PoseSet
-from calibration.rig import RigModel, find_zero
-from calibration.sweep import SweepSpec, run_sweep
+from tactip_lab.rig.sources import RigModel, find_zero
+from tactip_lab.sampling.chain import Chain
+from tactip_lab.sampling.poses import PoseSet
+from tactip_lab.sampling.sweep import SweepSpec, run_sweep
 
 from .conftest import ROOT
 

@@ -1,13 +1,13 @@
-"""The rig study's bookkeeping (calibration/studies/rig_budget.py): its configurations, the
+"""The rig study's bookkeeping (tactip_lab/protocol/rig_budget.py): its configurations, the
 ranking of sources by the R² they cost, the report and chart. The protocol runs themselves
 are ``tactip calibrate``'s (tested there); the measured budget is in docs/rig.md."""
 
 import pytest
 
-from calibration.fit import FEATURES
-from calibration.gap import equivalent_pose_noise_deg, label_variances
-from calibration.rig import SOURCES, load_rig
-from calibration.studies.rig_budget import chart, configs, ranking, report
+from tactip_lab.fitting.fit import FEATURES
+from tactip_lab.protocol.gap import equivalent_pose_noise_deg, label_variances
+from tactip_lab.protocol.rig_budget import chart, configs, ranking, report
+from tactip_lab.rig.sources import SOURCES, load_rig
 
 
 def test_configurations_switch_one_source_on_at_a_time():
@@ -94,7 +94,7 @@ def test_the_pose_noise_that_explains_a_gap_matches_a_simulated_robot():
 
 
 def test_the_report_says_what_would_explain_each_gap():
-    from calibration.fit import PAPER_R2
+    from tactip_lab.fitting.fit import PAPER_R2
 
     cells = {c: dict(v) for c, v in R2.items()}
     cells["all"][("A", 2, 0.0)] = 0.99  # 0.08 better than the paper's 0.91
@@ -114,8 +114,8 @@ def test_the_report_says_what_would_explain_each_gap():
 
 
 def test_calibrates_note_counts_the_cells_and_prices_the_better_ones():
-    from calibration.fit import ScoreRow
-    from calibration.gap import pose_noise_note
+    from tactip_lab.fitting.fit import ScoreRow
+    from tactip_lab.protocol.gap import pose_noise_note
 
     def row(tip, order, depth, r2):
         return ScoreRow(tip, order, depth, r2, r2, r2, 1.0, 1.0, 30, 0)
@@ -135,7 +135,7 @@ def test_calibrates_note_counts_the_cells_and_prices_the_better_ones():
 
 
 def test_label_variances_are_the_test_sets(scene):
-    from calibration.protocol import evaluation_sets
+    from tactip_lab.sampling.poses import evaluation_sets
 
     var = label_variances(scene)
     sets = evaluation_sets(scene)

@@ -1,4 +1,5 @@
-"""The rig's load path (calibration/rig.py, Chain.press_path): poses reached from the previous
+"""The rig's load path (tactip_lab/rig/sources.py, Chain.press_path): poses reached from the
+previous
 one in contact with Coulomb friction, visited in the paper's random order. Checked against
 physics the implementation does not encode: frictionless contact does not depend on the path;
 a long slipping move wipes out the friction state left by earlier moves; the path's end
@@ -9,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calibration.chain import Chain
-from calibration.protocol import PoseSet
-from calibration.rig import SOURCES, TAP_STEPS, RigModel, load_rig
-from calibration.sweep import SweepSpec, run_sweep
+from tactip_lab.rig.sources import SOURCES, TAP_STEPS, RigModel, load_rig
+from tactip_lab.sampling.chain import Chain
+from tactip_lab.sampling.poses import PoseSet
+from tactip_lab.sampling.sweep import SweepSpec, run_sweep
 
 
 @pytest.fixture(scope="module")

@@ -9,10 +9,8 @@ import pytest
 from scipy.integrate import quad, solve_ivp
 
 import tactip_sim as ts
-from calibration.chain import Chain, set_tag
-from calibration.prony import Prony
-from calibration.protocol import PoseSet, make_tip
-from calibration.rig import (
+from tactip_lab.rig.prony import Prony
+from tactip_lab.rig.sources import (
     SOURCES,
     RigModel,
     blur_kernel,
@@ -21,7 +19,9 @@ from calibration.rig import (
     load_rig,
     motion_blur,
 )
-from calibration.sweep import SweepSpec, rig_sample, run_sweep
+from tactip_lab.sampling.chain import Chain, set_tag
+from tactip_lab.sampling.poses import PoseSet, make_tip
+from tactip_lab.sampling.sweep import SweepSpec, rig_sample, run_sweep
 
 from .conftest import ROOT
 

@@ -310,8 +310,8 @@ def test_empty_scene_file_refused(tmp_path, text):
 
 
 def test_torn_targets_csv_is_a_dataset_error(tmp_path):
-    from calibration.bristol import BristolFolder
-    from calibration.dataset import DatasetError
+    from tactip_lab.fitting.bristol import BristolFolder
+    from tactip_lab.sampling.dataset import DatasetError
 
     (tmp_path / "targets.csv").write_text(
         "sensor_image,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6\nimage_1.png,0,0,1,2,3,0\n"
@@ -328,7 +328,7 @@ def test_model_with_a_malformed_record_is_refused(tmp_path):
     import json
 
     import perception as pc
-    from calibration.fit import load_model, save_model
+    from tactip_lab.fitting.fit import load_model, save_model
 
     rng = np.random.default_rng(0)
     cop = rng.uniform(100, 500, (20, 2))
@@ -346,7 +346,7 @@ def test_model_with_a_malformed_record_is_refused(tmp_path):
 
 @pytest.mark.parametrize("finger", ["../../ESCAPED", "a/b", ""])
 def test_servo_finger_names_that_would_leave_out_are_refused(tmp_path, finger):
-    from calibration.servo.objects import GRASPS_FILE, load_grasps
+    from tactip_lab.servo.grasp_objects import GRASPS_FILE, load_grasps
 
     text = GRASPS_FILE.read_text().replace('name = "A"', f'name = "{finger}"', 1)
     path = tmp_path / "grasps.toml"
@@ -464,7 +464,7 @@ def test_a_damaged_mesh_cache_entry_is_rebuilt_and_a_bundled_mesh_never_removed(
 
 @pytest.mark.parametrize("payload", [b"", b"{not json", b"[1, 2]", bytes(range(256))])
 def test_a_damaged_fidelity_study_summary_is_named(tmp_path, payload):
-    from calibration.fidelity_auto import resolve_auto
+    from tactip_lab.sampling.fidelity_auto import resolve_auto
 
     (tmp_path / "summary.json").write_bytes(payload)
     args = argparse.Namespace(study=str(tmp_path), max_cop_error_px=None, min_r2=None,

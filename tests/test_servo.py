@@ -1,4 +1,4 @@
-"""Closed-loop grasp adjustment (calibration/servo): the PID and its stability on known plants,
+"""Closed-loop grasp adjustment (tactip_lab/servo): the PID and its stability on known plants,
 the finger model and object shapes against exact geometry, and the loop end to end through
 the real chain with a regressor fitted by the calibration's own sweep and fit."""
 
@@ -10,15 +10,8 @@ import json
 import numpy as np
 import pytest
 
-from calibration.servo import pid as pid_module
-from calibration.servo.kinematics import (
-    aligning_joints,
-    angles_of,
-    contact_angles,
-    pad_point_with_normal,
-    relative_rotation,
-)
-from calibration.servo.objects import (
+from tactip_lab.servo import pid as pid_module
+from tactip_lab.servo.grasp_objects import (
     Bottle,
     PosedShape,
     RoundedBox,
@@ -26,8 +19,15 @@ from calibration.servo.objects import (
     grasp,
     load_grasps,
 )
-from calibration.servo.params import ServoParams
-from calibration.servo.pid import (
+from tactip_lab.servo.kinematics import (
+    aligning_joints,
+    angles_of,
+    contact_angles,
+    pad_point_with_normal,
+    relative_rotation,
+)
+from tactip_lab.servo.params import ServoParams
+from tactip_lab.servo.pid import (
     IncrementalPID,
     check_gains,
     closed_loop_poles,
@@ -219,10 +219,10 @@ def test_grasps_file_and_its_errors(tmp_path):
 def servo_setup(scene, tmp_path_factory):
     """A 2nd-order regressor fitted the calibration's way (a sweep of the nominal tip A
     through the shared chain, ``fit_model``, ``save_model``) and the servo's chain."""
-    from calibration.fit import features, fit_model, save_model
-    from calibration.protocol import PoseSet
-    from calibration.servo import load_servo_model, servo_chain
-    from calibration.sweep import SweepSpec, run_sweep
+    from tactip_lab.fitting.fit import features, fit_model, save_model
+    from tactip_lab.sampling.poses import PoseSet
+    from tactip_lab.sampling.sweep import SweepSpec, run_sweep
+    from tactip_lab.servo import load_servo_model, servo_chain
     from tactip_sim.scene import scene_hash
 
     rr, pp = np.meshgrid([-14.0, -7.0, 0.0, 7.0, 14.0], [-10.0, -6.0, -2.0, 2.0],
@@ -255,7 +255,7 @@ def test_loop_converges_inside_the_calibrated_range(servo_setup):
     """The issue's small case: a surface at roll 9°, pitch -5° the controller does not know.
     From rendered frames only, the loop ends within 1° in roll and pitch, the true CoP within
     0.5 mm of the pad's centre and a larger contact area than at first contact."""
-    from calibration.servo import run_surface
+    from tactip_lab.servo import run_surface
 
     model, chain, _ = servo_setup
     params = ServoParams()
@@ -281,7 +281,7 @@ def test_loop_converges_inside_the_calibrated_range(servo_setup):
 def test_outside_the_range_never_fails_unflagged(servo_setup):
     """Roll 24°, pitch 8°: outside the training box in both. The loop either converges or
     says it did not; it never reports settled on a wrong pose."""
-    from calibration.servo import run_surface
+    from tactip_lab.servo import run_surface
 
     model, chain, _ = servo_setup
     s = run_surface(chain, model, 24.0, 8.0, ServoParams(timeout_s=4.0), seed=1).summaries[0]
@@ -290,7 +290,7 @@ def test_outside_the_range_never_fails_unflagged(servo_setup):
 
 
 def test_unstable_gains_are_refused_or_reported(servo_setup):
-    from calibration.servo import run_surface
+    from tactip_lab.servo import run_surface
 
     model, chain, _ = servo_setup
     with pytest.raises(ValueError, match="unstable"):
@@ -303,7 +303,7 @@ def test_unstable_gains_are_refused_or_reported(servo_setup):
 
 def test_bad_inputs(servo_setup, scene, tmp_path):
     import tactip_sim as ts
-    from calibration.servo import load_servo_model, run_surface
+    from tactip_lab.servo import load_servo_model, run_surface
 
     model, chain, path = servo_setup
     with pytest.raises(ValueError, match=r"surface_roll_deg=50 cannot be reached.*\[-35, 35\]"):
@@ -332,13 +332,13 @@ def test_the_depth_invariant_model_closes_the_loop(servo_setup, scene, tmp_path)
     inputs do not match its stated feature is refused."""
     import json
 
-    from calibration.fit import (
+    from tactip_lab.fitting.fit import (
         INVARIANT_INPUTS,
         fit_invariant,
         invariant_features,
         save_model,
     )
-    from calibration.servo import load_servo_model, run_surface
+    from tactip_lab.servo import load_servo_model, run_surface
     from tactip_sim.scene import scene_hash
 
     _, chain, cop_path = servo_setup
@@ -384,7 +384,7 @@ def test_cli_servo_writes_the_summary(servo_setup, scene_path, tmp_path):
 
 @pytest.mark.slow
 def test_three_fingers_on_each_object(servo_setup):
-    from calibration.servo import run_object
+    from tactip_lab.servo import run_object
 
     model, chain, _ = servo_setup
     for name in ("cube", "can", "bottle"):
@@ -397,7 +397,7 @@ def test_three_fingers_on_each_object(servo_setup):
 
 @pytest.mark.slow
 def test_batch_is_reproducible_and_reports(servo_setup, scene, tmp_path):
-    from calibration.servo.batch import aggregate, draw_scenarios, run_batch, write_batch
+    from tactip_lab.servo.batch import aggregate, draw_scenarios, run_batch, write_batch
 
     model, chain, _ = servo_setup
     params = ServoParams(timeout_s=4.0)
@@ -418,7 +418,7 @@ def _controller(**kw):
     """A controller on a linear regressor fitted to synthetic CoPs (1 px = 0.1°), for the
     verdict logic alone (the loop's behaviour is tested end to end above)."""
     import perception as pc
-    from calibration.servo import FingerController
+    from tactip_lab.servo import FingerController
 
     rng = np.random.default_rng(0)
     cop = rng.uniform((200, 150), (440, 330), (40, 2))
@@ -430,7 +430,7 @@ def _controller(**kw):
 
 
 def _obs(k, cop=(329.5, 249.5), deformation=2.0, joints=(0.0, 0.0)):
-    from calibration.servo.plant import Observation
+    from tactip_lab.servo.plant import Observation
 
     return Observation(k, k * 0.05, np.asarray(cop, float), deformation, True,
                        np.asarray(joints, float))

@@ -1,4 +1,4 @@
-"""Sim-to-real (calibration.sim2real, tactip sim2real)."""
+"""Sim-to-real (tactip_lab.real.sim2real, tactip sim2real)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.sim2real import (
+from tactip_lab.real.sim2real import (
     AXIS_MAPS,
     affine_correction,
     crop_box,
@@ -143,7 +143,7 @@ def test_sim2real_command_smoke(tmp_path):
 
 
 def test_sim2real_bad_input(tmp_path):
-    from calibration.sim2real import Sim2RealConfig
+    from tactip_lab.real.sim2real import Sim2RealConfig
 
     for kw, msg in (({"n": 3}, "--n=3 is out of range"),
                     ({"depth_range_mm": (5.0, 2.0)}, "--depth-range=5.0,2.0 is out of range"),
@@ -183,7 +183,7 @@ def test_sim2real_full_run_meets_the_issue_targets(tmp_path):
     z = np.load(out / "real_predictions.npz")
     d = z["depth_mm"]
     deep = d >= 3.0
-    from calibration.sim2real import r2
+    from tactip_lab.real.sim2real import r2
 
     assert r2(z["truth_deg"][deep], z["zero_shot_deg"][deep])[0] >= 0.9
     ev = tmp_path / "eval.json"
@@ -201,7 +201,7 @@ def test_tip_depth_offset_against_closed_forms():
     surface first); on the half-ellipsoid dome, the largest of a dense sampling of its
     surface. Zero when square on."""
     import tactip_sim as ts
-    from calibration.sim2real import tip_depth_offset
+    from tactip_lab.real.sim2real import tip_depth_offset
 
     roll = np.array([0.0, 7.0, -12.5, 4.0, -15.0])
     pitch = np.array([0.0, 0.0, 3.0, -13.0, 15.0])

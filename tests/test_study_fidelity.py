@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from calibration.fidelity_auto import choose_level
-from calibration.studies.fidelity import (
+from tactip_lab.sampling.fidelity_auto import choose_level
+from tactip_lab.studies.fidelity import (
     Level,
     compare_levels,
     pareto_front,

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from calibration.studies import stability as stab
+from tactip_lab.studies import stability as stab
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -1,0 +1,238 @@
+"""``tactip identify`` and ``tactip sim2real``: a simulated TacTip against a real one."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from tactip_sim.commands import add_scene_argument, load_scene_args
+
+
+def _choose_by_taps(scene, image, free, args):
+    """:func:`~tactip_lab.real.identify.tilt_candidates`, each scored by the zero-shot error of
+    its simulated model on ``--k`` labelled taps of ``--taps``
+    (:func:`~tactip_lab.real.sim2real.tap_errors`); the lowest mean RMS error is kept. Returns it,
+    the header lines that record the choice, and the report's entry."""
+    import numpy as np
+
+    from tactip_lab.real.identify import identified_scene, tilt_candidates
+    from tactip_lab.real.sim2real import Sim2RealConfig, tap_errors
+
+    cands = tilt_candidates(scene, image, free=free, fit_marker_size=not args.keep_marker_size)
+    if len(cands) == 1:
+        note = ("taps: one rest-frame solution only (no mirrored tilt fits as well); "
+                "the taps were not needed")
+        return cands[0], (note,), {"candidates": 1}
+    from tactip_sim.scene import apply_preset
+
+    cfg = Sim2RealConfig(k=args.k)  # as `tactip sim2real` runs by default: 300 taps, 'fast'
+    errors = [tap_errors(apply_preset(identified_scene(c), "fast"), args.taps, cfg,
+                         progress=not getattr(args, "no_progress", False)) for c in cands]
+    best = int(np.argmin([float(np.mean(e)) for e in errors]))
+    notes = [f"taps: {len(cands)} solutions fit the rest frame alike; the zero-shot RMS error "
+             f"(roll, pitch) on {args.k} labelled taps of {args.taps} chose one:"]
+    entries = []
+    for i, (c, e) in enumerate(zip(cands, errors, strict=True)):
+        cam = c.scene.camera
+        mark = "chosen" if i == best else "not chosen"
+        notes.append(f"  tilt {cam.tilt_deg:+.2f} deg, shift {cam.shift_mm:+.2f} mm, "
+                     f"residual {c.after.rms_px:.2f} px: {e[0]:.2f} / {e[1]:.2f} deg ({mark})")
+        entries.append({"tilt_deg": float(cam.tilt_deg), "shift_mm": float(cam.shift_mm),
+                        "rms_px": c.after.rms_px, "tap_rmse_deg": [float(v) for v in e],
+                        "chosen": i == best})
+    return cands[best], tuple(notes), {"folder": str(args.taps), "k": args.k,
+                                       "candidates": entries}
+
+
+def _cmd_identify(args: argparse.Namespace) -> int:
+    from tactip_lab.real.identify import (
+        DEFAULT_FREE,
+        PARAMETERS,
+        identified_scene,
+        identify,
+        rest_image,
+        write_identified,
+    )
+
+    free = tuple(s.strip() for s in args.free.split(",") if s.strip()) if args.free \
+        else DEFAULT_FREE + ("pitch",)
+    unknown = sorted(set(free) - set(PARAMETERS))
+    if unknown:
+        raise ValueError(f"--free {unknown[0]!r} is not one of {', '.join(PARAMETERS)}")
+    out = Path(args.out)
+    if out.suffix != ".toml":
+        raise ValueError(f"--out {str(out)!r} must name a .toml scene file")
+    if not out.parent.is_dir():
+        raise ValueError(f"--out {str(out)!r}: the folder {str(out.parent)!r} does not exist")
+    if args.taps is not None and not Path(args.taps).is_dir():
+        raise ValueError(f"--taps {args.taps!r}: no such folder (a labelled 128x128 folder "
+                         "of taps, Bristol layout)")
+    if not 3 <= args.k <= 1000:
+        raise ValueError(f"--k={args.k} is out of range: allowed [3, 1000]")
+    if args.taps is not None:
+        from tactip_lab.real.sim2real import FRAME_128
+        from tactip_lab.fitting.bristol import BristolFolder
+
+        taps = BristolFolder.open(args.taps)  # a Bristol folder's errors name the file
+        if taps.image_size != FRAME_128:
+            raise ValueError(f"--taps {args.taps}: frames are {taps.image_size[0]}x"
+                             f"{taps.image_size[1]}; the taps must be in the processed 128x128 "
+                             "format that tactip sim2real scores")
+        if len(taps) < args.k + 1:
+            raise ValueError(f"--taps {args.taps}: {len(taps)} taps, fewer than --k={args.k} "
+                             "+ 1")
+    scene = load_scene_args(args)
+    image = rest_image(args.real)
+    notes: tuple[str, ...] = ()
+    tap_report = None
+    if args.taps is None:
+        res = identify(scene, image, free=free, fit_marker_size=not args.keep_marker_size)
+    else:
+        res, notes, tap_report = _choose_by_taps(scene, image, free, args)
+    source = " ".join([args.scene, *(f"--set {o}" for o in args.overrides)]
+                      + ([f"--fidelity {args.fidelity}"] if getattr(args, "fidelity", None)
+                         else []))
+    write_identified(res, out, source=source, notes=notes)
+    for n in notes:
+        print(n)
+    b, a = res.before, res.after
+    print(f"rest frame {image}: {a.real} markers detected")
+    print(f"paired markers {b.paired} -> {a.paired}; RMS residual {b.rms_px:.2f} -> "
+          f"{a.rms_px:.2f} px (median {b.median_px:.2f} -> {a.median_px:.2f}, max "
+          f"{b.max_px:.2f} -> {a.max_px:.2f})")
+    for k, (x, y) in res.values.items():
+        print(f"  {k}: {x} -> {y}")
+    report = res.report()
+    if tap_report is not None:
+        report["taps"] = tap_report
+    if args.render_check:
+        import perception as pc
+        from tactip_lab.real.identify import compare_rest, render_rest
+
+        cmp = compare_rest(render_rest(identified_scene(res)), pc.read_image(image),
+                           scene.pins.count)
+        report["rest_comparison"] = cmp.as_dict()
+        print(f"rendered vs real rest frame: {cmp.count[0]} vs {cmp.count[1]} markers, spacing "
+              f"{cmp.spacing_px[0]:.2f} vs {cmp.spacing_px[1]:.2f} px, field radius "
+              f"{cmp.radius_px[0]:.1f} vs {cmp.radius_px[1]:.1f} px")
+    if args.json:
+        from tactip_lab.sampling.dataset import atomic_write_text
+
+        atomic_write_text(Path(args.json), json.dumps(report, indent=2) + "\n")
+    print(f"identified scene written to {out}")
+    return 0
+
+
+def _cmd_sim2real(args: argparse.Namespace) -> int:
+    from tactip_lab.real.sim2real import Sim2RealConfig, run
+
+    try:
+        lo, hi = (float(v) for v in args.depth_range.split(","))
+    except ValueError:
+        raise ValueError(f"--depth-range {args.depth_range!r} must be LOW,HIGH in mm") from None
+    cfg = Sim2RealConfig(n=args.n, depth_range_mm=(lo, hi), seed=args.seed,
+                         feature=args.feature, order=args.order, k=args.k, axes=args.axes,
+                         reference=args.reference, tap_depth=args.tap_depth)
+    cfg.check()
+    if args.fidelity is None:
+        args.fidelity = "fast"
+    scene = load_scene_args(args)
+    s = run(scene, args.out, cfg, real=args.real, real_raw=args.real_raw, workers=args.workers,
+            progress=not args.no_progress, scene_source=args.scene)
+    out = Path(args.out)
+    print(f"models fitted on {cfg.n} simulated taps: {out / 'model.json'} (128x128 processed "
+          f"frames), {out / 'model_raw.json'} (raw {scene.camera.resolution[0]}x"
+          f"{scene.camera.resolution[1]}); feature {cfg.feature}, order {cfg.order}, axes "
+          f"{cfg.axes}")
+    if "real_128" in s:
+        r = s["real_128"]["scores"][f"{cfg.feature}/{cfg.order}"]
+        z, f = r["zero_shot"], r["few_shot"]
+        print(f"real taps ({args.real}): zero-shot R² roll {z['r2_roll']:.3f}, pitch "
+              f"{z['r2_pitch']:.3f} (n={z['n']}); few-shot k={f['k']}: roll "
+              f"{f['r2_roll']:.3f}, pitch {f['r2_pitch']:.3f} (n={f['n']})")
+        print(f"every feature and order: {out / 'table.md'}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from tactip_lab.real.identify import DEFAULT_FREE, PARAMETERS
+
+    p = sub.add_parser(
+        "identify", help="estimate a scene's unpublished camera/layout values from a real rest "
+        "frame", description="Detect the markers of a real rest frame and move the scene's "
+        "free parameters (camera distance, tilt, forward shift, focal length, principal point, "
+        "the pin layout's rotation and pitch) until its projected rest markers sit on them; "
+        "then size the marker caps like the real blobs. Writes the identified scene (its "
+        "header records the residuals before and after).")
+    add_scene_argument(p)
+    p.add_argument("--real", required=True, metavar="PATH",
+                   help="a real rest frame, or a folder holding rest.png, images/rest.png or a "
+                   "single image")
+    p.add_argument("--out", required=True, metavar="SCENE.toml", help="identified scene file")
+    p.add_argument("--free", metavar="A,B,...",
+                   help=f"parameters to fit, of {', '.join(PARAMETERS)} (default "
+                   f"{','.join(DEFAULT_FREE + ('pitch',))})")
+    p.add_argument("--keep-marker-size", action="store_true",
+                   help="keep pins.marker_diameter_mm (default: sized like the real blobs)")
+    p.add_argument("--render-check", action="store_true",
+                   help="also render the identified rest frame (Mitsuba) and compare its "
+                   "detected markers with the real ones (count, spacing, field radius)")
+    p.add_argument("--taps", metavar="DIR",
+                   help="a labelled folder of real taps in the processed 128x128 format "
+                   "(Bristol layout): when the camera's tilt and forward shift can be traded "
+                   "against each other on the rest frame, both solutions are simulated "
+                   "(tactip sim2real's default taps, 'fast' preset, in a temporary folder) "
+                   "and the one whose model "
+                   "predicts --k of these taps best is kept")
+    p.add_argument("--k", type=int, default=20,
+                   help="labelled taps used by --taps (the few-shot draw of tactip sim2real; "
+                   "default 20)")
+    p.add_argument("--json", metavar="OUT.json", help="write the identification report")
+    p.set_defaults(func=_cmd_identify)
+
+    from tactip_lab.real.sim2real import AXIS_MAPS, TAP_DEPTHS
+
+    p = sub.add_parser(
+        "sim2real", help="fit roll/pitch regressors on simulated taps only and score them on "
+        "real ones", description="Simulate N taps of a flat plate (roll, pitch uniform in the "
+        "scene's protocol ranges, depth uniform in --depth-range), convert them to the "
+        "processed 128x128 binarised format, fit every CoP feature and order, save "
+        "OUT/model.json (128x128) and OUT/model_raw.json (raw frames) for --feature/--order; "
+        "with --real, score all of them on real labelled taps zero-shot and few-shot (k taps "
+        "fit an affine correction). Resumable (the simulated taps are kept in OUT/sim). "
+        "Without --fidelity the scene's 'fast' preset is used.")
+    add_scene_argument(p)
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--real", metavar="DIR", help="real labelled taps, 128x128 processed "
+                   "frames in the Bristol layout (e.g. ../shared/real/tactip331_tap128)")
+    p.add_argument("--real-raw", metavar="DIR", help="real labelled taps, raw frames in the "
+                   "Bristol layout (scored with model_raw.json)")
+    p.add_argument("--n", type=int, default=300, help="simulated taps (default 300)")
+    p.add_argument("--depth-range", default="2,5", metavar="LOW,HIGH",
+                   help="tap depths, mm (default 2,5: the real data set's)")
+    p.add_argument("--feature", default="growth", help="CoP feature of the saved models "
+                   "(growth, area, hull; default growth)")
+    p.add_argument("--order", type=int, default=2, help="polynomial order of the saved models "
+                   "(default 2)")
+    p.add_argument("--k", type=int, default=20, help="real taps for the few-shot affine "
+                   "correction (default 20)")
+    p.add_argument("--axes", default="-x-y", choices=list(AXIS_MAPS),
+                   help="the data set's (roll, pitch) columns in terms of the simulation's "
+                   "(the indenter's roll about the sensor's x, pitch about y): xy = the same, "
+                   "-x-y = both flipped, yx = swapped... (default -x-y: Bristol poses are the "
+                   "sensor's rotation against the surface, the opposite rotation; "
+                   "docs/sim2real.md)")
+    p.add_argument("--reference", default="rest", choices=("rest", "shallow"),
+                   help="reference frame of the simulated 128x128 taps: the simulated rest "
+                   "frame (default) or a square-on tap at the shallowest depth, as the real "
+                   "data sets use their shallowest tap (docs/sim2real.md compares both)")
+    p.add_argument("--tap-depth", default="contact", choices=TAP_DEPTHS,
+                   help="what the data set's depth measures: 'contact', the indentation "
+                   "beyond first contact (default), or 'tip', the depth of the pad's tip with "
+                   "the sensor turned about it, so a tilted tap indents deeper "
+                   "(docs/sim2real.md)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the poses and the k draw")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cmd_sim2real)
