@@ -55,8 +55,40 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="output folder, created if needed (default: %(default)s)")
     p.add_argument("--csv", metavar="OUT.csv", type=Path, default=None,
                    help="also write every image's markers and verdict into this one CSV")
-    p.set_defaults(func=run_detect)
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace existing files this command did not make (never an input)")
+    # the output rule of `tactip` (tactip_sim/commands/outputs.py) as plain data: inputs are
+    # never outputs, a user's folder or file is not replaced, one writer per folder
+    p.set_defaults(func=run_detect, _io={
+        "command": "detect", "inputs": {"images": "file"}, "files": ("csv",),
+        "folders": ("out",), "names": {"images": "IMAGE", "out": "--out", "csv": "--csv"},
+        "legacy": _detect_folder})
     return p
+
+
+def _detect_folder(folder: Path) -> bool:
+    """Whether ``folder`` holds only what ``detect`` writes (a folder of an earlier version,
+    before output folders were marked)."""
+    names = [p.name for p in folder.iterdir() if not p.name.startswith(".")]
+    return bool(names) and all(n.endswith(("_markers.csv", "_overlay.png", ".csv"))
+                               for n in names)
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Inputs are never outputs, also when run standalone (``python -m perception.cli``):
+    ``--csv`` and the files written into ``--out`` must not be one of the images read."""
+    from .errors import PerceptionError
+
+    inputs = {Path(p).resolve() for p in args.images}
+    csv_out = None if args.csv is None else Path(args.csv).resolve()
+    if csv_out is not None and csv_out in inputs:
+        raise PerceptionError(f"--csv {str(args.csv)!r} is one of the IMAGEs read: a command "
+                              "never writes over its own inputs; choose another path")
+    out = Path(args.out).resolve()
+    if any(out == p.parent for p in inputs):
+        raise PerceptionError(f"--out {str(args.out)!r} holds IMAGE files read by this run: its "
+                              "markers and overlays would be written beside them; choose "
+                              "another folder")
 
 
 def run_detect(args: argparse.Namespace) -> int:
@@ -72,6 +104,11 @@ def run_detect(args: argparse.Namespace) -> int:
     from .image import read_image
     from .plots import draw_detections
 
+    try:
+        _check_outputs(args)
+    except PerceptionError as exc:
+        print(f"detect: error: {exc}", file=sys.stderr)  # noqa: T201
+        return 2
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     status = 0

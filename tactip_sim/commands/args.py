@@ -43,7 +43,9 @@ def add_scene_argument(p: argparse.ArgumentParser, *, optional: bool = False,
     else:
         p.add_argument("scene", help="scene file (.toml), e.g. scenes/shadow_fingertip.toml")
     p.add_argument("--fidelity", metavar="PRESET",
-                   help="apply a fidelity preset of the scene: fast, balanced, reference or one "
+                   help="apply a fidelity preset of the scene (default: none, the scene's own "
+                   "keys: raster caps, frames averaged as one image): paper (the paper's "
+                   "averaging with Mitsuba caps; also named balanced), fast, reference or one "
                    "the scene defines" + (", or auto (the cheapest level of a fidelity study "
                    "that meets the tolerance)" if auto else "") + "; --set overrides it")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",

@@ -20,6 +20,7 @@ from importlib.metadata import entry_points
 from ..scene import SceneError
 from .args import add_scene_argument, load_scene_args
 from .interrupts import caused_by_interrupt
+from .outputs import declare
 
 _OWN_COMMANDS = ("press", "render", "validate_lens")
 """Modules of this floor with ``register(subparsers)``, in the order of ``tactip --help``;
@@ -75,7 +76,7 @@ def _cmd_cache(args: argparse.Namespace) -> int:
         print(f"removed {n} files from {d}")
     else:
         d = cache.cache_dir()
-        files = [p for p in d.rglob("*") if p.is_file()] if d.exists() else []
+        files = cache.entries()  # the tool's entries only (TACTIP_CACHE_DIR=/ walked it all)
         size = sum(p.stat().st_size for p in files)
         print(f"{d}: {len(files)} files, {size / 1e6:.1f} MB")
     return 0
@@ -93,6 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Validate a scene file and print it with every default filled.")
     add_scene_argument(p)
     p.set_defaults(func=_cmd_scene)
+    declare(p, "scene", inputs={"scene": "toml"})
 
     p = sub.add_parser("mesh", help="build or load the tetrahedral mesh and print its statistics",
                        description="Tetrahedralise the pad (cached on disk) and report counts "
@@ -104,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="copy the mesh into scenes/meshes/ so it ships with the project "
                    "(pytetwild is not deterministic: bundling makes results reproducible)")
     p.set_defaults(func=_cmd_mesh)
+    declare(p, "mesh", inputs={"scene": "toml"})
 
     p = sub.add_parser("cache", help="show or clear the on-disk cache",
                        description="Meshes, factorisations and compliances are cached on disk.")
@@ -145,22 +148,30 @@ def run(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> i
 
 
 def _run(args: argparse.Namespace, terminated: list[int]) -> int:
+    from .outputs import claim, describe_os_error
+
     try:
-        return int(args.func(args) or 0)
-    except SceneError as exc:
-        print(f"tactip: scene error: {exc}", file=sys.stderr)
-        return 2
-    except (ValueError, RuntimeError, OSError) as exc:
-        print(f"tactip {args.command}: error: {exc}", file=sys.stderr)
-        return 1
-    except (KeyboardInterrupt, SystemError) as exc:
-        # a Ctrl-C inside a compiled kernel (numba) surfaces as a SystemError caused by it
-        if isinstance(exc, SystemError) and not caused_by_interrupt(exc):
-            raise
-        # every finished sample and file is already on disk (written atomically)
-        print(f"\ntactip {args.command}: interrupted; what was finished is kept, and running "
-              "the same command again continues from there", file=sys.stderr)
-        return 143 if terminated else 130  # 128 + SIGTERM / SIGINT, as a shell reports it
+        with claim(args):  # the output rule (outputs.py), before any of the command's work
+            return int(args.func(args) or 0)
+    except BaseException as exc:  # noqa: BLE001 - sorted below; anything else is re-raised
+        # a Ctrl-C may surface as another exception: a SystemError from a compiled (numba)
+        # kernel, or Dr.Jit's NameError from an ImportError while its extension first loads
+        if isinstance(exc, KeyboardInterrupt) or (isinstance(exc, Exception)
+                                                  and caused_by_interrupt(exc)):
+            # every finished sample and file is already on disk (written atomically)
+            print(f"\ntactip {args.command}: interrupted; what was finished is kept, and "
+                  "running the same command again continues from there", file=sys.stderr)
+            return 143 if terminated else 130  # 128 + SIGTERM / SIGINT, as a shell reports it
+        if isinstance(exc, SceneError):
+            print(f"tactip: scene error: {exc}", file=sys.stderr)
+            return 2
+        if isinstance(exc, OSError) and exc.filename is not None:
+            print(f"tactip {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+            return 1
+        if isinstance(exc, ValueError | RuntimeError | OSError):
+            print(f"tactip {args.command}: error: {exc}", file=sys.stderr)
+            return 1
+        raise
 
 
 @contextlib.contextmanager

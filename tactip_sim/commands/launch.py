@@ -61,8 +61,10 @@ def main(argv: list[str] | None = None) -> int:
         if not owned and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
             owned = True  # the Ctrl-C came before the handler above was in place
         return _interrupted("", owned)
-    except SystemError as exc:
-        # a Ctrl-C inside a compiled kernel (numba) surfaces as a SystemError caused by it
+    except Exception as exc:
+        # a Ctrl-C may surface as another exception caused by it: a SystemError from a
+        # compiled kernel (numba), a NameError from Dr.Jit's first import (an ImportError
+        # while its extension loads, whose handler names an unbound variable)
         if not caused_by_interrupt(exc):
             raise
         return _interrupted("", owned)

@@ -75,6 +75,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(default 10)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=_cmd_press)
+    from .outputs import declare
+
+    declare(p, "press", inputs={"scene": "toml", "mesh": "file"})
 
 
 def _indenter(args: argparse.Namespace, scene):

@@ -29,6 +29,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pins", action="store_true", help="also render the black pins")
     p.add_argument("--no-noise", action="store_true", help="no shot/read noise")
     p.set_defaults(func=_cmd_render)
+    from .outputs import declare
+
+    declare(p, "render", inputs={"scene": "toml"}, files=["output"],
+            siblings={"output": (".json", ".csv")}, own={"output": _rendered_frame})
+
+
+def _rendered_frame(path: Path) -> bool:
+    """Whether ``path`` (or its siblings) is a frame ``render`` wrote: its ``.json`` holds a
+    frame's ground truth (it may be replaced without ``--overwrite``)."""
+    import json
+
+    try:
+        data = json.loads(path.with_suffix(".json").read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(data, dict) and {"convention", "markers_px", "visible"} <= set(data)
 
 
 def _cmd_render(args: argparse.Namespace) -> int:

@@ -41,6 +41,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-render", action="store_true", help="skip the rendered-frame check")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=_cmd_validate)
+    from .outputs import declare
+
+    declare(p, "validate-lens", inputs={"scene": "toml"}, folders=["out"],
+            legacy=lambda d: (d / "summary.json").is_file() and (d / "summary.md").is_file())
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
