@@ -39,7 +39,7 @@ def _resident_gb() -> float:
 
 def measure(edge: float, rounds: int) -> dict:
     import tactip_sim as ts
-    from tactip_sim.fem.neohookean import NeoHookeanBody, _pattern
+    from tactip_sim.fem.neohookean.solver import NeoHookeanBody, _pattern
     from tactip_sim.fem.tolerances import single_threaded_blas
 
     scene = ts.replace_in(ts.load_scene(SCENE), fidelity={

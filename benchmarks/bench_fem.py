@@ -18,7 +18,7 @@ its cached load is timed separately.
 Per-pose press times: ``Simulator.press`` (what the calibration sweeps call, no warm start)
 on the protocol poses, wall and thread CPU time, median over poses. In the same process the
 plate path (normal-normal blocks) is compared with the general 3x3-block path of
-:func:`~tactip_sim.fem.contact.solve_contact` (as used for curved indenters). With
+:func:`~tactip_sim.fem.contact.lcp.solve_contact` (as used for curved indenters). With
 ``--baseline REF`` the package at git revision REF is exported to a temporary folder and run
 in a second worker process; the two workers press the same batches of poses in alternation
 (so both see the same load on a shared machine), and the medians and their ratio are printed,
@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 import tactip_sim as ts
-from tactip_sim.fem.elasticity import cholmod_available, cholmod_blas_is_reference
+from tactip_sim.fem.linear.elasticity import cholmod_available, cholmod_blas_is_reference
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
@@ -85,7 +85,7 @@ def bench(order: int, n_poses: int, n_full: int, n_nh: int) -> dict[str, float]:
     out["peak RSS after precompute MB"] = rss_mb()
     with tempfile.TemporaryDirectory() as tmp:  # time a cached load of the same compliance
         from tactip_sim import cache
-        from tactip_sim.fem.reduced import ReducedModel
+        from tactip_sim.fem.linear.reduced import ReducedModel
 
         os.environ["TACTIP_CACHE_DIR"] = tmp
         red, body = sim.reduced, sim.body
@@ -166,7 +166,7 @@ def _timed_press(sim, pose: ts.Pose) -> tuple[float, float, ts.ContactState]:
 def press_times(sim, poses: list[ts.Pose], rounds: int = 3) -> tuple[dict, dict]:
     """Median per-pose wall and CPU ms of ``sim.press`` by the plate path and by the general
     path, alternating the two pose by pose, ``rounds`` times over ``poses``."""
-    from tactip_sim.fem import contact
+    from tactip_sim.fem.contact import lcp as contact
 
     general = _GeneralPath(sim.reduced)
     times: dict[str, list] = {"plate": [], "general": []}
@@ -266,8 +266,8 @@ def stage_times(n_poses: int) -> None:
     """CPU ms per pose of the stages of ``Simulator.press`` at P2, by pose group: the
     reduced model's methods and the LCP are wrapped with thread-time counters."""
     from tactip_sim import simulator
-    from tactip_sim.fem import contact
-    from tactip_sim.fem.reduced import ReducedModel
+    from tactip_sim.fem.contact import lcp as contact
+    from tactip_sim.fem.linear.reduced import ReducedModel
 
     spent: dict[str, float] = {}
 
@@ -330,7 +330,7 @@ def validate() -> None:
     from test_fem_convergence import solve
     from test_fem_hertz import make_sim, press_sphere
 
-    from tactip_sim.fem.analytic import hertz_force_mN, layer_factor
+    from tactip_sim.fem.contact.analytic import hertz_force_mN, layer_factor
 
     print("\nHertz: sphere on scenes/hertz_block.toml (E = 100 kPa), P2, full solver")
     print(f"  {'nu':>5} {'R mm':>5} {'d mm':>7} {'a mm':>6} {'F mN':>9} {'F/Hertz-1':>10} "

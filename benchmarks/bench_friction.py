@@ -31,8 +31,8 @@ sys.path.insert(0, str(ROOT))
 
 def mindlin_table(edges, shifts):
     import tactip_sim as ts
-    from tactip_sim.fem.contact import solve_contact
-    from tactip_sim.fem.indenters import place
+    from tactip_sim.fem.contact.indenters import place
+    from tactip_sim.fem.contact.lcp import solve_contact
     from tests.test_fem_friction import block_sim, centre, mindlin
 
     nu, radius, depth = 0.45, 10.0, 0.2

@@ -11,7 +11,7 @@ Usage::
 Expected values: Hertz's force at the sphere's apex depth below the flat top face (the pose's
 depth counts from the first mesh node the sphere touches, so the apex goes slightly deeper than
 asked between nodes), times the bonded-layer factor of
-:func:`~tactip_sim.fem.analytic.layer_factor` (h = 20 mm); the exact linear sphere solution
+:func:`~tactip_sim.fem.contact.analytic.layer_factor` (h = 20 mm); the exact linear sphere solution
 (Segedin) times the same factor is printed too, as Hertz's paraboloid is 2-6 % off for
 a / R > 0.4. Each case is appended to ``OUT/cases.jsonl`` as it finishes (a rerun skips those
 done); ``OUT/table.md`` is the table docs/fem.md shows. The machine's load is recorded.
@@ -32,8 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import tactip_sim as ts  # noqa: E402
-from tactip_sim.fem.analytic import hertz_force_mN, layer_factor, sphere_contact  # noqa: E402
-from tactip_sim.fem.indenters import place  # noqa: E402
+from tactip_sim.fem.contact.analytic import hertz_force_mN, layer_factor, sphere_contact  # noqa: E402
+from tactip_sim.fem.contact.indenters import place  # noqa: E402
 
 E_KPA, NU, H_MM = 100.0, 0.3, 20.0  # scenes/hertz_block.toml
 # the cases on the shipped mesh (sphere radius, contact radius), at the face's centre
@@ -72,7 +72,7 @@ def run_case(coarse: ts.Simulator, auto: ts.Simulator, radius: float, a: float, 
     hz, seg, _ = expected(radius, apex)
     row.update(coarse_estimate=st.error_estimate, coarse_error=st.force_N * 1e3 / hz - 1.0,
                coarse_s=time.perf_counter() - t0)
-    from tactip_sim.fem.refine import plan
+    from tactip_sim.fem.refinement.refine import plan
 
     p = plan(auto.body.space, auto.body.order, place(sphere, pose, auto._cand_rest),
              auto.scene, auto.scene.fidelity.contact_tolerance)

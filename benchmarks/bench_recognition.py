@@ -50,7 +50,7 @@ def bench_presses(poses: int, quick_camera: bool) -> None:
     from tactip_lab.recognition.library import load_library
     from tactip_lab.recognition.object_indenters import BoundedMesh, Prism
     from tactip_lab.recognition.recognition_cli import QUICK_CAMERA
-    from tactip_sim.fem.indenters import MeshIndenter
+    from tactip_sim.fem.contact.indenters import MeshIndenter
 
     scene = ts.load_scene(ROOT / "scenes" / "shadow_fingertip.toml")
     if quick_camera:

@@ -1,11 +1,11 @@
 """Benchmark of the refined neo-Hookean solve started from the coarse answer
 (``Simulator.press(initial=)``, what ``fidelity.pin_refinement = "auto"`` does between its
 levels): for each pose, the scene's mesh is pressed, refined around the pins whose estimated
-marker error exceeds the tolerance (the product's first level, :mod:`tactip_sim.fem.refine`),
-and the refined mesh pressed twice, from rest by load steps and from the coarse answer carried
-onto it, one after the other in this process. Prints both times, their ratio, the Newton
-iterations and how far apart the two answers are (they should agree to solver precision: the
-frictionless, stick-free answer does not depend on the path).
+marker error exceeds the tolerance (the product's first level,
+:mod:`tactip_sim.fem.refinement.refine`), and the refined mesh pressed twice, from rest by load
+steps and from the coarse answer carried onto it, one after the other in this process. Prints both
+times, their ratio, the Newton iterations and how far apart the two answers are (they should agree
+to solver precision: the frictionless, stick-free answer does not depend on the path).
 
 Usage::
 
@@ -48,7 +48,7 @@ def main() -> None:
         ap.error(f"--max-pins {a.max_pins}: allowed 1-97")
 
     import tactip_sim as ts
-    from tactip_sim.fem.refine import PIN_EDGE_FRACTION, PIN_RADIUS_MM, carried_field
+    from tactip_sim.fem.refinement.refine import PIN_EDGE_FRACTION, PIN_RADIUS_MM, carried_field
     from tactip_sim.geometry import build_pad
     from tactip_sim.mesh.local import Refinement, refined_mesh
 

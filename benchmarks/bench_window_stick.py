@@ -33,8 +33,8 @@ def main() -> None:
     a = ap.parse_args()
 
     import tactip_sim as ts
-    from tactip_sim.fem.indenters import place
-    from tactip_sim.fem.neohookean import solve_neo_hookean
+    from tactip_sim.fem.contact.indenters import place
+    from tactip_sim.fem.neohookean.solver import solve_neo_hookean
 
     sim = ts.Simulator(ts.load_scene(SCENE), element_order=a.order)
     body = sim.body

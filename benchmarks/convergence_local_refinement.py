@@ -34,7 +34,7 @@ missing ones. Prints the largest / mean marker difference of each pair (mm), the
 markers, the force and the tet counts; and, for each mesh as built, a hierarchical error
 indicator per marker (the marker from the solution's P2 field against the marker from its
 vertex values alone, interpolated linearly on the same mesh) and the product's estimate
-(:mod:`tactip_sim.fem.marker_error`) beside how far the finest refinement moved each marker.
+(:mod:`tactip_sim.fem.markers.error`) beside how far the finest refinement moved each marker.
 """
 
 from __future__ import annotations
@@ -90,10 +90,10 @@ def zones(tokens: list[str]) -> tuple[list[int], list[float]]:
 def next_level(out: Path, first: str, edge: float, tolerance: float
                ) -> tuple[list[int], list[float]]:
     """The pins and their zones' edges of the product's second level
-    (:meth:`tactip_sim.fem.refine.PinRefiner.press`) after the refined press ``first`` (pins
-    at ``edge``): a pin its estimate still puts above ``tolerance`` gets a zone
-    :data:`~tactip_sim.fem.refine.PIN_LEVEL_FACTOR` finer, or joins at ``edge``."""
-    from tactip_sim.fem.refine import PIN_LEVEL_FACTOR
+    (:meth:`tactip_sim.fem.refinement.refine.PinRefiner.press`) after the refined press ``first``
+    (pins at ``edge``): a pin its estimate still puts above ``tolerance`` gets a zone
+    :data:`~tactip_sim.fem.refinement.refine.PIN_LEVEL_FACTOR` finer, or joins at ``edge``."""
+    from tactip_sim.fem.refinement.refine import PIN_LEVEL_FACTOR
 
     with np.load(case_path(out, first)) as z:
         edges = {int(p): edge for p in z["pins"]}
@@ -155,7 +155,7 @@ def solve(label: str, instance: int, edge: float | tuple[float, ...] | None, pos
     """Press one mesh of the study and store it in ``out`` (unless stored); ``start``, a
     (simulator, its whole field) whose answer the press starts from (``--warm``)."""
     import tactip_sim as ts
-    from tactip_sim.fem.refine import carried_field
+    from tactip_sim.fem.refinement.refine import carried_field
     from tactip_sim.geometry import build_pad
 
     path = case_path(out, label)

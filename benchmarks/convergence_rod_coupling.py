@@ -3,8 +3,8 @@
 docs/convergence.md: at 2 mm depth and the corner pose three pins' ends reach the window, and
 the plate's force falls with every finer mesh (P2, ends stuck: 8.90, 8.75, 8.58, 8.37 N from 2
 to 1 mm; refined to 0.6 mm around seven pins, 7.89 N). A rod's tip is ``root + u(root) + L R
-d`` (:mod:`tactip_sim.fem.markers`): its translation is the displacement at one point, the
-root, and its rotation the skin's gradient averaged at 14 points of its base. When the window
+d`` (:mod:`tactip_sim.fem.markers.kinematics`): its translation is the displacement at one point,
+the root, and its rotation the skin's gradient averaged at 14 points of its base. When the window
 pushes on the rod, that push enters the skin through the same operators: a point force at the
 root and point dipoles at the 14 points. A point force has no finite-energy limit in 3-D
 elasticity (the displacement under it grows without bound as the mesh is refined), so the
@@ -14,8 +14,8 @@ This study compared that coupling (the model until 2026-11-28) with one averaged
 pin's bonded base, integrated over the skin's elements (a bump ``(1 - (rho/r)^2)^2`` in the
 distance ``rho`` from the pin's axis, ``r`` the pin's radius, through the skin's thickness):
 loads that are bounded functionals of the field, with a finite limit. The averaged coupling is
-now the product's rod model (:mod:`tactip_sim.fem.markers`); the point coupling is rebuilt
-here from the earlier model's operators. It presses the corner pose at 2 mm, window
+now the product's rod model (:mod:`tactip_sim.fem.markers.kinematics`); the point coupling is
+rebuilt here from the earlier model's operators. It presses the corner pose at 2 mm, window
 frictionless (a path-independent answer), on the given mesh and on the same mesh refined
 around the held pins, with both couplings, and prints the plate's force, the held pins' forces
 and how far refinement moved the markers.
@@ -50,8 +50,8 @@ def point_coupling(markers, space, pad, radius_mm: float, thickness_mm: float):
     (:func:`convergence_rod_quadrature.disk7_base`), the lever from the root."""
     from convergence_rod_quadrature import disk7_base, mean_gradient
 
-    from tactip_sim.fem.markers import rod_operator
-    from tactip_sim.fem.space import interpolation_operator, locate
+    from tactip_sim.fem.discretisation.space import interpolation_operator, locate
+    from tactip_sim.fem.markers.kinematics import rod_operator
 
     el, lam, _ = locate(space, markers.roots_mm)
     grad = mean_gradient(space, *disk7_base(pad, radius_mm, thickness_mm))
@@ -62,8 +62,8 @@ def point_coupling(markers, space, pad, radius_mm: float, thickness_mm: float):
 
 def solve(coupling: str, refined: bool, a, out: Path) -> Path:
     import tactip_sim as ts
-    from tactip_sim.fem.indenters import place
-    from tactip_sim.fem.neohookean import solve_neo_hookean
+    from tactip_sim.fem.contact.indenters import place
+    from tactip_sim.fem.neohookean.solver import solve_neo_hookean
     from tactip_sim.geometry import build_pad
     from tactip_sim.mesh.local import Refinement, refined_mesh
 

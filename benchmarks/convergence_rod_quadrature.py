@@ -5,8 +5,8 @@ between successive meshes stops at ~0.02 mm, the size of the difference between 
 meshes of the same size. A rod's tip was then ``root + u(root) + L R d``, with ``R`` the mean
 rotation of the skin under the pin's base, averaged by a 7-point disk rule at two depths (the
 model until 2026-11-28; since then rods read a weighted mean over their base's skin elements,
-:mod:`tactip_sim.fem.markers`, listed here as "base average (product)"). The P2 gradient jumps
-between elements, so a denser rule averages it better. This study presses the default pad with
+:mod:`tactip_sim.fem.markers.kinematics`, listed here as "base average (product)"). The P2 gradient
+jumps between elements, so a denser rule averages it better. This study presses the default pad with
 the reference physics on the bundled 1.25 and 1 mm meshes and on a second, freshly built 1 mm
 mesh, keeps each solve's displacement field, and compares the meshes' markers under the
 earlier model's 7 x 2 points, a 144 x 3 and a 400 x 4 point rule (Gauss-Legendre in radius
@@ -55,7 +55,7 @@ def solve(size: float, instance: int, pose, out: Path) -> Path:
     """Press the pad on the mesh of ``size`` (``instance`` > 0: a fresh pytetwild build) and
     store the displacement field and the mesh."""
     import tactip_sim as ts
-    from tactip_sim.fem import markers as fem_markers
+    from tactip_sim.fem.markers import kinematics as fem_markers
     from tactip_sim.mesh import tetrahedralise
 
     path = out / f"h{size:g}_i{instance}.npz"
@@ -112,7 +112,7 @@ def mean_gradient(space, points: np.ndarray, weights: np.ndarray):
     ``weights`` (k,), in the skin's elements."""
     import scipy.sparse as sp
 
-    from tactip_sim.fem.space import gradient_operator, locate
+    from tactip_sim.fem.discretisation.space import gradient_operator, locate
     from tactip_sim.mesh import REGION_SKIN
 
     p, k = points.shape[:2]
@@ -141,7 +141,7 @@ def dense_base(pad, radius_mm: float, thickness_mm: float, n_r: int, n_theta: in
 def markers_by_rule(size: float, instance: int, out: Path) -> dict[str, np.ndarray]:
     """The stored press's markers under each rule of :data:`RULES`, and its roots."""
     import tactip_sim as ts
-    from tactip_sim.fem.space import interpolation_operator, locate
+    from tactip_sim.fem.discretisation.space import interpolation_operator, locate
     from tactip_sim.mesh import read_mesh
 
     scene = _scene(size)

@@ -7,10 +7,10 @@ how far a refined press moved each marker:
 - ``P2 - P1``: the marker from the field against the marker from its vertex values alone,
   interpolated linearly (a hierarchical indicator);
 - the others compare the field's gradient with the skin's recovered one (Zienkiewicz-Zhu:
-  :func:`tactip_sim.fem.marker_error.recovered_gradient`), as the tip turned by the recovered
+  :func:`tactip_sim.fem.markers.error.recovered_gradient`), as the tip turned by the recovered
   mean gradient, as the root mean square of the difference over a 2 mm ball or over the pin's
   base, or as that of its rotation part over the base (the product's estimate,
-  :func:`tactip_sim.fem.marker_error.marker_error_estimate`).
+  :func:`tactip_sim.fem.markers.error.marker_error_estimate`).
 
 Usage::
 
@@ -50,8 +50,8 @@ def _sim():
 def field(sim, pose, out: Path) -> np.ndarray:
     """The 1 mm press's full field (n_dofs,), solved or read from ``out``."""
     import tactip_sim as ts
-    from tactip_sim.fem.indenters import place
-    from tactip_sim.fem.neohookean import solve_neo_hookean
+    from tactip_sim.fem.contact.indenters import place
+    from tactip_sim.fem.neohookean.solver import solve_neo_hookean
 
     path = out / "field_1mm.npz"
     if path.is_file():
@@ -78,12 +78,12 @@ def candidates(sim, u: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     from scipy.spatial import cKDTree
 
     import tactip_sim as ts
-    from tactip_sim.fem.marker_error import (
+    from tactip_sim.fem.discretisation.space import gradient_operator
+    from tactip_sim.fem.markers.error import (
         _vertex_gradients,
         marker_error_estimate,
         recovered_gradient,
     )
-    from tactip_sim.fem.space import gradient_operator
     from tactip_sim.mesh import REGION_SKIN
     from tactip_sim.mesh.topology import tet_volumes
 

@@ -24,24 +24,24 @@ from typing import TYPE_CHECKING
 import numpy as np
 import trimesh
 
-from .fem.contact import ContactSolution, solve_contact
-from .fem.friction import FrictionHistory
-from .fem.full import FullOperator
-from .fem.indenters import Indenter, Plate, indenter_from_scene, place
-from .fem.marker_error import marker_error_estimate, stuck_marker_errors
-from .fem.model import ElasticBody
-from .fem.pose import Pose
-from .fem.reduced import ReducedModel
-from .fem.resolution import contact_resolution
-from .fem.state import ContactState
+from .fem.contact.indenters import Indenter, Plate, indenter_from_scene, place
+from .fem.contact.lcp import ContactSolution, solve_contact
+from .fem.contact.pose import Pose
+from .fem.contact.state import ContactState
+from .fem.linear.friction import FrictionHistory
+from .fem.linear.full import FullOperator
+from .fem.linear.model import ElasticBody
+from .fem.linear.reduced import ReducedModel
+from .fem.linear.window import pin_forces, stop_at_window, window_generalised_forces
+from .fem.markers.error import marker_error_estimate, stuck_marker_errors
+from .fem.refinement.resolution import contact_resolution
 from .fem.tolerances import TOL, Tolerances, single_threaded_blas
-from .fem.window import pin_forces, stop_at_window, window_generalised_forces
 from .geometry import Pad, build_pad
 from .mesh import REGION_SKIN, TetMesh, tetrahedralise
 from .scene import Scene
 
 if TYPE_CHECKING:
-    from .fem.neohookean import NeoHookeanHistory
+    from .fem.neohookean.solver import NeoHookeanHistory
 
 SOLVERS = ("reduced", "full", "neo_hookean")
 log = logging.getLogger(__name__)
@@ -66,7 +66,7 @@ class Simulator:
     Attributes
     ----------
     mesh : the tet mesh discretised
-    body : the :class:`~tactip_sim.fem.model.ElasticBody` (space, stiffness, markers)
+    body : the :class:`~tactip_sim.fem.linear.model.ElasticBody` (space, stiffness, markers)
     surface_vertices : (k,) int32, mesh vertex ids of the outer (non-window) surface
     under_resolved : presses so far whose estimated force error exceeded
         ``fidelity.contact_tolerance``; the first is logged as a warning, the others at DEBUG
@@ -75,7 +75,7 @@ class Simulator:
         ``fidelity.marker_tolerance_mm`` (full-field solves; reported the same way)
     warn_under_resolved : set False to log none of them as warnings (the caller reports them)
     p1_guess : a P2 neo-Hookean press given no ``initial`` starts from the P1 press of the same
-        mesh (carried onto the P2 space, :func:`~.fem.refine.carried_field`), where the
+        mesh (carried onto the P2 space, :func:`~.fem.refinement.refine.carried_field`), where the
         answer does not depend on the path (no stuck ends); set False for the load steps
         from rest alone (docs/fem.md, "A refined solve from the coarse answer")
     """
@@ -103,7 +103,7 @@ class Simulator:
         self._renderer = None
         self._refiner = None
         self._pin_refiner = None
-        self.lean_full = False  # FullOperator(lean=True): set on refined meshes (fem.refine)
+        self.lean_full = False  # FullOperator(lean=True): set on refined meshes (fem.refinement)
         self.under_resolved = 0
         self.markers_under_resolved = 0
         self.warn_under_resolved = True
@@ -165,8 +165,8 @@ class Simulator:
             solver then skips reading the compliance of every surface vertex, ~0.6-1 ms of a
             ~6 ms press of the default pad, what a calibration sweep does not use)
         initial : (n_dofs,) a guess of the answer, for the neo-Hookean solver only: a coarser
-            mesh's solution carried onto this one (:func:`~.fem.refine.carried_field`), from
-            which Newton goes to the whole depth in one step (the load steps from rest if that
+            mesh's solution carried onto this one (:func:`~.fem.refinement.refine.carried_field`),
+            from which Newton goes to the whole depth in one step (the load steps from rest if that
             fails); not with ``window.pin_friction = "stick"``
 
         Raises
@@ -226,7 +226,7 @@ class Simulator:
         tolerance = self.scene.fidelity.marker_tolerance_mm
         if (self.scene.fidelity.pin_refinement == "auto"
                 and state.marker_error_estimate_mm > tolerance):
-            from .fem.refine import PinRefiner
+            from .fem.refinement.refine import PinRefiner
 
             if self._pin_refiner is None:
                 self._pin_refiner = PinRefiner(self, type(self))
@@ -241,7 +241,7 @@ class Simulator:
                full_field: bool, surface: bool = True, initial: np.ndarray | None = None
                ) -> ContactState:
         """One solve on this simulator's mesh (or the contact's refined one); ``initial``, a
-        guess of the neo-Hookean answer (:func:`~.fem.neohookean.solve_neo_hookean`'s)."""
+        guess of the neo-Hookean answer (:func:`~.fem.neohookean.solver.solve_neo_hookean`'s)."""
         t0 = time.perf_counter()
         indenter = self.indenter if indenter is None else indenter
         solver = self.solver if solver is None else _check_solver(solver)
@@ -256,7 +256,7 @@ class Simulator:
         if solver != "neo_hookean":
             self._window_stick(solver)
         if solver == "neo_hookean":
-            from .fem.neohookean import solve_neo_hookean
+            from .fem.neohookean.solver import solve_neo_hookean
 
             stick = self._window_stick(solver)
             if initial is None and self.p1_guess and self.body.order == 2 and not stick:
@@ -306,8 +306,8 @@ class Simulator:
         the window takes pins the P2 press from rest halves its load steps, and from this
         answer it does not: the corner pose at 2 mm, 84 s from rest, 16 s with the P1 press
         (docs/fem.md)."""
-        from .fem.contact import ContactError
-        from .fem.refine import carried_field
+        from .fem.contact.lcp import ContactError
+        from .fem.refinement.refine import carried_field
 
         if self._p1_twin is None:
             self._p1_twin = type(self)(self.scene, pad=self.pad, mesh=self.mesh, element_order=1,
@@ -323,8 +323,8 @@ class Simulator:
     def _press_refined(self, pose: Pose, indenter: Indenter, placement, t0: float
                        ) -> ContactState | None:
         """The pose solved on a mesh refined around its contact, or None when the scene's
-        mesh already resolves it (:mod:`~tactip_sim.fem.refine`)."""
-        from .fem.refine import ContactRefiner, plan
+        mesh already resolves it (:mod:`~tactip_sim.fem.refinement.refine`)."""
+        from .fem.refinement.refine import ContactRefiner, plan
 
         tolerance = self.scene.fidelity.contact_tolerance
         p = plan(self.body.space, self.body.order, placement, self.scene, tolerance)
@@ -359,7 +359,7 @@ class Simulator:
                    solver: str | None = None, progress=None, tap_steps: int | None = None,
                    pivot_mm=None) -> list[ContactState]:
         """Press along a load path with Coulomb friction; one state per step, the last at
-        ``pose`` (:mod:`~tactip_sim.fem.loadpath`, :mod:`~tactip_sim.fem.friction`).
+        ``pose`` (:mod:`~tactip_sim.fem.linear.loadpath`, :mod:`~tactip_sim.fem.linear.friction`).
 
         Parameters
         ----------
@@ -375,13 +375,13 @@ class Simulator:
         tap_steps : steps of the tap alone, in [1, 10000] (default ``steps``)
         pivot_mm : (3,) the robot's tool centre point in the sensor frame (a flat plate
             only): the plate's point under it stays under it along the path
-            (:func:`~tactip_sim.fem.loadpath.about_pivot`); default: the plate's point at
+            (:func:`~tactip_sim.fem.linear.loadpath.about_pivot`); default: the plate's point at
             the first contact follows the contact
 
         Each state's ``seconds`` is the time of its own step. The pins stop at the window as
         in :meth:`press` for a flat indenter on the reduced model
-        (:func:`~tactip_sim.fem.window.friction_with_window`) and for every indenter with the
-        neo-Hookean solve (:func:`~tactip_sim.fem.neohookean.neo_hookean_path`); otherwise
+        (:func:`~tactip_sim.fem.linear.window.friction_with_window`) and for every indenter with the
+        neo-Hookean solve (:func:`~tactip_sim.fem.neohookean.solver.neo_hookean_path`); otherwise
         they are not stopped (``window_forces_N`` is NaN).
 
         Raises
@@ -389,7 +389,7 @@ class Simulator:
         ValueError
             ``friction`` or ``steps`` out of range, a depth <= 0, or the path leaves contact.
         """
-        from .fem.loadpath import path_poses
+        from .fem.linear.loadpath import path_poses
 
         poses = path_poses(pose, start=start, steps=steps, tap_steps=tap_steps)
         return self.continue_path(poses, friction=friction, indenter=indenter, solver=solver,
@@ -404,7 +404,7 @@ class Simulator:
         ``NeoHookeanHistory`` for "neo_hookean"; the path goes on in contact) or from the
         pad at rest (a first contact at ``poses[0]``'s orientation). One state per step and the
         history at the end. The other parameters are :meth:`press_path`'s."""
-        from .fem.loadpath import about_pivot, check_friction, run_path
+        from .fem.linear.loadpath import about_pivot, check_friction, run_path
 
         indenter = self.indenter if indenter is None else indenter
         solver = self.solver if solver is None else _check_solver(solver)
@@ -457,7 +457,7 @@ class Simulator:
                           ) -> tuple[list[ContactState], object]:
         """:meth:`continue_path` with the neo-Hookean solve (the pins stop at the window, as
         in its :meth:`press`)."""
-        from .fem.neohookean import neo_hookean_path
+        from .fem.neohookean.solver import neo_hookean_path
 
         results = neo_hookean_path(self.body, poses, placer, mu=mu, markers=self.body.markers,
                                    tol=self.tol, history=history, progress=step_done,

@@ -75,7 +75,7 @@ def virtual_work_error(body, u, contact, end_forces, seed=5, end_tangential=None
     the pad balances the window."""
     import numpy as np
 
-    from tactip_sim.fem.neohookean import NeoHookeanBody
+    from tactip_sim.fem.neohookean.solver import NeoHookeanBody
 
     f_int, _ = NeoHookeanBody(body).residual(u)
     ext = np.zeros_like(f_int).reshape(-1, 3)

@@ -52,7 +52,7 @@ def test_threaded_factorisation_solves_alike_and_restores_one_thread(monkeypatch
     import numpy as np
 
     import tactip_sim as ts
-    from tactip_sim.fem.neohookean import NeoHookeanBody, _pattern
+    from tactip_sim.fem.neohookean.solver import NeoHookeanBody, _pattern
     from tactip_sim.fem.tolerances import single_threaded_blas
 
     if (os.cpu_count() or 1) < 2:

@@ -10,7 +10,7 @@ import pytest
 
 import tactip_sim as ts
 from tactip_sim.fem import IndenterError, PoseError, place, solve_lcp
-from tactip_sim.fem.pose import rotation
+from tactip_sim.fem.contact.pose import rotation
 
 OBJECTS = Path(__file__).resolve().parents[1] / "scenes" / "objects"
 

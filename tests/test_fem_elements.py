@@ -5,15 +5,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactip_sim.fem.elasticity import Factor, lame, stiffness
-from tactip_sim.fem.elements import (
+from tactip_sim.fem.discretisation.elements import (
     TET_EDGES,
     barycentric_gradients,
     quadrature,
     shape_gradients,
     shape_values,
 )
-from tactip_sim.fem.space import build_space, gradient_operator, interpolation_operator, locate
+from tactip_sim.fem.discretisation.space import (
+    build_space,
+    gradient_operator,
+    interpolation_operator,
+    locate,
+)
+from tactip_sim.fem.linear.elasticity import Factor, lame, stiffness
 from tactip_sim.mesh import REGION_GEL, TetMesh
 
 

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.fem.friction import FrictionHistory, indenter_motion, solve_friction
-from tactip_sim.fem.indenters import place
-from tactip_sim.fem.loadpath import LoadPathError, path_poses
-from tactip_sim.fem.window import point_heights, window_generalised_forces
+from tactip_sim.fem.contact.indenters import place
+from tactip_sim.fem.linear.friction import FrictionHistory, indenter_motion, solve_friction
+from tactip_sim.fem.linear.loadpath import LoadPathError, path_poses
+from tactip_sim.fem.linear.window import point_heights, window_generalised_forces
 from tactip_sim.scene import SceneError, scene_hash, scene_to_dict
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -180,7 +180,7 @@ def test_a_small_lift_stays_in_contact(fingertip):
 
 def test_pins_stop_at_the_window_along_a_path(fingertip):
     """A deep re-orientation whose pins reach the window: without friction it ends where the
-    press (which stops them, fem/window.py) does, whatever the path; with friction no tip
+    press (which stops them, fem/linear/window.py) does, whatever the path; with friction no tip
     ends below the window's inner face (z = 0) and the window holds some of them."""
     pose, start = ts.Pose(16, -11, 2.1), ts.Pose(8, -7, 2.1)
     pressed = fingertip.press(pose)
@@ -277,8 +277,8 @@ def test_a_step_whose_solve_fails_is_split(fingertip, monkeypatch):
     fails gives up after ``tol.max_load_steps`` splits, naming the pose."""
     import dataclasses
 
-    import tactip_sim.fem.loadpath as lp
-    from tactip_sim.fem.contact import ContactError
+    import tactip_sim.fem.linear.loadpath as lp
+    from tactip_sim.fem.contact.lcp import ContactError
 
     real = lp.solve_friction
 

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.fem.analytic import hertz_force_mN, layer_factor
+from tactip_sim.fem.contact.analytic import hertz_force_mN, layer_factor
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "hertz_block.toml"
 REFINED = {"mesh_edge_mm": 5.0, "refine_edge_mm": 0.3, "refine_radius_mm": 3.0,

@@ -1,12 +1,12 @@
 """The neo-Hookean tangent's terms on the held pins, added to the factor's solves by the
-Woodbury identity (:mod:`tactip_sim.fem.nh_lowrank`): against dense solves of the assembled
+Woodbury identity (:mod:`tactip_sim.fem.neohookean.lowrank`): against dense solves of the assembled
 sum, and its positive-definiteness test against the sum's eigenvalues."""
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from tactip_sim.fem.nh_lowrank import BASE_ROWS, LowRankSolve, PinTerms
+from tactip_sim.fem.neohookean.lowrank import BASE_ROWS, LowRankSolve, PinTerms
 
 
 def _system(seed: int, n: int = 90, m: int = 24):

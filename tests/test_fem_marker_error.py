@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.fem.marker_error import marker_error_estimate, recovered_gradient
-from tactip_sim.fem.refine import MAX_PIN_LEVELS, PIN_EDGE_FRACTION, PIN_LEVEL_FACTOR
+from tactip_sim.fem.markers.error import marker_error_estimate, recovered_gradient
+from tactip_sim.fem.refinement.refine import MAX_PIN_LEVELS, PIN_EDGE_FRACTION, PIN_LEVEL_FACTOR
 from tactip_sim.mesh import REGION_SKIN
 from tactip_sim.scene import SceneError
 
@@ -31,7 +31,7 @@ def _exact_markers(markers, space, f, radius_mm: float) -> np.ndarray:
     """Rod tips from the analytic field ``f``: its mean and its gradient's (central
     differences) over each base, with the base's weight sampled on a finer rule (every element
     cut into 8^3 sub-tets) than the model's, turned by the polar rotation."""
-    from tactip_sim.fem.markers import _subtet_rule
+    from tactip_sim.fem.markers.kinematics import _subtet_rule
 
     lam_q, w_q = _subtet_rule(3)
     shift, grad = np.zeros((markers.count, 3)), np.zeros((markers.count, 3, 3))

@@ -1,4 +1,4 @@
-"""Rod pins turn with the mean rotation of the skin under their base (fem/markers.py).
+"""Rod pins turn with the mean rotation of the skin under their base (fem/markers/kinematics.py).
 
 Known answers on fields the P2 space holds exactly: a rigid rotation carries every tip with it
 (small and finite); a linear field's base mean is its value at the anchor (the weights'
@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.fem.indenters import place
-from tactip_sim.fem.markers import build_markers
-from tactip_sim.fem.neohookean import solve_neo_hookean
-from tactip_sim.fem.space import locate
+from tactip_sim.fem.contact.indenters import place
+from tactip_sim.fem.discretisation.space import locate
+from tactip_sim.fem.markers.kinematics import build_markers
+from tactip_sim.fem.neohookean.solver import solve_neo_hookean
 from tactip_sim.mesh import REGION_SKIN
 
 ROOT = Path(__file__).resolve().parents[1]

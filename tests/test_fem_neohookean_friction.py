@@ -6,7 +6,7 @@ Checks against independent answers:
   frictionless equilibrium does not depend on the path), to solver precision;
 * the small-strain limit: at 0.1 mm the neo-Hookean path with friction is the linear
   friction solver's path (a second method: compliance of the assembled linear operator,
-  the stick/slip problem solved on the contact nodes alone, :mod:`tactip_sim.fem.friction`);
+  the stick/slip problem solved on the contact nodes alone, :mod:`tactip_sim.fem.linear.friction`);
 * the laws themselves at a converged large deformation: equilibrium off the contact (the
   internal force of the deformed body, recomputed), closed gaps, pushing contact forces,
   Coulomb's cone with stuck nodes held at their anchors and slipping nodes dragged against
@@ -22,11 +22,11 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.fem.friction import indenter_motion
-from tactip_sim.fem.full import FullOperator
-from tactip_sim.fem.indenters import place
-from tactip_sim.fem.loadpath import LoadPathError, about_pivot, path_poses, run_path
-from tactip_sim.fem.neohookean import NeoHookeanBody, neo_hookean_path, solve_neo_hookean
+from tactip_sim.fem.contact.indenters import place
+from tactip_sim.fem.linear.friction import indenter_motion
+from tactip_sim.fem.linear.full import FullOperator
+from tactip_sim.fem.linear.loadpath import LoadPathError, about_pivot, path_poses, run_path
+from tactip_sim.fem.neohookean.solver import NeoHookeanBody, neo_hookean_path, solve_neo_hookean
 
 from .conftest import rod_end_heights, virtual_work_error
 

@@ -15,9 +15,9 @@ import pytest
 from scipy.optimize import nnls
 
 import tactip_sim as ts
-from tactip_sim.fem.contact import solve_contact
-from tactip_sim.fem.indenters import place
-from tactip_sim.fem.reduced import ReducedModel
+from tactip_sim.fem.contact.indenters import place
+from tactip_sim.fem.contact.lcp import solve_contact
+from tactip_sim.fem.linear.reduced import ReducedModel
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "shadow_fingertip.toml"
@@ -97,8 +97,8 @@ def test_normal_blocks_are_the_normal_normal_compliance(sim):
     sym = model.normal_block(rows, rows, normal)
     np.testing.assert_array_equal(sym, sym.T)  # one packed record per pair: exactly symmetric
     # the working set's own block is computed on one triangle and mirrored: the same numbers
-    from tactip_sim.fem.reduced import _SYMMETRIC
-    from tactip_sim.fem.reduced_kernels import normal_blocks
+    from tactip_sim.fem.linear.reduced import _SYMMETRIC
+    from tactip_sim.fem.linear.reduced_kernels import normal_blocks
 
     w = np.array([normal[a] * normal[b] * (1.0 if a == b else 2.0) for a, b in _SYMMETRIC])
     both = normal_blocks(model.symmetric_blocks, model._row_start, rows, rows, w, False)

@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.fem.analytic import hertz_force_mN, layer_factor, sphere_contact
-from tactip_sim.fem.indenters import Plate, Sphere, place
-from tactip_sim.fem.resolution import predict_contact_radius
+from tactip_sim.fem.contact.analytic import hertz_force_mN, layer_factor, sphere_contact
+from tactip_sim.fem.contact.indenters import Plate, Sphere, place
+from tactip_sim.fem.refinement.resolution import predict_contact_radius
 from tactip_sim.mesh.local import bisect_to_size
 from tactip_sim.mesh.tetra import mesh_quality
 from tactip_sim.mesh.topology import boundary_faces, tet_volumes
@@ -128,7 +128,7 @@ def test_shipped_hertz_scene_flags_the_under_resolved_contact_before_refining(he
     """The issue's case: sphere R = 4 mm at 0.09 mm (a = 0.6 mm) was 83 % too stiff on the
     shipped 2.5 mm mesh, with no warning. The estimate on that mesh, before any solve, flags it
     and plans a zone whose spacing resolves the contact."""
-    from tactip_sim.fem.refine import plan
+    from tactip_sim.fem.refinement.refine import plan
 
     sim = hertz_plan_sim
     assert sim.scene.fidelity.contact_refinement == "auto"

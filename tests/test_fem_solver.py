@@ -15,7 +15,7 @@ import pytest
 
 import tactip_sim as ts
 from tactip_sim.fem import ContactError, PoseError
-from tactip_sim.fem.indenters import place
+from tactip_sim.fem.contact.indenters import place
 from tactip_sim.mesh import TetMesh
 
 from .conftest import rod_end_heights, virtual_work_error
@@ -206,7 +206,7 @@ def test_neo_hookean_reduces_to_linear_at_small_depth(sim):
 def test_neo_hookean_tangent_is_linear_at_rest_and_the_residual_derivative(sim):
     """At u = 0 the tangent is the linear stiffness; elsewhere it is the derivative of the
     internal force (central differences along a random direction)."""
-    from tactip_sim.fem.neohookean import NeoHookeanBody
+    from tactip_sim.fem.neohookean.solver import NeoHookeanBody
 
     nh = NeoHookeanBody(sim.body)
     k0 = nh.tangent_matrix(np.zeros(sim.body.space.n_dofs))
@@ -226,8 +226,8 @@ def test_neo_hookean_answer_does_not_depend_on_the_load_path(sim, indenter):
     """A hyperelastic, frictionless press has one equilibrium: reached in one load step or in
     three of 0.5 mm (two different Newton paths), the answer is the same; and it is an
     equilibrium: no out-of-balance force off the contact, contact forces push, gaps closed."""
-    from tactip_sim.fem.indenters import place
-    from tactip_sim.fem.neohookean import NeoHookeanBody, solve_neo_hookean
+    from tactip_sim.fem.contact.indenters import place
+    from tactip_sim.fem.neohookean.solver import NeoHookeanBody, solve_neo_hookean
 
     body = sim.body
     pose = ts.Pose(3, -2, 1.5)
@@ -255,7 +255,7 @@ def test_neo_hookean_pins_stop_at_the_window(sim):
     own derivative). (A flat press at 3.7 mm, every pin held at once, was the case until the
     rods read their bases' averages; it no longer converges in minutes: docs/fem.md, Known
     limitations.)"""
-    from tactip_sim.fem.neohookean import solve_neo_hookean
+    from tactip_sim.fem.neohookean.solver import solve_neo_hookean
 
     body = sim.body
     pose = ts.Pose(12, -8.8, 2.6)
@@ -296,7 +296,7 @@ def test_neo_hookean_end_heights_derivative(sim):
     """The Newton iteration's derivative of the rods' end heights, factored through 4 rows a
     pin (``mixing @ pin_rows``), against central differences of the kinematics written out
     in the test, at a finite deformation with rods turned by ~10 degrees."""
-    from tactip_sim.fem.nh_tips import RodTips
+    from tactip_sim.fem.neohookean.tips import RodTips
 
     body = sim.body
     m = body.markers
@@ -319,7 +319,7 @@ def test_neo_hookean_window_terms_are_the_heights_second_derivatives(sim):
     as quadratic forms along random directions, against central second and first
     differences of the end heights (the kinematics written out in the test), at a finite
     deformation with rods turned by ~10 degrees."""
-    from tactip_sim.fem.nh_tips import RodTips
+    from tactip_sim.fem.neohookean.tips import RodTips
 
     body = sim.body
     m = body.markers

@@ -1,5 +1,5 @@
 """A neo-Hookean solve started from a coarser mesh's answer (``Simulator.press(initial=)``,
-:func:`tactip_sim.fem.refine.carried_field`, the pin refinement's levels).
+:func:`tactip_sim.fem.refinement.refine.carried_field`, the pin refinement's levels).
 
 Checks against independent answers:
 
@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.fem.refine import carried_field
-from tactip_sim.fem.space import build_space, locate
+from tactip_sim.fem.discretisation.space import build_space, locate
+from tactip_sim.fem.refinement.refine import carried_field
 from tactip_sim.geometry import build_pad
 from tactip_sim.mesh.local import Refinement, refined_mesh
 
@@ -107,7 +107,7 @@ def test_the_refinement_levels_start_from_the_level_before(scene, coarse, monkey
     """fidelity.pin_refinement = 'auto' with a loose tolerance (a few pins flagged): each
     refined solve is given the level before's answer, and the refined press equals a press
     from rest on the mesh it chose."""
-    import tactip_sim.fem.neohookean as nh
+    import tactip_sim.fem.neohookean.solver as nh
 
     given = []
 
@@ -153,7 +153,7 @@ def p2_scene():
 def _p1_guess_against_rest(scene, pose, monkeypatch):
     """The P2 press with ``p1_guess`` (default) and without it, on one mesh: (with, without,
     whether the P2 solve was given a guess)."""
-    import tactip_sim.fem.neohookean as nh
+    import tactip_sim.fem.neohookean.solver as nh
 
     given = []
 

@@ -9,11 +9,11 @@ import pytest
 import scipy.sparse as sp
 
 import tactip_sim as ts
-from tactip_sim.fem.contact import solve_contact
-from tactip_sim.fem.indenters import place
-from tactip_sim.fem.markers import Markers
-from tactip_sim.fem.reduced import ReducedModel
-from tactip_sim.fem.window import stop_at_window
+from tactip_sim.fem.contact.indenters import place
+from tactip_sim.fem.contact.lcp import solve_contact
+from tactip_sim.fem.linear.reduced import ReducedModel
+from tactip_sim.fem.linear.window import stop_at_window
+from tactip_sim.fem.markers.kinematics import Markers
 
 from .conftest import SCENES
 
@@ -84,7 +84,7 @@ def test_tilted_rod_lands_on_its_rim(depth):
     root gives through the rotational spring (scipy's fsolve on the exact Rodrigues map)."""
     from scipy.optimize import fsolve
 
-    from tactip_sim.fem.markers import rodrigues
+    from tactip_sim.fem.markers.kinematics import rodrigues
 
     k, k_w, tilt, h0, length, radius = 20.0, 30.0, 35.0, 0.5, 3.0, 1.0
     model, rod, root, d = _tilted_rod(k, k_w, tilt, h0, length, radius)

@@ -24,10 +24,10 @@ import numpy as np
 import pytest
 
 import tactip_sim as ts
-from tactip_sim.fem.indenters import place
-from tactip_sim.fem.loadpath import path_poses
-from tactip_sim.fem.neohookean import neo_hookean_path, solve_neo_hookean
-from tactip_sim.fem.nh_tips import RodTips
+from tactip_sim.fem.contact.indenters import place
+from tactip_sim.fem.linear.loadpath import path_poses
+from tactip_sim.fem.neohookean.solver import neo_hookean_path, solve_neo_hookean
+from tactip_sim.fem.neohookean.tips import RodTips
 
 from .conftest import rod_end_heights, rod_end_points, virtual_work_error
 
@@ -118,7 +118,7 @@ def test_finer_touch_steps_give_the_same_markers(sim, stuck, monkeypatch):
     """Where an end first touches, the press walks a step of WINDOW_TOUCH_STEP_MM (1/256 mm)
     and anchors the end at its close: with half of it the markers move by less than the
     convergence criterion (0.01 mm)."""
-    import tactip_sim.fem.nh_stick as nh_stick
+    import tactip_sim.fem.neohookean.stick as nh_stick
 
     monkeypatch.setattr(nh_stick, "WINDOW_TOUCH_STEP_MM", nh_stick.WINDOW_TOUCH_STEP_MM / 2)
     body = sim.body
@@ -132,8 +132,8 @@ def test_finer_touch_steps_give_the_same_markers(sim, stuck, monkeypatch):
 def test_the_next_step_stops_short_of_the_next_touch():
     """Heights falling linearly with depth: the step stops half a touch step before the
     first end would touch, or crosses in one touch step when that is nearer than one."""
-    from tactip_sim.fem.nh_stick import WINDOW_TOUCH_STEP_MM as touch
-    from tactip_sim.fem.nh_stick import approach
+    from tactip_sim.fem.neohookean.stick import WINDOW_TOUCH_STEP_MM as touch
+    from tactip_sim.fem.neohookean.stick import approach
 
     # pin 0 would touch at 1 + 0.8 / 0.2 = 5 mm, pin 1 at 1 + 0.3 / 0.2 = 2.5 mm; pin 2 is
     # held (height 0) and pin 3 rises: neither counts
@@ -150,8 +150,8 @@ def test_the_next_step_stops_short_of_the_next_touch():
 
 def test_a_missed_touch_bounds_the_next_steps():
     """A longer step found an end newly touching at 2 mm: the touch is before 2 mm."""
-    from tactip_sim.fem.nh_stick import WINDOW_TOUCH_STEP_MM as touch
-    from tactip_sim.fem.nh_stick import approach
+    from tactip_sim.fem.neohookean.stick import WINDOW_TOUCH_STEP_MM as touch
+    from tactip_sim.fem.neohookean.stick import approach
 
     # nothing to extrapolate from: halfway from the last accepted state
     assert approach([(0.0, np.array([1.0]))], 4.0, touched_at=2.0, missed=True) == 1.0
@@ -196,7 +196,7 @@ def test_a_stuck_point_pulled_off_and_pressed_back_slides():
     other changes of the held set are left alone."""
     from types import SimpleNamespace
 
-    from tactip_sim.fem.nh_stick import WindowStick
+    from tactip_sim.fem.neohookean.stick import WindowStick
 
     wf = WindowStick(SimpleNamespace(count=4), None)
     wf.anchor[1] = (0.5, -0.5)  # point 1 stuck, the others not
@@ -215,8 +215,8 @@ def test_a_stuck_point_pulled_off_and_pressed_back_slides():
 def test_reusing_a_factorisation_changes_the_cost_not_the_answer(sim, stuck, monkeypatch):
     """Near the solution the Newton iterations go on with the last factorisation (modified
     Newton); every iteration factorising afresh (full Newton) ends at the same state."""
-    import tactip_sim.fem.neohookean as nh
-    from tactip_sim.fem.nh_blocks import BlockPattern
+    import tactip_sim.fem.neohookean.solver as nh
+    from tactip_sim.fem.neohookean.blocks import BlockPattern
 
     calls = {"n": 0}
     factor = BlockPattern.factor
@@ -251,7 +251,7 @@ def test_reusing_a_factorisation_changes_the_cost_not_the_answer(sim, stuck, mon
 def test_each_stuck_pin_keeps_the_state_where_it_touched(sim, stuck):
     """The pins whose end lies on the window at the end of a stuck press are those with a
     touch state, and in it their end had just reached the window."""
-    from tactip_sim.fem.nh_stick import ON_WINDOW_MM, lowest_heights
+    from tactip_sim.fem.neohookean.stick import ON_WINDOW_MM, lowest_heights
 
     tips = RodTips(sim.body.markers)
     on = np.flatnonzero(lowest_heights(tips, stuck.u) <= ON_WINDOW_MM)
@@ -263,7 +263,7 @@ def test_each_stuck_pin_keeps_the_state_where_it_touched(sim, stuck):
 
 
 def test_touch_states_follow_the_ends():
-    from tactip_sim.fem.neohookean import _note_touches
+    from tactip_sim.fem.neohookean.solver import _note_touches
 
     states: dict[int, np.ndarray] = {}
     first, second = np.zeros(3), np.ones(3)
@@ -279,7 +279,7 @@ def test_one_factorisation_alive_at_a_time(sim, monkeypatch):
     import gc
     import weakref
 
-    from tactip_sim.fem.nh_blocks import BlockPattern
+    from tactip_sim.fem.neohookean.blocks import BlockPattern
 
     factor = BlockPattern.factor
     made: list[weakref.ref] = []

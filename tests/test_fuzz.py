@@ -256,7 +256,7 @@ def fuzz_scenes(res: Result, rng: np.random.Generator, n: int, tmp: Path) -> Non
 
 def fuzz_poses(res: Result, rng: np.random.Generator, n: int) -> None:
     from tactip_sim.fem import Pose
-    from tactip_sim.fem.pose import PoseError
+    from tactip_sim.fem.contact.pose import PoseError
 
     for _ in range(n):
         vals = [_odd_value(rng, 1.0) if rng.random() < 0.6 else float(rng.uniform(-10, 10))

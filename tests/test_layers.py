@@ -4,7 +4,9 @@ a lower layer of ``tactip_sim`` up to a higher one, at module level or inside a 
 Layers, bottom up: scene (with the cache, libLLVM and progress utilities) -> geometry -> mesh
 -> fem -> optics -> render -> simulator -> commands. ``tactip_sim/__init__.py`` is the
 package's facade (it loads the higher layers lazily); no module below the commands floor may
-import it.
+import it. Inside ``fem`` the same over its folders (:data:`FEM_LAYERS`): tolerances ->
+discretisation, contact -> markers, refinement -> linear -> neohookean; parts of one layer do
+not import each other.
 """
 
 from __future__ import annotations
@@ -152,6 +154,58 @@ def test_no_import_cycle(graph):
                 if len(comp) > 1:
                     cycles.append(sorted(comp))
     assert not cycles, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+FEM_LAYERS = {"tolerances": 0, "discretisation": 1, "contact": 1, "markers": 2, "refinement": 2,
+              "linear": 3, "neohookean": 4}
+"""Layer of each part of ``tactip_sim.fem`` (docs/architecture.md); ``tactip_sim.fem`` itself
+(its ``__init__``, the public API) sits above them all."""
+
+
+def _fem_part(mod: str) -> str | None:
+    parts = mod.split(".")
+    if parts[:2] != ["tactip_sim", "fem"] or len(parts) == 2:
+        return None
+    if parts[2] not in FEM_LAYERS:
+        raise AssertionError(f"{mod}: tactip_sim.fem.{parts[2]} has no layer in "
+                             "tests/test_layers.py (add it, and to docs/architecture.md)")
+    return parts[2]
+
+
+def _fem_violations(graph: dict[str, set[str]]) -> list[str]:
+    bad = []
+    for mod, deps in graph.items():
+        here = _fem_part(mod)
+        if here is None:
+            continue
+        for dep in deps:
+            there = _fem_part(dep)
+            if dep == "tactip_sim.fem":
+                bad.append(f"{mod} -> tactip_sim.fem (the facade: import the module itself)")
+            elif there is not None and there != here and FEM_LAYERS[there] >= FEM_LAYERS[here]:
+                bad.append(f"{mod} ({here}, layer {FEM_LAYERS[here]}) -> {dep} "
+                           f"({there}, layer {FEM_LAYERS[there]})")
+    return sorted(bad)
+
+
+def test_fem_parts_import_only_lower_layers(graph):
+    bad = _fem_violations(graph)
+    assert not bad, "tactip_sim.fem's layering broken:\n" + "\n".join(bad)
+
+
+def test_the_fem_checker_sees_an_upward_and_a_sideways_import():
+    g = {"tactip_sim.fem.markers.kinematics": {"tactip_sim.fem.linear.model",
+                                               "tactip_sim.fem.discretisation.space"},
+         "tactip_sim.fem.contact.lcp": {"tactip_sim.fem.discretisation.space",
+                                        "tactip_sim.fem.tolerances"},
+         "tactip_sim.fem.linear.window": {"tactip_sim.fem.linear.friction", "tactip_sim.fem"}}
+    bad = _fem_violations(g)
+    assert len(bad) == 3
+    assert any("markers.kinematics (markers, layer 2) -> tactip_sim.fem.linear.model" in b
+               for b in bad)
+    assert any("contact.lcp (contact, layer 1) -> tactip_sim.fem.discretisation.space" in b
+               for b in bad)
+    assert any("the facade" in b for b in bad)
 
 
 LAB_LAYERS = {"rig": 0, "sampling": 1, "fitting": 2, "protocol": 3, "real": 3,

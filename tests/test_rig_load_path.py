@@ -63,9 +63,9 @@ def test_a_pivot_keeps_the_plates_point_under_it_and_the_contact(chain):
     """Known answer (rigid kinematics): the plate's material point under the pivot at one
     pose is under it at the next; the plate's contact (its gaps) does not change."""
     import tactip_sim as ts
-    from tactip_sim.fem.friction import indenter_motion
-    from tactip_sim.fem.indenters import place
-    from tactip_sim.fem.loadpath import about_pivot
+    from tactip_sim.fem.contact.indenters import place
+    from tactip_sim.fem.linear.friction import indenter_motion
+    from tactip_sim.fem.linear.loadpath import about_pivot
 
     sim = chain.sim
     rest, pivot = sim._cand_rest, np.array([0.4, -0.3, 7.0])

@@ -163,7 +163,7 @@ def test_render_spp_checked_with_the_key_range(scene, pad, spp):
 @pytest.mark.parametrize("payload", [b"hello\n", bytes(range(256)) * 4])
 def test_non_mesh_indenter_file_says_so(tmp_path, payload):
     from tactip_sim.fem import IndenterError
-    from tactip_sim.fem.indenters import MeshIndenter
+    from tactip_sim.fem.contact.indenters import MeshIndenter
 
     path = tmp_path / "part.stl"
     path.write_bytes(payload)
@@ -176,7 +176,7 @@ def test_non_watertight_mesh_still_named_so():
     import trimesh
 
     from tactip_sim.fem import IndenterError
-    from tactip_sim.fem.indenters import MeshIndenter
+    from tactip_sim.fem.contact.indenters import MeshIndenter
 
     box = trimesh.creation.box((1, 1, 1))
     open_box = trimesh.Trimesh(box.vertices, box.faces[:-2])

@@ -221,7 +221,7 @@ def test_tip_depth_offset_against_closed_forms():
     u, w = np.meshgrid(np.linspace(0.0, 2.0 * np.pi, 721), np.linspace(0.0, np.pi / 2, 721))
     pts = np.stack([o.a * np.sin(w) * np.cos(u), o.b * np.sin(w) * np.sin(u),
                     o.wall + o.dome * np.cos(w)], axis=-1).reshape(-1, 3)
-    from tactip_sim.fem.pose import rotation
+    from tactip_sim.fem.contact.pose import rotation
 
     for rr, pp in zip(roll, pitch, strict=True):
         m = rotation(rr, pp)[:, 2]

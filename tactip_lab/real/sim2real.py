@@ -23,8 +23,8 @@ Steps (``tactip sim2real``, docs/sim2real.md):
    measured; the saved model uses the feature and order given (``--feature``, ``--order``).
 
 The simulated ``(roll, pitch)`` are rotations of the indenter about the sensor's x and y axes
-(:func:`tactip_sim.fem.pose.rotation`); a data set's ``pose_4``/``pose_5`` may use other axes
-or signs. ``axes`` maps one onto the other (:data:`AXIS_MAPS`); the choice is recorded.
+(:func:`tactip_sim.fem.contact.pose.rotation`); a data set's ``pose_4``/``pose_5`` may use other
+axes or signs. ``axes`` maps one onto the other (:data:`AXIS_MAPS`); the choice is recorded.
 """
 
 from __future__ import annotations
@@ -153,7 +153,7 @@ def blob_level(small: np.ndarray, area_px: float = BLOB_AREA_128) -> int:
 
 TAP_DEPTHS = ("contact", "tip")
 """What a data set's depth (``pose_3``) measures. ``contact``: the indentation beyond first
-contact at the tap's orientation (the simulator's own :class:`~tactip_sim.fem.pose.Pose`
+contact at the tap's orientation (the simulator's own :class:`~tactip_sim.fem.contact.pose.Pose`
 depth). ``tip``: how far the pad's tip (its apex, where a robot's tool centre point is
 usually set) is pushed past the surface, the sensor turned about its tip; a tilted tap then
 indents deeper by :func:`tip_depth_offset` (``R (1 - cos θ)`` on a hemisphere of radius R)."""
@@ -168,7 +168,7 @@ def tip_depth_offset(pad: Any, roll_deg: np.ndarray, pitch_deg: np.ndarray) -> n
     first only when ``m`` is the pad's axis: the offset is ``h(m) - a·m >= 0``. An analytic
     dome uses its half-ellipsoid's support function, any other pad its surface vertices.
     """
-    from tactip_sim.fem.pose import rotation
+    from tactip_sim.fem.contact.pose import rotation
 
     m = np.array([rotation(r, p)[:, 2] for r, p in zip(np.atleast_1d(roll_deg),
                                                        np.atleast_1d(pitch_deg), strict=True)])
@@ -295,8 +295,8 @@ def perceived(folder: Path, cache: Path, *, expected_count: int, rest: Path | No
     again."""
     from dataclasses import replace
 
-    from tactip_lab.fitting.fit import FEATURES
     from tactip_lab.fitting.bristol import BristolFolder, FrameTable, perceive_folder
+    from tactip_lab.fitting.fit import FEATURES
 
     f = BristolFolder.open(folder, rest=rest)
     if cache.is_file():
@@ -380,8 +380,8 @@ def run(scene: ts.Scene, out: str | Path, cfg: Sim2RealConfig, *, real: str | Pa
     """The whole sim-to-real run (module docstring); returns the summary written to
     ``out/summary.json``."""
     import perception as pc
-    from tactip_lab.fitting.fit import FEATURES, save_model
     from tactip_lab.fitting.bristol import BristolFolder, stored_features
+    from tactip_lab.fitting.fit import FEATURES, save_model
     from tactip_sim.scene.load import scene_hash
 
     cfg.check()

@@ -46,10 +46,10 @@ from tactip_lab.recognition.store import (
     FORMAT_VERSION,
     ContactDataset,
     ContactSet,
-    _readable,
     load_contacts,
 )
 from tactip_lab.sampling.chain import Chain, set_tag
+from tactip_lab.sampling.manifest import readable_zip
 
 MAX_ATTEMPTS = 8
 GEOMETRY_TOL_MM = 1e-6
@@ -234,8 +234,8 @@ def contact(chain: Chain, sim: ts.Simulator, spec: ContactSpec, index: int
             ) -> dict[str, Any]:
     """Compute contact ``index`` of ``spec`` through ``chain`` (``sim``: its
     :func:`object_simulator`): the record's fields."""
-    from tactip_sim.fem.contact import ContactError
-    from tactip_sim.fem.pose import PoseError
+    from tactip_sim.fem.contact.lcp import ContactError
+    from tactip_sim.fem.contact.pose import PoseError
 
     o, a, r = spec.unpack(index)
     obj = spec.library.objects[o]
@@ -351,7 +351,7 @@ def generate(spec: ContactSpec, out: str | Path, *, workers: int = 1,
             "seconds": time.perf_counter() - t0, "contact_seconds": contact_s}
     if len(ds.done()) < spec.n_contacts:
         return None, info
-    if not _readable(ds.root / "contacts.npz") or todo:  # missing or torn: rebuilt
+    if not readable_zip(ds.root / "contacts.npz") or todo:  # missing or torn: rebuilt
         ds.finalise(spec.n_contacts)
     return ds.load(), info
 

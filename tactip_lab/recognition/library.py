@@ -131,7 +131,7 @@ class ObjectSpec:
 
     def _build(self):
         from tactip_lab.recognition.object_indenters import BoundedMesh, Prism, Torus
-        from tactip_sim.fem.indenters import Cylinder, Edge, MeshIndenter, Plate, Sphere
+        from tactip_sim.fem.contact.indenters import Cylinder, Edge, MeshIndenter, Plate, Sphere
 
         p, k = self.params, self.kind
         if k == "plate":

@@ -1,9 +1,9 @@
-"""Rigid indenters for the object library that ``tactip_sim.fem.indenters`` does not provide:
-rounded prisms (any extruded outline, holes allowed), a torus and a mesh with a far-field
+"""Rigid indenters for the object library that ``tactip_sim.fem.contact.indenters`` does not
+provide: rounded prisms (any extruded outline, holes allowed), a torus and a mesh with a far-field
 bound. Each follows the FEM's indenter protocol (``lower_z``, ``sdf``, ``flat``; local frame,
 pushed along local -z): :meth:`tactip_sim.Simulator.press` takes them like its own.
 
-Why not meshes for everything: :class:`~tactip_sim.fem.indenters.MeshIndenter` tests every
+Why not meshes for everything: :class:`~tactip_sim.fem.contact.indenters.MeshIndenter` tests every
 pad node (about 2 000) against every face in each closest-point update, so a 200-480-face
 key, cup rim or torus took 0.5-1.6 s per press on this machine, and its sharp edges (the
 closest point jumping between two faces) left the closest-point updates oscillating (up to
@@ -255,7 +255,7 @@ class Torus:
 
 @dataclass(frozen=True, eq=False)
 class BoundedMesh:
-    """A :class:`~tactip_sim.fem.indenters.MeshIndenter` whose distant pad nodes get the
+    """A :class:`~tactip_sim.fem.contact.indenters.MeshIndenter` whose distant pad nodes get the
     distance to its bounding box (:data:`FAR_MM`) instead of a search over every face."""
 
     core: object

@@ -314,7 +314,7 @@ class Chain:
         index's state and the seconds its move took. Sequential: each pose's state depends on
         every move before it (with the tip as pivot the skin near it never slips, so the
         friction state is not forgotten)."""
-        from tactip_sim.fem.loadpath import interpolate, path_poses
+        from tactip_sim.fem.linear.loadpath import interpolate, path_poses
 
         sim = self.sim
         kw = {"pivot_mm": sim.tip_mm} if pivot == "tip" else {}

@@ -251,7 +251,7 @@ class MeshShape:
     def __post_init__(self) -> None:
         import trimesh
 
-        from tactip_sim.fem.indenters import MeshIndenter
+        from tactip_sim.fem.contact.indenters import MeshIndenter
 
         core = MeshIndenter(self.path)  # validates the file; works on a recentred copy
         tm = trimesh.load(self.path, force="mesh")

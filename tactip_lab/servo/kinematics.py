@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tactip_sim.fem.pose import rotation
+from tactip_sim.fem.contact.pose import rotation
 
 
 def rot_x(angle_deg: float) -> np.ndarray:
@@ -109,7 +109,7 @@ def pivot_offset(outer, candidates_mm: np.ndarray, rel: np.ndarray) -> tuple[flo
     """The ``Pose.offset_mm`` that puts an indenter's approach line through the analytic
     pad's outermost point along its approach axis.
 
-    ``tactip_sim.fem.indenters.place`` starts the approach line from the outermost
+    ``tactip_sim.fem.contact.indenters.place`` starts the approach line from the outermost
     discretisation node along the axis (``candidates_mm`` (s, 3), the simulator's contact
     candidates at rest), which jumps from node to node as the axis turns; this offset moves it
     to the continuous point :func:`pad_point_with_normal`, expressed in the indenter's x/y axes

@@ -53,8 +53,8 @@ def run_hand(fingers: list[Finger], params: ServoParams, *, on_frame: Any = None
     ``on_frame(k)`` is called after each frame (a progress bar). A pose the FEM refuses or a
     contact solve that fails ends that finger with outcome ``unreachable`` and the message.
     """
-    from tactip_sim.fem.contact import ContactError
-    from tactip_sim.fem.pose import PoseError
+    from tactip_sim.fem.contact.lcp import ContactError
+    from tactip_sim.fem.contact.pose import PoseError
 
     closing = math.ceil(params.max_closing_mm / (params.closing_speed_mm_s * params.dt)) + 2
     max_frames = (closing + round(params.squeeze_settle_s * params.frame_rate_hz)

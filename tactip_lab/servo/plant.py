@@ -181,7 +181,7 @@ class FingerPlant:
         """ValueError for a contact the finger cannot serve: one that needs a joint beyond
         its limit to align (a plate: known exactly), or that the pad cannot be pressed into
         at its closing posture."""
-        from tactip_sim.fem.pose import PoseError
+        from tactip_sim.fem.contact.pose import PoseError
 
         lim = self.params.joint_limit_deg
         if self.contact.kinematic_truth:
@@ -241,7 +241,7 @@ class FingerPlant:
 
         Raises
         ------
-        tactip_sim.fem.pose.PoseError
+        tactip_sim.fem.contact.pose.PoseError
             The pose cannot be pressed (e.g. too deep for the pad at this orientation).
         tactip_sim.ContactError
             The contact solve did not converge.

@@ -81,7 +81,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _indenter(args: argparse.Namespace, scene):
-    from ..fem import indenters as ind
+    from ..fem.contact import indenters as ind
 
     kind = args.indenter or scene.indenter.kind
     radius = scene.indenter.radius_mm if args.radius is None else args.radius
@@ -105,9 +105,9 @@ def _indenter(args: argparse.Namespace, scene):
 def _cmd_press(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ..fem.contact import ContactError
-    from ..fem.loadpath import check_friction, check_steps
-    from ..fem.pose import Pose
+    from ..fem.contact.lcp import ContactError
+    from ..fem.contact.pose import Pose
+    from ..fem.linear.loadpath import check_friction, check_steps
     from ..simulator import Simulator
 
     scene = load_scene_args(args)

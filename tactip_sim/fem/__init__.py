@@ -2,10 +2,10 @@
 frictionless rigid indenters, a reduced surface-compliance model for sweeps, a compressible
 neo-Hookean reference, and the pin-tip (marker) kinematics. See ``docs/fem.md``."""
 
-from .contact import ContactError, solve_lcp
-from .indenters import Cylinder, Edge, IndenterError, MeshIndenter, Plate, Sphere, place
-from .pose import Pose, PoseError
-from .state import ContactState
+from .contact.indenters import Cylinder, Edge, IndenterError, MeshIndenter, Plate, Sphere, place
+from .contact.lcp import ContactError, solve_lcp
+from .contact.pose import Pose, PoseError
+from .contact.state import ContactState
 from .tolerances import TOL, Tolerances
 
 RESULTS_VERSION = 2

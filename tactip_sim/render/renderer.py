@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ..fem.state import WINDOW_SLACK_MM
+from ..fem.contact.state import WINDOW_SLACK_MM
 from ..geometry import Pad, build_pad
 from ..llvm import import_mitsuba
 from ..optics.camera import Camera, outline_centroids

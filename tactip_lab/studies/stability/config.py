@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from tactip_sim.fem.state import WINDOW_SLACK_MM
+from tactip_sim.fem.contact.state import WINDOW_SLACK_MM
 
 # ---------------------------------------------------------------------------------------------
 # Failure thresholds (one home; the summary and the report quote them)
@@ -65,7 +65,7 @@ the step has already shrunk to a micrometre and the default budget crawls on for
 WINDOW_Z_MM = -WINDOW_SLACK_MM
 """Below this a pin tip has passed the window's face at sensor z = 0 (pin tips start
 ``pins.clearance_mm`` above it). A tip resting on the window, where a solver stops it, ends at
-z = 0 to round-off, so the line sits :data:`~tactip_sim.fem.state.WINDOW_SLACK_MM` (1e-6 mm)
+z = 0 to round-off, so the line sits :data:`~tactip_sim.fem.contact.state.WINDOW_SLACK_MM` (1e-6 mm)
 below the face, as ``ContactState.tips_below_window`` counts."""
 
 LINEAR_VS_NH_FAIL_PX = 0.5

@@ -1,4 +1,4 @@
-"""The neo-Hookean reference's tangent as 3x3 node blocks (:mod:`.neohookean`): its fixed
+"""The neo-Hookean reference's tangent as 3x3 node blocks (:mod:`.neohookean.solver`): its fixed
 sparsity pattern, assembly, changes of basis, eliminations and factorisation.
 """
 
@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .elasticity import Factor
-from .model import ElasticBody
-from .tolerances import factor_threads
+from ..linear.elasticity import Factor
+from ..linear.model import ElasticBody
+from ..tolerances import factor_threads
 
 __all__ = ["BlockPattern", "node_stiffness"]
 
@@ -19,7 +19,7 @@ class BlockPattern:
 
     Every element adds a full 3x3 block to each pair of its nodes: these node-pair blocks are
     the tangent's whole pattern. (The terms of the pins the window holds, which would couple
-    every pair of nodes a rod's base averages read, are kept out of it: :mod:`.nh_lowrank`.)
+    every pair of nodes a rod's base averages read, are kept out of it: :mod:`.neohookean.lowrank`.)
     Assembly is one ``bincount`` into the blocks; a change of basis at some nodes and the
     elimination of prescribed dofs act on the blocks in place, so the CSC pattern (and with
     it CHOLMOD's symbolic analysis) never changes between Newton iterations or active sets.

@@ -10,13 +10,13 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from ..geometry import Pad
-from ..mesh import TetMesh
-from ..scene import Scene
+from ...geometry import Pad
+from ...mesh import TetMesh
+from ...scene import Scene
+from ..discretisation.space import Space, build_space
+from ..markers.kinematics import Markers, build_markers
+from ..tolerances import TOL, Tolerances
 from .elasticity import Factor, element_moduli, stiffness
-from .markers import Markers, build_markers
-from .space import Space, build_space
-from .tolerances import TOL, Tolerances
 
 FEM_VERSION = 1  # bump when the discretisation or the cached quantities change
 log = logging.getLogger(__name__)

@@ -14,7 +14,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from ..mesh import TET_FACES, TetMesh
+from ...mesh import TET_FACES, TetMesh
+from ..tolerances import TOL
 from .elements import (
     TET_EDGES,
     barycentric_gradients,
@@ -22,7 +23,6 @@ from .elements import (
     shape_gradients,
     shape_values,
 )
-from .tolerances import TOL
 
 # HRZ-lumped nodal areas of a triangle (fractions of its area): the diagonal of the consistent
 # surface mass matrix scaled to the total. P2: vertices 6/180, edges 32/180 before scaling.
@@ -36,7 +36,7 @@ class Space:
     order : 1 (4-node tets) or 2 (10-node tets)
     nodes : (N, 3) float, mm, rest positions (vertices first, then edge midpoints for P2)
     elements : (m, 4 | 10) int32, node indices in the local order of
-        :mod:`tactip_sim.fem.elements`
+        :mod:`tactip_sim.fem.discretisation.elements`
     regions : (m,) int8, ``REGION_SKIN`` or ``REGION_GEL``
     n_vertices : number of mesh vertices (the first ``n_vertices`` nodes)
     fixed : (N,) bool, nodes on the window face z = 0 (clamped)
@@ -74,7 +74,7 @@ class Space:
     @cached_property
     def surface_triangles(self) -> tuple[np.ndarray, np.ndarray]:
         """The outer-surface triangles' corner geometry, computed once per space (every
-        pose's :func:`~tactip_sim.fem.resolution.local_edge_mm` reads it):
+        pose's :func:`~tactip_sim.fem.refinement.resolution.local_edge_mm` reads it):
 
         centroids : (f, 3) mm, mean of each triangle's three corners
         edges : (f, 3) mm, length of each corner edge (corner k to corner k - 1)

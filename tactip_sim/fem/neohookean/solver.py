@@ -18,7 +18,7 @@ pushed (``p > 0``) and takes in those that penetrate. ``u += alpha du`` with ``a
 until every ``J > 0``; it stops when the set repeats and the increment is below
 ``tol.geometry_mm``. The whole depth is tried in one load step, halved on failure and doubled
 again (up to the first) after :data:`GROW_AFTER` accepted ones; failure with
-``tol.max_load_steps`` steps raises :class:`~.contact.ContactError` naming the pose. Given a
+``tol.max_load_steps`` steps raises :class:`~.contact.lcp.ContactError` naming the pose. Given a
 guess of the answer (``initial``: a coarser mesh's or the P1 solve's, carried onto this
 space), Newton first goes to the whole depth from it, with the candidates within
 :data:`GUESS_TOUCH_MM` of the indenter in the contact set; the load steps from rest follow
@@ -28,12 +28,12 @@ An earlier version solved each iteration's linear contact problem with complianc
 the tangent (one solve per dof of every contact node): the same answers (1e-15 mm plate,
 1e-11 mm sphere, P1) at 4-5x the cost on P2 (docs/fem.md).
 
-**Friction** (:func:`neo_hookean_path`): a load path in steps, as :mod:`.loadpath` walks the
+**Friction** (:func:`neo_hookean_path`): a load path in steps, as :mod:`.linear.loadpath` walks the
 linear pad; each step is one Newton solve from the last step's state in which the contact
 nodes' tangential forces follow Coulomb's law by penalty regularisation and return mapping
-(:func:`.nh_friction.coulomb_return_mapping`; a stuck node stays within ``mu p / k`` of its
+(:func:`.neohookean.friction.coulomb_return_mapping`; a stuck node stays within ``mu p / k`` of its
 anchor, ``k`` = 1000 times its own stiffness). Regularised, not exact like the linear
-solver's stick (:mod:`.friction`): eliminating each stuck node's tangential dofs instead made
+solver's stick (:mod:`.linear.friction`): eliminating each stuck node's tangential dofs instead made
 the stick/slip sets cycle on the pad (a node's force jumps between the states); the penalty
 law is continuous across them. Steps whose Newton iteration fails are split. At ``mu = 0`` a
 path gives the frictionless press to solver precision.
@@ -48,16 +48,18 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from . import nh_stick
-from .contact import ContactError, ContactSolution
-from .elasticity import element_dofs
-from .elements import quadrature, shape_gradients
-from .friction import indenter_motion
-from .indenters import Placement
-from .markers import Markers
-from .model import ElasticBody
-from .nh_blocks import BlockPattern, node_stiffness
-from .nh_friction import (
+from ..contact.indenters import Placement
+from ..contact.lcp import ContactError, ContactSolution
+from ..contact.pose import Pose
+from ..discretisation.elements import quadrature, shape_gradients
+from ..linear.elasticity import element_dofs
+from ..linear.friction import indenter_motion
+from ..linear.model import ElasticBody
+from ..markers.kinematics import Markers
+from ..tolerances import TOL, Tolerances, single_threaded_blas
+from . import stick as nh_stick
+from .blocks import BlockPattern, node_stiffness
+from .friction import (
     PENALTY,
     SLIP_ROUNDS,
     PenaltyFriction,
@@ -66,11 +68,9 @@ from .nh_friction import (
     normal_basis,
     tangential_part,
 )
-from .nh_lowrank import LowRankSolve, PinTerms
-from .nh_stick import WindowStick, approach, lowest_heights, touched
-from .nh_tips import LinearisedWindow, RodTips, local_frames
-from .pose import Pose
-from .tolerances import TOL, Tolerances, single_threaded_blas
+from .lowrank import LowRankSolve, PinTerms
+from .stick import WindowStick, approach, lowest_heights, touched
+from .tips import LinearisedWindow, RodTips, local_frames
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class NeoHookeanResult:
     """The state a next friction load step starts from (None without friction)."""
     end_forces: np.ndarray | None = None
     """(p, n) mN, the window's force on each end point of each pin (the rims' vertices,
-    :attr:`~.markers.Markers.end_offsets`), whose sums are ``window_forces``."""
+    :attr:`~.markers.kinematics.Markers.end_offsets`), whose sums are ``window_forces``."""
     end_tangential: np.ndarray | None = None
     """(p, n, 2) mN, the window's friction force (x, y) on each end point (None when the
     window is frictionless)."""
@@ -113,7 +113,7 @@ class NeoHookeanHistory:
     pressures : (k,) mN, their normal forces
     tangential : (k, 3) mN, the tangential parts of their forces (sensor frame)
     window : (p n,) mN or None, the window's force on each end point of the pins
-        (:class:`~.nh_tips.RodTips`)
+        (:class:`~.neohookean.tips.RodTips`)
     window_friction : the window's hold on the stuck end points (forces, penalties, anchors),
         or None
     """
@@ -158,7 +158,7 @@ class NeoHookeanBody:
     def residual(self, u: np.ndarray, *, tangent: bool = False
                  ) -> tuple[np.ndarray, np.ndarray | None]:
         """Internal force (n_dofs,) mN and, if asked, the element tangents (m, nl, 3, nl, 3)
-        mN/mm (ordered as :func:`~.elasticity.element_dofs`).
+        mN/mm (ordered as :func:`~.linear.elasticity.element_dofs`).
 
         Raises FloatingPointError if an element is inverted (``J <= 0``)."""
         F, J = self.kinematics(u)
@@ -215,12 +215,12 @@ def solve_neo_hookean(body: ElasticBody, placement: Placement, depth_mm: float, 
         iteration like the indenter's gaps); None leaves the pins out of the solve
     window_stick : the pins' ends stick where they touch the window (else they slide on it
         freely): a load step in which an end first touches is shortened to
-        :data:`~.nh_stick.WINDOW_TOUCH_STEP_MM`, where it is anchored
-        (:class:`~.nh_stick.WindowStick`); between touches a stuck end is a spring to its
+        :data:`~.neohookean.stick.WINDOW_TOUCH_STEP_MM`, where it is anchored
+        (:class:`~.neohookean.stick.WindowStick`); between touches a stuck end is a spring to its
         anchor, so the other steps are as long as Newton converges
     initial : (n_dofs,) an estimate of the answer at ``depth_mm`` (a coarser mesh's solution
-        carried onto this one, :func:`~.refine.carried_field`): Newton first goes to the whole
-        depth from it in one step; if that fails, the load steps start from rest as without
+        carried onto this one, :func:`~.refinement.refine.carried_field`): Newton first goes to the
+        whole depth from it in one step; if that fails, the load steps start from rest as without
         it. Not with ``window_stick``, whose answer depends on the path (its anchors are where
         the ends touched on the way), so a single step from a guess would change it
 
@@ -252,13 +252,13 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
                      progress: Callable[[int], None] | None = None,
                      window_stick: bool = False) -> list[NeoHookeanResult]:
     """The neo-Hookean pad along a load path with Coulomb friction (the large-deformation
-    counterpart of :func:`~.loadpath.run_path`): one result per pose of ``poses`` (from
-    :func:`~.loadpath.path_poses`), each a load step from the last.
+    counterpart of :func:`~.linear.loadpath.run_path`): one result per pose of ``poses`` (from
+    :func:`~.linear.loadpath.path_poses`), each a load step from the last.
 
     A step's stick anchors are the indenter's material points the contact nodes sat on at
-    its start (as in :mod:`.friction`). A step whose Newton iteration fails is split in two
+    its start (as in :mod:`.linear.friction`). A step whose Newton iteration fails is split in two
     by the pose halfway (the path is then walked more finely, which friction may notice);
-    more than ``tol.max_load_steps`` splits in one path raise :class:`~.contact.ContactError`.
+    more than ``tol.max_load_steps`` splits in one path raise :class:`~.contact.lcp.ContactError`.
 
     Parameters
     ----------
@@ -286,7 +286,7 @@ def neo_hookean_path(body: ElasticBody, poses: list[Pose],
     ContactError
         Newton did not converge even after ``tol.max_load_steps`` splits.
     """
-    from .loadpath import check_in_contact, check_path, interpolate, touching
+    from ..linear.loadpath import check_in_contact, check_path, interpolate, touching
 
     mu = check_path(poses, mu)
     nh = NeoHookeanBody(body)
@@ -540,17 +540,17 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     is one sparse factorisation with a fixed pattern (CHOLMOD's symbolic analysis is reused).
     The contact pressures are the normal reactions. The pins' end points on the window
     (``tips``) obey the linearised ``z + C du >= 0`` with forces ``q >= 0``, solved on the
-    Schur complement ``C K^-1 C'`` (:class:`~.nh_tips.LinearisedWindow`, whose points enter
+    Schur complement ``C K^-1 C'`` (:class:`~.neohookean.tips.LinearisedWindow`, whose points enter
     and leave within the linearisation). The tangent's terms on the held pins (the window's
     curvature on the turned rods, the stabiliser, the springs of stuck ends) stay out of the
-    factor: a low-rank update of its solves (:mod:`.nh_lowrank`, 12 solves a held pin). The active
-    sets then keep the nodes and points pushed (``p > 0``, ``q > 0``) and take in those
+    factor: a low-rank update of its solves (:mod:`.neohookean.lowrank`, 12 solves a held pin). The
+    active sets then keep the nodes and points pushed (``p > 0``, ``q > 0``) and take in those
     that penetrate; the iteration stops when the sets repeat and the increment is below
     ``tol.geometry_mm``.
 
     With ``friction`` each contact node also carries a tangential force from its slip
     relative to its anchor (the indenter's material point it sat on at the step's start),
-    by :func:`~.nh_friction.coulomb_return_mapping`'s penalty law and return mapping, with
+    by :func:`~.neohookean.friction.coulomb_return_mapping`'s penalty law and return mapping, with
     that law's stiffness in the tangent. A slipping node's force ``mu p`` follows the normal
     force ``p`` it produces (a reaction): on each linearisation that is a fixed point, a few
     solves with the same factor, so the tangent stays symmetric and CHOLMOD still applies. It
@@ -560,8 +560,8 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
     tangential forces (k, 3) of the final contact nodes (None without friction).
 
     With ``window_stick`` the pins' end points held on the window stick where they touched it
-    (:class:`~.nh_stick.WindowStick`; ``window_t0`` their anchors and penalties at the step's
-    start). Returns last the window's hold at the end: forces, penalties, anchors (None
+    (:class:`~.neohookean.stick.WindowStick`; ``window_t0`` their anchors and penalties at the
+    step's start). Returns last the window's hold at the end: forces, penalties, anchors (None
     without).
 
     ``guess``, if given, is the first iterate instead of ``u0`` (the step's start state, which
@@ -631,7 +631,7 @@ def _newton(nh: NeoHookeanBody, placement: Placement, u0: np.ndarray, active0: n
             blocks = blocks.copy()
             blocks[pattern.diag[nodes_a]] += k_fric
             f_ext[nodes_a] = f_fric
-        # the tangent's terms on the held pins' base functionals (nh_lowrank): the springs
+        # the tangent's terms on the held pins' base functionals (lowrank): the springs
         # of the ends stuck along the window, the window's curvature, the stabiliser
         stuck = PinTerms.none() if wf is None else wf.linearise(u, held)
         pins = np.zeros(0, dtype=np.int64) if tips is None else np.unique(held // tips.per_pin)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .space import Space
+from ..discretisation.space import Space
 
 __all__ = ["ERROR_COEFF", "ERROR_POWER", "Resolution", "contact_resolution",
            "local_edge_mm", "predict_contact_radius"]
@@ -95,7 +95,7 @@ def predict_contact_radius(placement, *, samples: int = 64, reach_mm: float = 50
     the overlap's centre (a cylinder's half-width, not its length); ``reach_mm`` / sqrt(2) when
     the overlap reaches past ``reach_mm`` (a flat indenter).
 
-    placement : :class:`~tactip_sim.fem.indenters.Placement` of the pose
+    placement : :class:`~tactip_sim.fem.contact.indenters.Placement` of the pose
     """
     m = placement.approach
     e1 = np.cross(m, [1.0, 0.0, 0.0] if abs(m[0]) < 0.9 else [0.0, 1.0, 0.0])

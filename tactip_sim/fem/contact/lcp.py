@@ -27,8 +27,8 @@ import numpy as np
 import scipy.linalg as sla
 from scipy.optimize import nnls
 
+from ..tolerances import TOL, Tolerances
 from .indenters import Placement
-from .tolerances import TOL, Tolerances
 
 _POTRF, _POTRS = sla.get_lapack_funcs(("potrf", "potrs"), (np.zeros(1),))
 
@@ -61,7 +61,7 @@ def solve_lcp(G: np.ndarray, g0: np.ndarray, *, active: np.ndarray | None = None
     g : (k,) float, mm, gaps
     iterations : active-set iterations used (NNLS fallback adds the PDAS limit)
     """
-    from .contact_kernels import active_block  # compiled on first use (Numba)
+    from .lcp_kernels import active_block  # compiled on first use (Numba)
 
     k = len(g0)
     G = np.ascontiguousarray(G, dtype=np.float64)

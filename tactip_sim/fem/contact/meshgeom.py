@@ -1,5 +1,5 @@
 """Inside/outside of a closed triangle mesh by the generalised winding number, for
-:class:`~tactip_sim.fem.indenters.MeshIndenter`.
+:class:`~tactip_sim.fem.contact.indenters.MeshIndenter`.
 
 trimesh gives the indenter its closest points and ray casts; its inside test
 (``Trimesh.contains``, parity of ray hits) is not used: it called points 1e-9 mm inside the

@@ -1,8 +1,8 @@
-"""Coulomb friction in the neo-Hookean reference (:func:`.neohookean.neo_hookean_path`): the
+"""Coulomb friction in the neo-Hookean reference (:func:`.neohookean.solver.neo_hookean_path`): the
 penalty-regularised law with return mapping, and the contact nodes' local frames; the state
 of the pins' ends stuck on the window (:class:`WindowFrictionState`).
 
-Regularised, not exact like the linear solver's stick (:mod:`.friction`): eliminating each
+Regularised, not exact like the linear solver's stick (:mod:`.linear.friction`): eliminating each
 stuck node's tangential dofs made the stick/slip sets cycle on the pad (a node's force jumps
 between the states); the penalty law is continuous across them (docs/fem.md).
 """
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .indenters import Placement
+from ..contact.indenters import Placement
 
 __all__ = ["PENALTY", "SLIP_ROUNDS", "PenaltyFriction", "coulomb_return_mapping",
            "WindowFrictionState", "normal_basis", "tangential_part"]

@@ -4,14 +4,14 @@ Precompute, once per discretisation (cached on disk, keyed by the mesh content, 
 materials and candidate set)::
 
     C = E_s' K^-1 E_s      (3 s, 3 s) mm/mN, s = candidate nodes, 3 components each
-    R = M K^-1 E_s         (6 p, 3 s)       marker response (:class:`~.markers.Markers`)
+    R = M K^-1 E_s         (6 p, 3 s)       marker response (:class:`~.markers.kinematics.Markers`)
     Q = M K^-1 M'          (6 p, 6 p)       marker compliance (pins pressed by the window)
 
 by one partial Cholesky factorisation with the candidates ordered last
-(:func:`~.elasticity.schur_inverse`; blocked solves when CHOLMOD is absent), plus a cluster
+(:func:`~.linear.elasticity.schur_inverse`; blocked solves when CHOLMOD is absent), plus a cluster
 bound on the compliance between distant parts of the surface. A pose is then a small dense
 complementarity problem on the candidates near the indenter
-(:func:`~.contact.solve_contact`): the working set's block of ``C`` gives the forces, the rows
+(:func:`~.contact.lcp.solve_contact`): the working set's block of ``C`` gives the forces, the rows
 of the active nodes give the displacements of every vertex of the surface, and ``R`` gives the
 markers. Distant candidates are cleared by the bound without reading their compliance.
 
@@ -21,11 +21,11 @@ problem only needs the normal-normal compliance ``G_ij = n' C_ij n = n' S_ij n``
 ``j <= i`` are packed by rows once when the model is built (:func:`pack_symmetric_blocks`,
 (s (s + 1) / 2, 6), a third of ``C``'s size): one working-set block of ``G`` is then a gather
 of 48-byte records instead of three 24-byte pieces from three rows of ``C`` per node pair,
-weighted by the normal in the same compiled pass (:func:`~.reduced_kernels.normal_blocks`; a
+weighted by the normal in the same compiled pass (:func:`~.linear.reduced_kernels.normal_blocks`; a
 working set's own block is computed on one triangle and mirrored: exactly symmetric).
 Rows of ``C`` and ``R`` for the contact nodes are read where they lie, each scaled by its force
-and added in one compiled pass (:func:`~.reduced_kernels.weighted_rows`), rather than copied by
-fancy indexing.
+and added in one compiled pass (:func:`~.linear.reduced_kernels.weighted_rows`), rather than copied
+by fancy indexing.
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ import time
 
 import numpy as np
 
-from .. import cache
-from ..progress import clock
+from ... import cache
+from ...progress import clock
 from .elasticity import cholmod_available, schur_inverse
 from .model import ElasticBody
 
@@ -205,7 +205,7 @@ class ReducedModel:
         """Load (or compile) the compiled loops a press runs, on one candidate, so that the
         first press times its solve alone (their first call took ~0.7 s, measured
         2026-11-28, which the fidelity study had counted as the first pose's physics)."""
-        from .contact_kernels import active_block
+        from ..contact.lcp_kernels import active_block
 
         one = np.zeros(1, dtype=np.int64)
         self.normal_block(one, one, np.array([0.0, 0.0, 1.0]))
@@ -255,8 +255,8 @@ class ReducedModel:
 
         By symmetry of ``C`` the displacements are ``f' C[nodes, :]``: the rows of the loaded
         nodes, each scaled by its force and added in one compiled pass
-        (:func:`~.reduced_kernels.weighted_rows`), for the vertices; the few ``at`` nodes'
-        own rows of ``C`` against the forces (:func:`~.reduced_kernels.weighted_columns`).
+        (:func:`~.linear.reduced_kernels.weighted_rows`), for the vertices; the few ``at`` nodes'
+        own rows of ``C`` against the forces (:func:`~.linear.reduced_kernels.weighted_columns`).
         """
         s = len(self.clusters)
         out = np.full((s, 3), np.nan)
@@ -273,7 +273,7 @@ class ReducedModel:
     def at_nodes(self, nodes: np.ndarray, forces: np.ndarray) -> np.ndarray:
         """(w, 3) mm: displacements of the loaded candidates ``nodes`` themselves under their
         forces (w, 3) mN: ``C[dofs(nodes), dofs(nodes)] f``, each 3x3 block of ``C`` read once
-        (:func:`~.reduced_kernels.loaded_block_product`), without the surface's rows (what a
+        (:func:`~.linear.reduced_kernels.loaded_block_product`), without the surface's rows (what a
         caller that needs only the contact points reads; :meth:`surface` gives the same
         numbers there to round-off)."""
         from .reduced_kernels import loaded_block_product  # compiled on first use

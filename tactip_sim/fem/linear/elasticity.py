@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from ..mesh import REGION_SKIN
-from ..scene import Scene
-from .elements import quadrature, shape_gradients
-from .space import Space
+from ...mesh import REGION_SKIN
+from ...scene import Scene
+from ..discretisation.elements import quadrature, shape_gradients
+from ..discretisation.space import Space
 
 _CHUNK = 20_000  # elements assembled per vectorised batch (bounds the memory)
 

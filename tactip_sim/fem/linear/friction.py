@@ -13,7 +13,7 @@ tangents ``t_i`` at the node, the force ``f_i = p_i n_i + q_i`` (normal ``p_i``,
     p_i >= 0,  g_i >= 0,  p_i g_i = 0                          (normal contact)
     |q_i| <= mu p_i;  s_i = 0 (stick)  or  q_i = -mu p_i s_i/|s_i| (slip)   (Coulomb)
 
-with the gap ``g_i = g0_i + n_i . u_i`` linearised as in :mod:`.contact`.
+with the gap ``g_i = g0_i + n_i . u_i`` linearised as in :mod:`.contact.lcp`.
 
 :func:`solve_friction` solves it on a working set of candidates by an active set over three
 states per node, open / stick / slip, with the slip directions updated as a fixed point:
@@ -22,13 +22,13 @@ zero slip for every stuck node, ``|q| = mu p`` along the direction for every sli
 gives ``p`` and the stuck ``q``; then nodes with ``p <= 0`` open, open nodes that penetrate
 stick, stuck nodes whose ``|q|`` exceeds ``mu p`` slip along ``q``, slipping nodes whose slip
 turns against their force stick, and the others take ``-s/|s|`` as their new direction, until
-nothing changes. The working set grows as in :func:`~.contact.solve_contact` (candidates
+nothing changes. The working set grows as in :func:`~.contact.lcp.solve_contact` (candidates
 cleared by the operator's far-field bound are skipped) and curved indenters repeat it around
 the deformed positions. At ``mu = 0`` no node ever sticks and the system is the frictionless
-one (same answer as :func:`~.contact.solve_contact` to round-off; tested).
+one (same answer as :func:`~.contact.lcp.solve_contact` to round-off; tested).
 
 It needs the full 3x3 blocks of the compliance between candidates, which the reduced model
-holds (:class:`~.reduced.ReducedModel`): a step costs a few dense solves of the contact
+holds (:class:`~.linear.reduced.ReducedModel`): a step costs a few dense solves of the contact
 nodes' block, as a frictionless pose does.
 """
 
@@ -39,16 +39,16 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from .contact import (
+from ..contact.indenters import Placement
+from ..contact.lcp import (
     ComplianceOperator,
     ContactError,
     ContactSolution,
     closest_point_error,
     spread_forces,
 )
-from .indenters import Placement
-from .pose import Pose
-from .tolerances import TOL, Tolerances
+from ..contact.pose import Pose
+from ..tolerances import TOL, Tolerances
 
 OPEN, STICK, SLIP = 0, 1, 2
 # the active set stops when no slip direction moves the slip force by more than this fraction
@@ -74,13 +74,13 @@ class FrictionHistory:
     nodes : (k,) int, candidates carrying force
     forces : (k, 3) mN, force of the indenter on the pad at each, sensor frame
     extra_mm : (s, 3) mm or None, the candidates' displacement from other forces at the end
-        of the step (the window's push on the pins, :func:`~.window.friction_with_window`)
+        of the step (the window's push on the pins, :func:`~.linear.window.friction_with_window`)
     window_points : (P,) int or None, the pins' end points the window held at the end of the
-        step (flat indices, :func:`~.window.point_heights`)
+        step (flat indices, :func:`~.linear.window.point_heights`)
     window_forces : (P,) mN or None, the window's force on each of them (along +z)
     window_values : (6 p,) or None, the marker values then (the next step starts its
         pin-window iteration from these three)
-    pose : the pose the step ended at, or None (set by :func:`~.loadpath.run_path`, which
+    pose : the pose the step ended at, or None (set by :func:`~.linear.loadpath.run_path`, which
         splits a step that fails from it)
     """
 
@@ -126,8 +126,8 @@ class FrictionHistory:
 @dataclass(frozen=True)
 class UnilateralRows:
     """Frictionless unilateral constraints solved together with the indenter's contact (the
-    pins' end points on the window, :func:`~.window.friction_with_window`): ``P`` points whose
-    heights, linearised, are ``z = z0 + A q + B' f`` for forces ``q >= 0`` on them (along
+    pins' end points on the window, :func:`~.linear.window.friction_with_window`): ``P`` points
+    whose heights, linearised, are ``z = z0 + A q + B' f`` for forces ``q >= 0`` on them (along
     +z) and ``f`` on the candidates, with ``q >= 0, z >= 0, q z = 0``; the candidates move by
     ``B q`` (the same compliance read the other way: the matrix of both is symmetric).
 
@@ -154,10 +154,10 @@ class FrictionSolution:
     tangential : (k, 3) mN, tangential parts of the forces
     history : the state for the next step
     window : (p,) mN, the window's force on each pin tip, or None (the window not modelled:
-        :func:`~.window.friction_with_window` sets it)
+        :func:`~.linear.window.friction_with_window` sets it)
     values : (6 p,) the marker values with the window's forces, or None
     row_forces : (P,) mN, the forces on the :class:`UnilateralRows` points, or None
-    load_steps : the solves this step took (more than 1: :func:`~.loadpath.run_path` split
+    load_steps : the solves this step took (more than 1: :func:`~.linear.loadpath.run_path` split
         it after a solve that did not converge)
     """
 

@@ -1,15 +1,15 @@
 """A-posteriori estimate of each marker's discretisation error (rod pins).
 
 A rod's tip is its base's mean displacement plus the skin's mean rotation under its base over
-the pin's lever (:mod:`~tactip_sim.fem.markers`); on the pad's meshes the tips' error is that
-rotation's (docs/convergence.md: the roots alone converge first, the rotation over the 3 mm lever
-adds the rest). The estimate compares the solution's gradient with a recovered one
+the pin's lever (:mod:`~tactip_sim.fem.markers.kinematics`); on the pad's meshes the tips' error is
+that rotation's (docs/convergence.md: the roots alone converge first, the rotation over the 3 mm
+lever adds the rest). The estimate compares the solution's gradient with a recovered one
 (Zienkiewicz–Zhu): the skin's displacement gradient averaged at every mesh vertex over the skin
 tets that share it (volume-weighted) and interpolated linearly, a continuous field that is
 closer to the exact gradient than the discontinuous finite-element one where the mesh resolves
 the field. At the base weight's centroid in each skin element under the pin (weights ``w_k``,
 the element's share of the base) the difference's rotation part ``1/2 curl (grad u_h - G*)``
-is taken; the estimate is the lever (anchor to tip, :attr:`~.markers.Markers.levers_mm`)
+is taken; the estimate is the lever (anchor to tip, :attr:`~.markers.kinematics.Markers.levers_mm`)
 times its root mean square over the base:
 
     eta_i = |lever_i| * sqrt( sum_k w_k |1/2 curl (grad u_h - G*)(x_k)|^2 )
@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .markers import Markers
-from .space import Space, gradient_operator
+from ..discretisation.space import Space, gradient_operator
+from .kinematics import Markers
 
 __all__ = ["marker_error_estimate", "recovered_gradient", "stuck_marker_errors"]
 
@@ -46,7 +46,7 @@ def recovered_gradient(space: Space, u: np.ndarray, elements: np.ndarray) -> np.
     ``elements`` (one material's: the gradient jumps across a material interface): each
     element's gradient at the vertex, averaged over the elements that share it, weighted by
     their volumes. Vertices no listed element touches get zeros."""
-    from ..mesh.topology import tet_volumes
+    from ...mesh.topology import tet_volumes
 
     nv = space.n_vertices
     vert = space.elements[elements, :4]
@@ -99,7 +99,7 @@ def stuck_marker_errors(errors: np.ndarray, touch_states: dict[int, np.ndarray],
                         markers: Markers, space: Space, skin: np.ndarray) -> np.ndarray:
     """``errors`` (the markers' estimates at the solution) with those of the pins whose end is
     stuck on the window replaced by their estimate where the end was anchored
-    (``touch_states``, :attr:`~.neohookean.NeoHookeanResult.touch_states`): a stuck end
+    (``touch_states``, :attr:`~.neohookean.solver.NeoHookeanResult.touch_states`): a stuck end
     keeps its anchor, so its marker carries the error it had there (docs/fem.md, "The markers'
     error"; the end's tilt about its anchored points after the touch is left out). At the
     solution the skin under a held pin's base carries the rod's push, whose gradient jumps

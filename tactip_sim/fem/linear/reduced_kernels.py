@@ -1,7 +1,7 @@
-"""Compiled loops (Numba) of :mod:`tactip_sim.fem.reduced`: gathering blocks of the packed
+"""Compiled loops (Numba) of :mod:`tactip_sim.fem.linear.reduced`: gathering blocks of the packed
 symmetric compliance.
 
-Imported on first use by :meth:`tactip_sim.fem.reduced.ReducedModel.normal_block`, never when
+Imported on first use by :meth:`tactip_sim.fem.linear.reduced.ReducedModel.normal_block`, never when
 the package is imported (``import tactip_sim`` does not load Numba). Cached on disk
 (``cache=True``), so a new process loads the compiled code instead of compiling again.
 ``nogil=True``: Dask worker threads can press several poses at once.
@@ -19,7 +19,7 @@ __all__ = ["loaded_block_product", "normal_blocks", "weighted_columns", "weighte
 def normal_blocks(packed, row_start, rows, cols, weights, same):  # pragma: no cover - compiled
     """(r, c) float64 ``G_ab = w . S_ij`` for candidates ``i = rows[a]``, ``j = cols[b]``: the
     packed symmetric blocks (``packed[row_start[max(i, j)] + min(i, j)]``,
-    :func:`tactip_sim.fem.reduced.pack_symmetric_blocks`) against the six ``weights`` of a
+    :func:`tactip_sim.fem.linear.reduced.pack_symmetric_blocks`) against the six ``weights`` of a
     normal, summed in their order. ``same``: ``rows`` and ``cols`` are one array, so only the
     lower triangle is computed and mirrored (``G`` is then exactly symmetric; ``S_ji = S_ij``).
 

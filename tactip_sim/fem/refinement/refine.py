@@ -1,6 +1,6 @@
 """Refinement where the contact is (``fidelity.contact_refinement = "auto"``): before a solve,
 the contact's radius is predicted from the geometry and the error it would have on the scene's
-mesh is estimated (:mod:`~tactip_sim.fem.resolution`); if that exceeds
+mesh is estimated (:mod:`~tactip_sim.fem.refinement.resolution`); if that exceeds
 ``fidelity.contact_tolerance``, the pose is solved instead on the mesh refined around the
 contact (:func:`~tactip_sim.mesh.local.refined_mesh`, full solver), one level finer again if
 the solved contact's own estimate still exceeds the tolerance.
@@ -10,7 +10,7 @@ is rounded to half that edge, so nearby presses of similar size share a mesh; re
 are cached on disk and the last few refined simulators (with their factorisations) in memory.
 
 Refinement around the pins (``fidelity.pin_refinement = "auto"``, :class:`PinRefiner`): after
-a full-field solve, each marker's error is estimated (:mod:`~tactip_sim.fem.marker_error`); if
+a full-field solve, each marker's error is estimated (:mod:`~tactip_sim.fem.markers.error`); if
 any exceeds ``fidelity.marker_tolerance_mm``, the pose is solved again on the mesh refined
 around those pins' roots, and again while the refined solve's own estimate still exceeds it
 (a pin newly above it joins the set; one refined already is meshed finer, the others stay).
@@ -91,8 +91,8 @@ class ContactRefiner:
 
     def child(self, edge_mm: float, centre_mm: tuple[float, float], radius_mm: float):
         """The simulator on the mesh refined to ``edge_mm`` in the zone (built or reused)."""
-        from ..mesh.local import Refinement, refined_mesh
-        from ..scene import replace_in
+        from ...mesh.local import Refinement, refined_mesh
+        from ...scene import replace_in
 
         key = (edge_mm, centre_mm, radius_mm)
         if key in self._children:
@@ -145,9 +145,9 @@ def carried_field(space, field: np.ndarray, onto) -> np.ndarray:
     (n_vertices, 3), interpolated linearly. A point just outside ``space`` (where a refined
     mesh was snapped onto a curved surface) takes its nearest element's value, clipped to it;
     the clamped nodes stay at 0. A coarser solution carried onto a refined mesh: the refined
-    neo-Hookean solve's first iterate (:func:`~.neohookean.solve_neo_hookean`'s ``initial``).
+    neo-Hookean solve's first iterate (:func:`~.neohookean.solver.solve_neo_hookean`'s ``initial``).
     """
-    from .space import interpolation_operator, locate
+    from ..discretisation.space import interpolation_operator, locate
 
     f = np.asarray(field, dtype=float)
     whole = f.shape == (space.n_dofs,)
@@ -165,7 +165,7 @@ def carried_field(space, field: np.ndarray, onto) -> np.ndarray:
 
 class PinRefiner:
     """Solves poses again on meshes refined around the pins whose estimated marker error
-    exceeds ``fidelity.marker_tolerance_mm`` (:mod:`~tactip_sim.fem.marker_error`), for one
+    exceeds ``fidelity.marker_tolerance_mm`` (:mod:`~tactip_sim.fem.markers.error`), for one
     :class:`Simulator` (``sim``); ``make`` builds the refined simulators."""
 
     def __init__(self, sim, make) -> None:
@@ -176,8 +176,8 @@ class PinRefiner:
     def child(self, edges: dict[int, float]):
         """The simulator on the mesh refined around the pins of ``edges`` (pin -> largest edge
         within :data:`PIN_RADIUS_MM` of its root)."""
-        from ..mesh.local import Refinement, refined_mesh
-        from ..scene import replace_in
+        from ...mesh.local import Refinement, refined_mesh
+        from ...scene import replace_in
 
         key = tuple(sorted(edges.items()))
         if key in self._children:

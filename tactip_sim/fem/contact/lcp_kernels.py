@@ -1,7 +1,7 @@
-"""Compiled loop (Numba) of :mod:`tactip_sim.fem.contact`: the active block of a compliance
+"""Compiled loop (Numba) of :mod:`tactip_sim.fem.contact.lcp`: the active block of a compliance
 matrix, gathered in LAPACK's (column-major) order.
 
-Imported on first use by :func:`tactip_sim.fem.contact.solve_lcp`, never when the package is
+Imported on first use by :func:`tactip_sim.fem.contact.lcp.solve_lcp`, never when the package is
 imported. Cached on disk (``cache=True``); ``nogil=True`` for Dask worker threads.
 """
 

@@ -9,7 +9,7 @@ the local origin, and it provides
 * ``sdf(q)``: the signed distance (mm, > 0 outside) of local points and its gradient, the unit
   outward normal at the closest surface point -- the contact gap and its direction.
 
-:func:`place` turns an indenter and a :class:`~tactip_sim.fem.pose.Pose` into a
+:func:`place` turns an indenter and a :class:`~tactip_sim.fem.contact.pose.Pose` into a
 :class:`Placement` in the sensor frame.
 """
 
@@ -174,8 +174,8 @@ class MeshIndenter:
     The mesh is used in its own axes, translated so that the centre of its bounding box's lowest
     face is the local origin (so its lowest point along local z is at z = 0). Closest points
     and the vertical ray casts are trimesh's; inside/outside is the generalised winding number
-    (:func:`~tactip_sim.fem.meshgeom.winding_number`: ``trimesh.Trimesh.contains`` calls points
-    a nanometre inside the surface outside, where contact needs the side right).
+    (:func:`~tactip_sim.fem.contact.meshgeom.winding_number`: ``trimesh.Trimesh.contains`` calls
+    points a nanometre inside the surface outside, where contact needs the side right).
     """
 
     mesh: object

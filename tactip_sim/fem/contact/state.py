@@ -53,25 +53,25 @@ class ContactState:
     window_forces_N : (p,) force of the window on each pin's end (N, along +z; the sum over
         its rim's points); NaN where the solver does not model the pins stopping at the
         window (the reduced solve with a flat
-        indenter does, :mod:`~tactip_sim.fem.window`, and the neo-Hookean solve with any
+        indenter does, :mod:`~tactip_sim.fem.linear.window`, and the neo-Hookean solve with any
         indenter; the full solver and curved indenters in the reduced solve do not), so tips
         may then pass below it
     error_estimate : estimated relative discretisation error of the force, from the contact's
-        radius against the node spacing where it is (:mod:`~tactip_sim.fem.resolution`;
+        radius against the node spacing where it is (:mod:`~tactip_sim.fem.refinement.resolution`;
         0 without contact)
     node_spacing_mm : that node spacing (NaN without contact)
     refined_edge_mm : largest edge of the zone the mesh was refined to around this contact
         (``fidelity.contact_refinement = "auto"``); 0 when solved on the scene's mesh
     marker_errors_mm : (p,) estimated discretisation error of each marker (mm,
-        :mod:`~tactip_sim.fem.marker_error`), or ``None`` where the solve formed no full field
+        :mod:`~tactip_sim.fem.markers.error`), or ``None`` where the solve formed no full field
         (the reduced solver without ``full_field``) or the pins are not rods with a base
     refined_pins : pins around whose roots the mesh was refined for this solve
         (``fidelity.pin_refinement = "auto"``); empty when solved on the scene's mesh
     pin_edge_mm : largest edge of the finest zone around those pins (0 when none was refined)
     field_mm : (n_dofs,) a neo-Hookean press's whole displacement field, node-major (P2:
         the edge nodes' too), what a refined solve starts from
-        (:func:`~tactip_sim.fem.refine.carried_field`); ``None`` for the linear solvers and
-        load paths
+        (:func:`~tactip_sim.fem.refinement.refine.carried_field`); ``None`` for the linear solvers
+        and load paths
     """
 
     pose: Pose

@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .nh_friction import PENALTY, WindowFrictionState
-from .nh_lowrank import PinTerms
-from .nh_tips import RodTips, local_frames
+from .friction import PENALTY, WindowFrictionState
+from .lowrank import PinTerms
+from .tips import RodTips, local_frames
 
 __all__ = ["ON_WINDOW_MM", "WINDOW_TOUCH_STEP_MM", "WindowStick", "approach", "lowest_heights",
            "touched"]
@@ -22,24 +22,24 @@ __all__ = ["ON_WINDOW_MM", "WINDOW_TOUCH_STEP_MM", "WindowStick", "approach", "l
 WINDOW_TOUCH_STEP_MM = 1 / 256
 ON_WINDOW_MM = 1e-5
 """An end point this close to the window (mm) at a step's end is on it (the held points end
-within :data:`~.window.HELD_TOL_MM` of it), and keeps or gets its anchor."""
+within :data:`~.linear.window.HELD_TOL_MM` of it), and keeps or gets its anchor."""
 
 
 class WindowStick:
     """The pins' end points held on the window stick where they touched it
     (``window.pin_friction = "stick"``): each is tied to its anchor by a penalty spring along
     the window (``t = -k (x - anchor)``), as the indenter's stuck nodes are
-    (:mod:`.nh_friction`), while the window's normal force stays unilateral. A point that
+    (:mod:`.neohookean.friction`), while the window's normal force stays unilateral. A point that
     reaches the window during a load step slides freely until the step's end, where it is
     anchored (:meth:`state`); a load step in which an end first touches is kept short
     (:data:`WINDOW_TOUCH_STEP_MM`), so that is where it touched, to within that step's motion,
     whatever path the Newton iterates took. A point that leaves the window is let go. With
     its anchor fixed, a stuck end is a spring, so between touches the answer does not depend
     on the path. The points' positions along the window and their Jacobian come from
-    :class:`~.nh_tips.RodTips`; the springs' stiffness enters the tangent (without the term of
-    the rod's turn: a modified Newton step).
+    :class:`~.neohookean.tips.RodTips`; the springs' stiffness enters the tangent (without the term
+    of the rod's turn: a modified Newton step).
 
-    A pin's penalty is :data:`~.nh_friction.PENALTY` over the compliance along the window of
+    A pin's penalty is :data:`~.neohookean.friction.PENALTY` over the compliance along the window of
     its end's first anchored point (the mean of the x and y diagonal of ``J K^-1 J'``, with
     the factor of the first iteration that holds it, :meth:`learn`), so a stuck end stays
     within 1e-3 of the slip its own compliance would allow it; until then it carries no

@@ -7,15 +7,17 @@ its cap no wider; the end's thickness is part of the rod's length), so a tilted 
 window with its rim, up to ``r |a_xy|`` below its tip (``a`` the rod's unit axis, ``r`` the
 end's radius), not with the cap's centre; a rod pushed on further turns until its end lies flat
 on the window, where the end can carry a moment. The end is the polygon of its rim's
-:data:`~.markers.END_ANGLES` vertices (:attr:`~.markers.Markers.end_offsets`; between vertices
-the circle is at most 1.2e-3 ``r |a_xy|`` lower): each vertex ``k`` of pin ``j`` is a point of
-the rod and carries a force ``q_jk >= 0`` from the window along +z, with the complementarity
+:data:`~.markers.kinematics.END_ANGLES` vertices
+(:attr:`~.markers.kinematics.Markers.end_offsets`; between vertices the circle is at most
+1.2e-3 ``r |a_xy|`` lower): each vertex ``k`` of pin ``j`` is a point of the rod and carries a
+force ``q_jk >= 0`` from the window along +z, with the complementarity
 ``q_jk >= 0, z_jk >= 0, q_jk z_jk = 0``. Embedded tips (material points of the gel) meet the
 window with the tip alone.
 
-A point's height is a function of its pin's marker values ``v`` (:class:`~.markers.Markers`:
-for a rigid rod ``z = z_root + v_z + (R(w) m_k)_z``, ``m_k`` the point's rest offset from the
-root); around the current ``v`` it is linearised, ``z ~ z(v_k) + J (v - v_k)``, and a force
+A point's height is a function of its pin's marker values ``v``
+(:class:`~.markers.kinematics.Markers`: for a rigid rod ``z = z_root + v_z + (R(w) m_k)_z``,
+``m_k`` the point's rest offset from the root); around the current ``v`` it is linearised,
+``z ~ z(v_k) + J (v - v_k)``, and a force
 ``q`` at the points is the generalised force ``J' q`` on the marker values. With the reduced
 model's marker response ``R`` (``v`` per unit candidate force; by reciprocity ``R'`` is the
 candidates' displacement per unit generalised marker force) and marker compliance
@@ -25,7 +27,7 @@ forces ``q`` on the points P solve one symmetric LCP::
     [g_W]   [g0_W]   [ G_WW    H   ] [p]        G = n' C n          (plate normal n)
     [z_P] = [z0_P] + [ H'   J Q J' ] [q],       H = n' R' J'
 
-which :func:`~.contact.solve_lcp` solves (the matrix is the compliance of the body for the
+which :func:`~.contact.lcp.solve_lcp` solves (the matrix is the compliance of the body for the
 two kinds of force, so it is symmetric positive semi-definite; more than three points of one
 flat end make ``J Q J'`` singular, so their diagonal gets :data:`END_COMPLIANCE`, a contact
 compliance that moves a point by 1e-9 mm per newton). Candidates that the pins' push
@@ -45,9 +47,9 @@ import dataclasses
 
 import numpy as np
 
-from .contact import ContactError, ContactSolution, solve_lcp
-from .markers import END_ANGLES, Markers, rodrigues
-from .tolerances import TOL, Tolerances
+from ..contact.lcp import ContactError, ContactSolution, solve_lcp
+from ..markers.kinematics import END_ANGLES, Markers, rodrigues
+from ..tolerances import TOL, Tolerances
 
 WINDOW_Z_MM = 0.0
 """The window's inner face (the gel/acrylic interface) in the sensor frame."""
@@ -75,7 +77,7 @@ times stiffer than the gel, is not modelled."""
 _MAX_ROUNDS = 3 * END_ANGLES
 """Rounds of adding candidates and end points that the last solve left penetrating: a pin
 gains one point a round, so a flat end settling onto the window takes up to
-:data:`~.markers.END_ANGLES` rounds (50 stopped the realistic rig's walk at roll 8.3 deg,
+:data:`~.markers.kinematics.END_ANGLES` rounds (50 stopped the realistic rig's walk at roll 8.3 deg,
 pitch -10.9 deg, 2.15 mm, docs/rig.md)."""
 
 
@@ -150,9 +152,9 @@ def stop_at_window(model, markers: Markers, placement, rest_mm: np.ndarray,
 
     Parameters
     ----------
-    model : the :class:`~.reduced.ReducedModel` (with ``marker_compliance``)
+    model : the :class:`~.linear.reduced.ReducedModel` (with ``marker_compliance``)
     markers : the pins' kinematics
-    placement : the placed flat indenter (:class:`~.indenters.Placement`)
+    placement : the placed flat indenter (:class:`~.contact.indenters.Placement`)
     rest_mm : (s, 3) candidate rest positions
     sol : the indenter-only solution
 
@@ -346,7 +348,7 @@ def _point_compliance(model, markers: Markers, jac: np.ndarray, points: np.ndarr
 
 def _rows(model, markers: Markers, values: np.ndarray, points: np.ndarray, s: int,
           start: np.ndarray):
-    """The :class:`~.friction.UnilateralRows` of end points ``points`` with the rods
+    """The :class:`~.linear.friction.UnilateralRows` of end points ``points`` with the rods
     linearised at marker values ``values``, and the points' generalised-force columns
     ``(6 p, P)`` (``J'``)."""
     from .friction import UnilateralRows
@@ -363,9 +365,9 @@ def _rows(model, markers: Markers, values: np.ndarray, points: np.ndarray, s: in
 
 def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray, *,
                          mu: float, history, label: str = "", tol: Tolerances = TOL):
-    """One load step with Coulomb friction (:func:`~.friction.solve_friction`) whose pins
+    """One load step with Coulomb friction (:func:`~.linear.friction.solve_friction`) whose pins
     stop at the window, solved at once: the rods' end points that reach the window are
-    frictionless unilateral rows of the friction solve (:class:`~.friction.UnilateralRows`:
+    frictionless unilateral rows of the friction solve (:class:`~.linear.friction.UnilateralRows`:
     their heights linearised in the marker values, which the plate's forces and theirs move
     through the pad's compliance), so one semi-smooth Newton iteration settles the plate's
     stick, slip and pressures and the window's forces together. Around it, as in
@@ -377,7 +379,7 @@ def friction_with_window(model, markers: Markers, placement, rest_mm: np.ndarray
 
     Returns
     -------
-    solution : the :class:`~.friction.FrictionSolution` with ``window`` (p,) mN, the window's
+    solution : the :class:`~.linear.friction.FrictionSolution` with ``window`` (p,) mN, the window's
         force on each tip, and ``values`` (6 p,), the marker values; its history carries the
         window's displacement of the candidates, its points and the values to the next step
 

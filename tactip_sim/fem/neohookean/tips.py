@@ -1,12 +1,13 @@
 """The pins' ends of the neo-Hookean reference against the window: their heights under finite
-kinematics and the derivatives its Newton iteration needs (:mod:`.neohookean`).
+kinematics and the derivatives its Newton iteration needs (:mod:`.neohookean.solver`).
 
 A rod turns with the polar rotation of the skin's deformation gradient at its base
-(:meth:`~.markers.Markers.from_field` with ``finite=True``); the points of its end that meet
-the window are its flat end's rim vertices (:attr:`~.markers.Markers.end_offsets`, as in
-:mod:`.window`), points of the rod. A point held on the window couples every node that its
-rod's base averages read; those terms of the tangent are kept on the pin's 12 base functionals
-(:class:`~.nh_lowrank.PinTerms`) and added to the factor's solves (:mod:`.nh_lowrank`).
+(:meth:`~.markers.kinematics.Markers.from_field` with ``finite=True``); the points of its end that
+meet the window are its flat end's rim vertices (:attr:`~.markers.kinematics.Markers.end_offsets`,
+as in :mod:`.linear.window`), points of the rod. A point held on the window couples every node that
+its rod's base averages read; those terms of the tangent are kept on the pin's 12 base functionals
+(:class:`~.neohookean.lowrank.PinTerms`) and added to the factor's solves
+(:mod:`.neohookean.lowrank`).
 """
 
 from __future__ import annotations
@@ -14,10 +15,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .contact import solve_lcp
-from .markers import Markers
-from .nh_lowrank import BASE_ROWS, PinTerms
-from .window import END_COMPLIANCE, WINDOW_Z_MM, entering_points, pin_forces
+from ..contact.lcp import solve_lcp
+from ..linear.window import END_COMPLIANCE, WINDOW_Z_MM, entering_points, pin_forces
+from ..markers.kinematics import Markers
+from .lowrank import BASE_ROWS, PinTerms
 
 __all__ = ["LinearisedWindow", "RodTips", "local_frames", "point_height_gradient",
            "point_position_gradient"]
@@ -26,7 +27,7 @@ __all__ = ["LinearisedWindow", "RodTips", "local_frames", "point_height_gradient
 class RodTips:
     """The heights above the window's inner face of the pins' end points under finite
     kinematics (the rods turned by the polar decomposition of ``F``, as
-    :meth:`~.markers.Markers.from_field` with ``finite=True``) and their derivatives with
+    :meth:`~.markers.kinematics.Markers.from_field` with ``finite=True``) and their derivatives with
     respect to the nodal displacements. Points are numbered ``j n + k`` (pin ``j``, its end
     point ``k`` of ``n``); :attr:`count` is their number."""
 
@@ -89,7 +90,7 @@ class RodTips:
         return (mix @ self.base).tocsr()
 
     def base_rows(self, pins: np.ndarray) -> sp.csr_matrix:
-        """(12 len(pins), n_dofs) the base functionals of ``pins`` (:data:`~.nh_lowrank.
+        """(12 len(pins), n_dofs) the base functionals of ``pins`` (:data:`~.neohookean.lowrank.
         BASE_ROWS` a pin: its root's (tip's) z, x, y and its 9 mean-gradient rows), which
         every derivative of its end points' positions combines."""
         pins = np.asarray(pins, dtype=np.int64)
@@ -120,7 +121,7 @@ class RodTips:
         return pin_forces(self.markers, window)
 
     def end_compliance(self, rows: np.ndarray) -> np.ndarray:
-        """(len(rows),) mm/mN for the Schur complement's diagonal: :data:`~.window.
+        """(len(rows),) mm/mN for the Schur complement's diagonal: :data:`~.linear.window.
         END_COMPLIANCE` at the points of pins with more than three held (a flat end lying on
         the window, whose points' rows are dependent), 0 elsewhere."""
         pin = np.asarray(rows, dtype=np.int64) // self.per_pin
@@ -212,7 +213,7 @@ class LinearisedWindow:
     ``K`` factorised as ``solve``, in the nodes' local bases with the dofs ``fixed``
     (n_nodes, 3) prescribed). ``base`` holds the base functionals (:meth:`RodTips.base_rows`)
     of the pins that have a point in ``held``, in those local bases, and ``solve`` is
-    :meth:`~.nh_lowrank.LowRankSolve.with_terms`' solver on them, whose ``basis`` gives
+    :meth:`~.neohookean.lowrank.LowRankSolve.with_terms`' solver on them, whose ``basis`` gives
     ``K^-1 B'`` without further solves.
 
     Every end point of the pins that have a point in ``held`` is a candidate, and the
@@ -220,7 +221,7 @@ class LinearisedWindow:
     4 a rod): ``C = M B``. So the Schur complement of any set of those points,
     ``M_H (B K^-1 B') M_H'``, costs no solve beyond the low-rank update's however many of
     its points lie on the window (a flat end has 64), and the points can be taken in and let
-    go within the linearisation, as :func:`~.window.stop_at_window` does on the reduced
+    go within the linearisation, as :func:`~.linear.window.stop_at_window` does on the reduced
     model: the held points' forces solve an LCP, and each pin's lowest point that the answer
     leaves below ``-tol`` joins them, until none does. Points of other pins enter at the next
     iterate.

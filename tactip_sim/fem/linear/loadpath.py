@@ -1,7 +1,7 @@
 """Load paths: how the indenter reaches a pose, in steps, with friction's history carried.
 
 Without friction the pad's answer at a pose does not depend on how the indenter got there;
-with Coulomb friction it does (:mod:`.friction`). Two paths are built here:
+with Coulomb friction it does (:mod:`.linear.friction`). Two paths are built here:
 
 * **tap**: straight in along the pose's approach axis, from first contact (depth 0) to the
   pose's depth in ``steps`` equal steps;
@@ -9,8 +9,8 @@ with Coulomb friction it does (:mod:`.friction`). Two paths are built here:
   it): a tap to the ``start`` pose, then the pose's roll, pitch, yaw, offset and depth
   interpolated linearly from ``start`` to the target in ``steps`` more steps.
 
-Each step is one :func:`~.friction.solve_friction` from the previous step's
-:class:`~.friction.FrictionHistory` (the stick anchors: the indenter's material points the
+Each step is one :func:`~.linear.friction.solve_friction` from the previous step's
+:class:`~.linear.friction.FrictionHistory` (the stick anchors: the indenter's material points the
 contact nodes were at). A path that loses contact after its first step is refused: the
 anchors would be lost and the "in contact" path would be a different one.
 """
@@ -22,12 +22,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .contact import ComplianceOperator, ContactError
+from ..contact.indenters import Placement
+from ..contact.lcp import ComplianceOperator, ContactError
+from ..contact.pose import Pose
+from ..markers.kinematics import Markers
+from ..tolerances import TOL, Tolerances
 from .friction import FrictionHistory, FrictionSolution, solve_friction
-from .indenters import Placement
-from .markers import Markers
-from .pose import Pose
-from .tolerances import TOL, Tolerances
 from .window import friction_with_window
 
 MAX_STEPS = 10_000
@@ -166,7 +166,7 @@ def run_path(poses: list[Pose], placer: Callable[[Pose], Placement], rest_mm: np
     operator : their compliance
     mu : friction coefficient in [0, 10]
     progress : called with the number of steps done after each
-    markers : the pins, to stop them at the window (:func:`~.window.friction_with_window`;
+    markers : the pins, to stop them at the window (:func:`~.linear.window.friction_with_window`;
         needs the reduced model's marker compliance); None: the window is not modelled
 
     Raises

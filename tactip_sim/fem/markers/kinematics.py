@@ -33,10 +33,16 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from ..geometry import Pad
-from ..mesh import REGION_SKIN
-from .elements import quadrature, shape_values
-from .space import Space, element_rows, gradient_operator, interpolation_operator, locate
+from ...geometry import Pad
+from ...mesh import REGION_SKIN
+from ..discretisation.elements import quadrature, shape_values
+from ..discretisation.space import (
+    Space,
+    element_rows,
+    gradient_operator,
+    interpolation_operator,
+    locate,
+)
 
 END_ANGLES = 64
 """Vertices of the polygon that stands for a rod's flat end where it meets the window: the true
@@ -71,7 +77,7 @@ class Markers:
     base_elements, base_lam, base_weights : (p, k) the skin elements each rod's base weight
         touches, (p, k, 4) the weight's centroid in each (barycentric) and (p, k) each one's
         share (summing to 1 per pin; zero-weight padding) (rods averaged over a base; ``None``
-        otherwise): what :func:`~tactip_sim.fem.marker_error.marker_error_estimate` reads
+        otherwise): what :func:`~tactip_sim.fem.markers.error.marker_error_estimate` reads
     """
 
     model: str
@@ -222,8 +228,8 @@ def _split(v: np.ndarray) -> list[tuple[np.ndarray, float]]:
 @functools.cache
 def _subtet_rule(levels: int) -> tuple[np.ndarray, np.ndarray]:
     """Barycentric points (q, 4) and weights (q,) (summing to 1) of the degree-2 rule
-    (:func:`~.elements.quadrature`) on each tet of ``levels`` successive splits of a tet
-    (:func:`_split`: 12 tets a level, each about half its parent's size). The point set is
+    (:func:`~.discretisation.elements.quadrature`) on each tet of ``levels`` successive splits of a
+    tet (:func:`_split`: 12 tets a level, each about half its parent's size). The point set is
     the same whatever the order of the tet's corners."""
     tets = [(np.eye(4), 1.0)]
     for _ in range(levels):

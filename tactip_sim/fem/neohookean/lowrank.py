@@ -1,9 +1,10 @@
-"""The neo-Hookean tangent's terms that live on the pins the window holds (:mod:`.neohookean`),
-kept out of the sparse factor and added to its solves as a low-rank update.
+"""The neo-Hookean tangent's terms that live on the pins the window holds
+(:mod:`.neohookean.solver`), kept out of the sparse factor and added to its solves as a low-rank
+update.
 
 Each such term (the window's curvature on a turned rod, the stabiliser, the springs that hold a
 stuck end along the window) is ``B' S B``: ``B`` a held pin's 12 base functionals (its root's
-z, x, y and its 9 mean-gradient rows, :meth:`~.nh_tips.RodTips.base_rows`) and ``S`` a 12x12
+z, x, y and its 9 mean-gradient rows, :meth:`~.neohookean.tips.RodTips.base_rows`) and ``S`` a 12x12
 symmetric matrix a pin (:class:`PinTerms`). Added to the sparse tangent they would couple every
 pair of nodes a rod's base averages read: a dense block of ~1 200 nodes a rod where the mesh is
 refined around it, whose fill ran the factor out of memory (docs/fem.md, "Markers"). Instead
