@@ -402,8 +402,9 @@ def test_quick_study_of_the_whole_library(tmp_path):
 def test_a_torn_contacts_file_is_named_and_rebuilt_from_the_records(two_objects, tmp_path):
     import shutil
 
-    from tactip_lab.recognition.store import ContactDataset, _readable
+    from tactip_lab.recognition.store import ContactDataset
     from tactip_lab.sampling.dataset import DatasetError
+    from tactip_lab.sampling.manifest import readable_zip
 
     spec, cs, out = two_objects
     copy = tmp_path / "contacts"
@@ -413,6 +414,6 @@ def test_a_torn_contacts_file_is_named_and_rebuilt_from_the_records(two_objects,
     ds = ContactDataset(copy)
     with pytest.raises(DatasetError, match="contacts.npz is unreadable"):
         ds.load()
-    assert not _readable(stacked)  # what generate() checks to rebuild it on a rerun
+    assert not readable_zip(stacked)  # what generate() checks to rebuild it on a rerun
     ds.finalise(spec.n_contacts)
     assert np.array_equal(ds.load().disp_px, cs.disp_px, equal_nan=True)

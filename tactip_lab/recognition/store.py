@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import io
-import json
-import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,11 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from tactip_lab.sampling.dataset import (
+from tactip_lab.sampling.manifest import (
     DatasetError,
+    RecordFolder,
     atomic_write_bytes,
-    atomic_write_text,
-    json_default,
+    readable_zip,
 )
 
 KIND = "tactip-sim contacts"
@@ -102,70 +100,22 @@ def _record_bytes(rec: dict[str, Any]) -> bytes:
     return buf.getvalue()
 
 
-def _readable(path: Path) -> bool:
-    try:
-        with zipfile.ZipFile(path) as z:
-            return z.testzip() is None
-    except (OSError, zipfile.BadZipFile):
-        return False
-
-
-class ContactDataset:
+class ContactDataset(RecordFolder):
     """A contacts folder: ``manifest.json``, ``rest.npz``, ``records/NNNNN.npz`` (the unit
-    of resume: a record's presence means the contact is done) and, when complete,
-    ``contacts.npz`` (every record stacked). Files are written atomically."""
+    of resume: a readable record means the contact is done; a torn one is removed and
+    recomputed) and, when complete, ``contacts.npz`` (every record stacked). Files are
+    written atomically; the manifest, its identity check and the resume are a
+    :class:`~tactip_lab.sampling.manifest.RecordFolder`'s."""
 
-    def __init__(self, root: str | Path) -> None:
-        self.root = Path(root)
+    KIND = KIND
+    FORMAT_VERSION = FORMAT_VERSION
+    NOUN = FOLDER_NOUN = "a contacts data set"
+    HOLDS = "other contacts"
+    SUBDIRS = ("records",)
+    INDENT = 1
 
-    @property
-    def manifest_path(self) -> Path:
-        return self.root / "manifest.json"
-
-    def manifest(self) -> dict[str, Any]:
-        if not self.manifest_path.is_file():
-            raise DatasetError(f"{self.root} is not a contacts data set: no manifest.json")
-        try:
-            data = json.loads(self.manifest_path.read_text())
-        except ValueError as exc:
-            raise DatasetError(f"{self.manifest_path} is not valid JSON: {exc}") from None
-        if data.get("kind") != KIND:
-            raise DatasetError(f"{self.manifest_path} is not a {KIND!r} manifest")
-        return data
-
-    def open(self, identity: dict[str, Any], extra: dict[str, Any]) -> None:
-        """Create the folder, or check that it holds the same contacts (else refuse)."""
-        if self.manifest_path.is_file():
-            old = self.manifest().get("identity", {})
-            diff = {k: (old.get(k), v) for k, v in identity.items() if old.get(k) != v}
-            if diff and self.done():
-                k = next((k for k in diff if k != "mesh_digest"), "mesh_digest")
-                raise DatasetError(
-                    f"{self.root} already holds other contacts ({k}: {diff[k][0]!r} there, "
-                    f"{diff[k][1]!r} now); refusing to mix them: choose a new --out folder")
-            if not diff:
-                return
-        elif self.root.exists() and any(self.root.iterdir()):
-            raise DatasetError(f"{self.root} exists and is not a contacts data set; choose a "
-                               "new --out folder")
-        (self.root / "records").mkdir(parents=True, exist_ok=True)
-        atomic_write_text(self.manifest_path, json.dumps(
-            {"kind": KIND, "format_version": FORMAT_VERSION, "identity": identity, **extra},
-            indent=1, default=json_default))
-
-    def record_path(self, index: int) -> Path:
-        return self.root / "records" / f"{index:05d}.npz"
-
-    def done(self) -> set[int]:
-        """Indices with a readable record (a torn one is removed and recomputed)."""
-        d = self.root / "records"
-        out = set()
-        for p in d.glob("[0-9]*.npz") if d.is_dir() else []:
-            if _readable(p):
-                out.add(int(p.stem))
-            else:
-                p.unlink(missing_ok=True)
-        return out
+    def _kind_shown(self) -> str:
+        return repr(self.KIND)
 
     def write(self, rec: dict[str, Any]) -> None:
         atomic_write_bytes(self.record_path(int(rec["index"])), _record_bytes(rec))
@@ -196,7 +146,7 @@ class ContactDataset:
         if not path.is_file():
             raise DatasetError(f"{self.root} is not finished (no contacts.npz): rerun the "
                                "command that made it to resume")
-        if not _readable(path):  # (np.load of a torn file was a BadZipFile traceback)
+        if not readable_zip(path):  # (np.load of a torn file was a BadZipFile traceback)
             raise DatasetError(f"{path} is unreadable (torn or edited): rerun the command that "
                                "made it, which rebuilds it from the records")
         with np.load(path) as z:

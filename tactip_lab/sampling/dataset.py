@@ -22,10 +22,7 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import os
-import tempfile
-import zipfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,9 +30,21 @@ from typing import Any
 
 import numpy as np
 
+# (the folder's manifest, resume and atomic writes; re-exported here, where they began)
+from tactip_lab.sampling.manifest import (
+    MANIFEST as MANIFEST,
+)
+from tactip_lab.sampling.manifest import (
+    DatasetError,
+    RecordFolder,
+    atomic_write_bytes,
+    atomic_write_text,
+)
+from tactip_lab.sampling.manifest import (
+    json_default as json_default,
+)
 from tactip_sim.scene.names import check_name
 
-MANIFEST = "manifest.json"
 MESH_FILE = "mesh.npz"  # the tip's tet mesh, as pytetwild built it (Dataset.keep_mesh)
 DATASET_KIND = "tactip-sim dataset"
 FORMAT_VERSION = 2
@@ -76,10 +85,6 @@ an orphan (a write takes milliseconds; a worker killed mid-write leaves one) and
 removes it; younger ones may belong to a writer still at work and are left."""
 
 
-class DatasetError(ValueError):
-    """A dataset folder cannot be used as asked (e.g. it holds a different scene)."""
-
-
 def safe_name(value: str, key: str) -> str:
     """``value`` if it can become part of a file or folder name
     (:func:`tactip_sim.scene.names.check_name`: 1-32 letters, digits, ``_``, ``+`` or ``-``,
@@ -91,32 +96,6 @@ def safe_name(value: str, key: str) -> str:
         Naming ``key`` and the allowed form.
     """
     return check_name(value, key)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-_MODE = 0o666 & ~_umask()  # what open() would give: datasets are for other tools and users
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, _MODE)  # mkstemp creates 0600
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    atomic_write_bytes(path, text.encode())
 
 
 @dataclass(frozen=True)
@@ -167,88 +146,56 @@ class SampleRecord:
         return cls(**kw)
 
 
-class Dataset:
-    """A dataset folder (see the module docstring).
+class Dataset(RecordFolder):
+    """A dataset folder (see the module docstring; the manifest and the resume are a
+    :class:`~tactip_lab.sampling.manifest.RecordFolder`'s).
 
     Parameters
     ----------
     root : the folder
     """
 
-    def __init__(self, root: str | os.PathLike[str]) -> None:
-        self.root = Path(root)
+    KIND = DATASET_KIND
+    FORMAT_VERSION = FORMAT_VERSION
+    NOUN = "a dataset"
+    FOLDER_NOUN = "a dataset folder"
+    HOLDS = "a different sweep"
+    SUBDIRS = ("images", "records")
+    INDENT = 2
 
     # -- manifest -----------------------------------------------------------------------------
-    @property
-    def manifest_path(self) -> Path:
-        return self.root / MANIFEST
-
-    def manifest(self) -> dict[str, Any]:
-        if not self.manifest_path.is_file():
-            raise DatasetError(f"{self.root} is not a dataset: no {MANIFEST}")
-        try:
-            data = json.loads(self.manifest_path.read_text())
-        except ValueError as exc:
-            raise DatasetError(f"{self.manifest_path} is not valid JSON: {exc}") from exc
-        if data.get("kind") != DATASET_KIND:
-            raise DatasetError(f"{self.manifest_path} is not a {DATASET_KIND} manifest")
-        return data
-
     def open_for_sweep(self, identity: dict[str, Any], extra: dict[str, Any]) -> None:
         """Create the folder, or check that an existing one holds the same sweep.
 
         identity : what must match for a resume (scene hash, tip, poses hash, frames, seed)
         extra : stored but not compared (versions, the resolved scene, timings)
         """
-        if self.manifest_path.is_file():
-            old = self.manifest()
-            if old.get("format_version") != FORMAT_VERSION:
-                raise DatasetError(
-                    f"{self.root} was written in dataset format {old.get('format_version')!r} "
-                    f"(this version writes format {FORMAT_VERSION}: the centre-of-pressure "
-                    "columns were renamed), so a sweep cannot continue in it; its finished "
-                    "tables still read (`tactip fit`, `tactip evaluate`): choose a new --out "
-                    "folder for new samples")
-            mismatch = {k: (old.get("identity", {}).get(k), v) for k, v in identity.items()
-                        if old.get("identity", {}).get(k) != v}
-            if mismatch and not self.done() and not any((self.root / "images").glob("*")):
-                mismatch = {}  # nothing was computed under the old identity: start afresh
-                atomic_write_text(self.manifest_path, json.dumps(
-                    {"kind": DATASET_KIND, "format_version": FORMAT_VERSION,
-                     "identity": identity, **extra}, indent=2, default=json_default))
-            if mismatch:
-                # the mesh follows from the scene and the tip: name the cause, not the effect
-                k = next((k for k in mismatch if k != "mesh_digest"), "mesh_digest")
-                was, now = mismatch[k]
-                why = {
-                    "mesh_digest": "; the tip's tet mesh differs from the one that computed it "
-                                   "(pytetwild builds a different mesh on each machine, and "
-                                   f"this dataset keeps no {MESH_FILE} of its own: resume "
-                                   "where that mesh is cached, or ship it in scenes/meshes/)",
-                    "perception_results": "; it was perceived by another perception version, "
-                                          "whose features would not match this one's",
-                    "physics_results": "; its samples were simulated by another version of "
-                                       "the FEM's results (tactip_sim.fem.RESULTS_VERSION; "
-                                       "docs/fem.md, Markers), which moves the markers",
-                }.get(k, "")
-                raise DatasetError(
-                    f"{self.root} already holds a different sweep ({k}: {was!r} there, "
-                    f"{now!r} now{why}); refusing to mix them: choose a new --out folder"
-                )
-            return
-        if self.root.exists() and any(self.root.iterdir()):
-            raise DatasetError(f"{self.root} exists and is not a dataset folder; choose a new "
-                               "--out folder")
-        (self.root / "images").mkdir(parents=True, exist_ok=True)
-        (self.root / "records").mkdir(parents=True, exist_ok=True)
-        manifest = {"kind": DATASET_KIND, "format_version": FORMAT_VERSION,
-                    "identity": identity, **extra}
-        atomic_write_text(self.manifest_path, json.dumps(manifest, indent=2, default=json_default))
+        self.open(identity, extra)
 
-    def update_manifest(self, **fields: Any) -> None:
-        data = self.manifest()
-        data.update(fields)
-        atomic_write_text(self.manifest_path, json.dumps(data, indent=2, default=json_default))
+    def _check_format(self, old: dict[str, Any]) -> None:
+        if old.get("format_version") != FORMAT_VERSION:
+            raise DatasetError(
+                f"{self.root} was written in dataset format {old.get('format_version')!r} "
+                f"(this version writes format {FORMAT_VERSION}: the centre-of-pressure "
+                "columns were renamed), so a sweep cannot continue in it; its finished "
+                "tables still read (`tactip fit`, `tactip evaluate`): choose a new --out "
+                "folder for new samples")
+
+    def _started(self) -> bool:
+        return bool(self.done()) or any((self.root / "images").glob("*"))
+
+    def _why(self, key: str) -> str:
+        return {
+            "mesh_digest": "; the tip's tet mesh differs from the one that computed it "
+                           "(pytetwild builds a different mesh on each machine, and "
+                           f"this dataset keeps no {MESH_FILE} of its own: resume "
+                           "where that mesh is cached, or ship it in scenes/meshes/)",
+            "perception_results": "; it was perceived by another perception version, "
+                                  "whose features would not match this one's",
+            "physics_results": "; its samples were simulated by another version of "
+                               "the FEM's results (tactip_sim.fem.RESULTS_VERSION; "
+                               "docs/fem.md, Markers), which moves the markers",
+        }.get(key, "")
 
     # -- the tip's mesh -----------------------------------------------------------------------
     @property
@@ -264,9 +211,6 @@ class Dataset:
         keep_mesh(self.root, mesh)
 
     # -- records ------------------------------------------------------------------------------
-    def record_path(self, index: int) -> Path:
-        return self.root / "records" / f"{index:05d}.npz"
-
     def image_path(self, index: int) -> Path:
         return self.root / "images" / f"{index:05d}.png"
 
@@ -282,20 +226,18 @@ class Dataset:
         damaged after it was written (a torn record, a missing or empty image) is removed, so
         a resume computes it again, and so are orphaned half-written files
         (:data:`STALE_TMP_S`)."""
-        d = self.root / "records"
-        if not d.is_dir():
-            return set()
+        return super().done()
+
+    def _complete(self, index: int) -> bool:
+        image = self.image_path(index)
+        return image.is_file() and image.stat().st_size > 0
+
+    def _discard(self, index: int) -> None:
+        self.record_path(index).unlink(missing_ok=True)
+        self.image_path(index).unlink(missing_ok=True)
+
+    def _before_scan(self) -> None:
         self._remove_stale_tmp()
-        out = set()
-        for p in d.glob("[0-9]*.npz"):
-            i = int(p.stem)
-            image = self.image_path(i)
-            if _readable_zip(p) and image.is_file() and image.stat().st_size > 0:
-                out.add(i)
-            else:
-                p.unlink(missing_ok=True)
-                image.unlink(missing_ok=True)
-        return out
 
     def _remove_stale_tmp(self) -> None:
         """Remove this dataset's own half-written sample files older than
@@ -422,17 +364,6 @@ def _f(x: float) -> str:
     return repr(float(x))
 
 
-def json_default(obj: Any) -> Any:
-    """``json.dumps(default=...)`` for arrays, NumPy scalars and paths."""
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
-
-
 def plain(obj: Any, digits: int | None = None) -> Any:
     """A JSON-ready copy of ``obj``: mappings (keys as strings), sequences and arrays to lists,
     NumPy scalars to Python's, non-finite floats to ``None`` (JSON has no NaN), every float
@@ -460,11 +391,3 @@ def poses_digest(poses: Iterable[Iterable[float]]) -> str:
 
     arr = np.ascontiguousarray(np.asarray(list(poses), dtype=np.float64))
     return hashlib.sha256(arr.tobytes()).hexdigest()[:16]
-
-
-def _readable_zip(path: Path) -> bool:
-    try:
-        with zipfile.ZipFile(path) as z:
-            return z.testzip() is None
-    except (OSError, zipfile.BadZipFile):
-        return False
