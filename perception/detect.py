@@ -384,7 +384,7 @@ def _detect_grey(grey: np.ndarray, shape: tuple[int, int], scale: float, region,
     near = near_bright(bg, skin + p.skin_contrast_fraction * peak_med * scale,
                         max(int(round(d_ref)), 1), ix[ok], iy[ok])
     code[np.flatnonzero(ok)[near]] = _RIM
-    off = _reject_outside_array(pts, code)
+    off = _reject_outside_array(pts, mom.area, code)
     if region is not None:  # (the points still accepted are finite)
         ok = np.flatnonzero(code == 0)
         code[ok[~shapely.intersects_xy(region, pts[ok, 0], pts[ok, 1])]] = _OUTSIDE
@@ -572,22 +572,30 @@ _ARRAY_NEIGHBOUR_SPACINGS = 1.5
 _ARRAY_CORE_NEIGHBOURS = 4
 #: The array grows outward from its core: a candidate outside the core's convex hull joins
 #: it only if accepted markers lie within this
-#: many local spacings (the median nearest-neighbour distance of the core's hull vertices).
-#: Measured on 481 real frames of ../shared/real read by the previous detector: the outer
+#: many local spacings (the median nearest-neighbour distance of the joined markers nearest
+#: to it).
+#: Measured on 481 real frames of ../shared/real read by the previous detector (with the
+#: spacing of the core's hull vertices as the local one): the outer
 #: rings join within 1.38 local spacings (the 127-pin frame, whose outer rings are 1.3-1.5
 #: spacings apart; 331-pin frames: 1.0-1.3), while the debris that detector had accepted (a
 #: speck on the 128x128 frames' lens, glare on the raw frames' rim) lies 1.63-2.18 away.
 _ARRAY_JOIN_SPACINGS = 1.5
-#: ... and only if at least this many joined markers lie that close, or one of the core:
-#: every marker of a lattice's outer ring has two (two of the ring inside it, or one of them
-#: and its ring neighbour) or is next to the core, a fragment of glare beside the outer ring
-#: has one outer-ring marker.
+#: ... and only if at least this many joined markers lie that close, or one and the
+#: candidate is of marker size (area within a factor
+#: :data:`_ARRAY_JOIN_AREA_RATIO` of the core's median): every marker of a lattice's outer
+#: ring has two (two of the ring inside it, or one of them and its ring neighbour) or is
+#: a marker; a fragment of glare beside the outer ring has one
+#: outer-ring marker and is smaller.
 _ARRAY_JOIN_NEIGHBOURS = 2
+_ARRAY_JOIN_AREA_RATIO = 1.6
+#: The local spacing at a candidate: the median nearest-neighbour distance of this many
+#: joined markers nearest to it (a press stretches the array by half a spacing and more).
+_ARRAY_LOCAL_MARKERS = 3
 #: Arrays with fewer accepted markers than this are not judged by their core.
 _ARRAY_MIN_MARKERS = 19
 
 
-def _reject_outside_array(pts: np.ndarray, code: np.ndarray) -> int:
+def _reject_outside_array(pts: np.ndarray, areas: np.ndarray, code: np.ndarray) -> int:
     """Mark (``_RIM``) the accepted candidates that lie off the marker array. The array's
     core is the accepted candidates with at least :data:`_ARRAY_CORE_NEIGHBOURS` lattice
     neighbours; the candidates outside its convex hull join the array ring by ring, each
@@ -614,19 +622,25 @@ def _reject_outside_array(pts: np.ndarray, code: np.ndarray) -> int:
     hull = shapely.convex_hull(shapely.multipoints(p[core]))
     if not isinstance(hull, shapely.Polygon):
         return 0
-    verts = np.asarray(hull.exterior.coords)[:-1]
-    join = _ARRAY_JOIN_SPACINGS * median(dist[core[cKDTree(p[core]).query(verts)[1]], 1])
     inside = shapely.intersects_xy(hull, p[:, 0], p[:, 1])
     joined = inside.copy()
     pending = np.flatnonzero(~inside)
-    core_near = cKDTree(p[core]).query(p[pending], distance_upper_bound=join)[0] <= join
+    ratio = areas[ok][pending] / median(areas[ok][core])
+    marker_sized = (ratio >= 1.0 / _ARRAY_JOIN_AREA_RATIO) & (ratio <= _ARRAY_JOIN_AREA_RATIO)
+    nn = dist[:, 1]
     while len(pending):  # one ring per pass, at most a few passes
-        n_near = cKDTree(p[joined]).query_ball_point(p[pending], join, return_length=True)
-        joins = (n_near >= _ARRAY_JOIN_NEIGHBOURS) | core_near
+        members = np.flatnonzero(joined)
+        k = min(_ARRAY_LOCAL_MARKERS, len(members))
+        d_near, i_near = cKDTree(p[members]).query(p[pending], k=k)
+        d_near, i_near = d_near.reshape(len(pending), k), i_near.reshape(len(pending), k)
+        # the local spacing: that of the joined markers nearest the candidate
+        join = _ARRAY_JOIN_SPACINGS * np.median(nn[members[i_near]], axis=1)
+        n_near = (d_near <= join[:, None]).sum(axis=1)
+        joins = (n_near >= _ARRAY_JOIN_NEIGHBOURS) | ((n_near >= 1) & marker_sized)
         if not joins.any():
             break
         joined[pending[joins]] = True
-        pending, core_near = pending[~joins], core_near[~joins]
+        pending, marker_sized = pending[~joins], marker_sized[~joins]
     code[ok[pending]] = _RIM
     return len(pending)
 
@@ -840,7 +854,7 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
         hull = shapely.convex_hull(shapely.multipoints(pts[full]))
         speck = np.flatnonzero((code == 0) & ~full)
         code[speck[~shapely.intersects_xy(hull, pts[speck, 0], pts[speck, 1])]] = _SMALL
-    off = _reject_outside_array(pts, code)
+    off = _reject_outside_array(pts, area, code)
     if region is not None:
         ok = np.flatnonzero(code == 0)
         code[ok[~shapely.intersects_xy(region, pts[ok, 0], pts[ok, 1])]] = _OUTSIDE
