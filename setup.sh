@@ -30,8 +30,7 @@ if [ "$RUN" = 1 ]; then
   echo "== main job: the calibration protocol on scenes/shadow_fingertip.toml (resumable: rerun"
   echo "   ./setup.sh after an interruption and it continues where it stopped)"
   python3 -m tactip_sim.commands mesh scenes/shadow_fingertip.toml
-  # the 60 frames of a sample averaged as one image, caps drawn by the raster layer: 2.6x
-  # faster than the paper's frame-by-frame averaging, growth-CoP R² within 0.005 (docs/speed.md)
-  python3 -m tactip_sim.commands calibrate scenes/shadow_fingertip.toml --out out/calibration --workers 2 \
-    --set imaging.cap_layer=raster --set protocol.frame_average=image
+  # the defaults: the 60 frames of a sample averaged as one image, caps drawn by the raster
+  # layer (docs/speed.md); add --fidelity paper for the paper's frame-by-frame averaging
+  python3 -m tactip_sim.commands calibrate scenes/shadow_fingertip.toml --out out/calibration --workers 2
 fi

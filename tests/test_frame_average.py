@@ -28,12 +28,12 @@ def test_mean_frame_is_the_pixel_mean_in_16_bits():
         mean_frame([])
 
 
-def test_the_key_is_left_out_of_the_hash_at_its_default_and_checked():
+def test_the_image_mean_is_the_default_and_the_key_is_checked():
     scene = ts.load_scene(SCENES / "shadow_fingertip.toml")
-    assert scene.protocol.frame_average == "features"
-    assert scene_hash(replace_in(scene, protocol={"frame_average": "features"})) == \
+    assert scene.protocol.frame_average == "image"
+    assert scene_hash(replace_in(scene, protocol={"frame_average": "image"})) == \
         scene_hash(scene)
-    assert scene_hash(replace_in(scene, protocol={"frame_average": "image"})) != \
+    assert scene_hash(replace_in(scene, protocol={"frame_average": "features"})) != \
         scene_hash(scene)
     with pytest.raises(SceneError, match="protocol.frame_average"):
         replace_in(scene, protocol={"frame_average": "median"})

@@ -34,12 +34,53 @@ def test_every_builtin_preset_applies_to_the_default_scene(scene):
                 assert getattr(getattr(s, section), key) == value
         # the design is untouched
         assert s.gel == scene.gel and s.pad == scene.pad and s.lighting == scene.lighting
-        assert preset_of(s) == name
+        same = sorted(n for n, p in BUILTIN_PRESETS.items() if p == BUILTIN_PRESETS[name])
+        assert preset_of(s) == same[0]  # the first name of the level (balanced = paper)
 
 
-def test_the_default_scene_is_at_the_balanced_level(scene):
-    assert preset_of(scene) == "balanced"
-    assert preset_of(ts.replace_in(scene, imaging={"spp": 7})) is None
+def test_the_defaults_are_the_paper_level_with_raster_caps_and_the_image_mean(scene):
+    # the default scene sets neither key: the defaults are the recommended level, which is no
+    # preset; switching the two keys back gives the paper's level
+    assert scene.imaging.cap_layer == "raster" and scene.protocol.frame_average == "image"
+    assert preset_of(scene) is None
+    paper = ts.replace_in(scene, imaging={"cap_layer": "mitsuba"},
+                          protocol={"frame_average": "features"})
+    assert scene_hash(paper) == scene_hash(apply_preset(scene, "paper"))
+    assert preset_of(paper) == "balanced"  # "paper" is its other name
+    assert preset_of(ts.replace_in(paper, imaging={"spp": 7})) is None
+
+
+def test_a_changed_default_keeps_every_scene_hash(scene):
+    """The hash of a scene does not depend on which value is the default: the raster caps
+    hash as they did when they were a --set away (a key, not the default), and the Mitsuba
+    caps as when they were the default (no key), so caches never mix the two."""
+    import json
+
+    from tactip_sim.scene.load import scene_to_dict as to_dict
+
+    def old_hash(s):  # the rule before the defaults changed: omit at mitsuba / features
+        d = to_dict(s)
+        for sec, key, old_default in (("imaging", "cap_layer", "mitsuba"),
+                                      ("protocol", "frame_average", "features")):
+            value = getattr(getattr(s, sec), key)
+            d[sec].pop(key, None)
+            if value != old_default:
+                d[sec][key] = value
+        d.pop("name", None)
+        d.pop("presets", None)
+        import hashlib
+        blob = json.dumps(d, sort_keys=True, separators=(",", ":")).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+    for cap in ("raster", "mitsuba"):
+        for avg in ("image", "features"):
+            s = ts.replace_in(scene, imaging={"cap_layer": cap}, protocol={"frame_average": avg})
+            assert scene_hash(s) == old_hash(s)
+    assert len({scene_hash(ts.replace_in(scene, imaging={"cap_layer": c}))
+                for c in ("raster", "mitsuba")}) == 2
+    # and a round trip through the scene's dict keeps a non-default value
+    m = ts.replace_in(scene, imaging={"cap_layer": "mitsuba"})
+    assert scene_from_dict(scene_to_dict(m)).imaging.cap_layer == "mitsuba"
 
 
 def test_presets_do_not_change_the_scene_hash(scene):
@@ -81,7 +122,7 @@ def test_bad_presets_are_refused_naming_the_key(scene, presets, pattern):
 
 
 def test_unknown_preset_lists_the_allowed_ones(scene):
-    with pytest.raises(SceneError, match="allowed: balanced, fast, reference"):
+    with pytest.raises(SceneError, match="allowed: balanced, fast, paper, reference"):
         apply_preset(scene, "turbo")
 
 
@@ -103,4 +144,7 @@ def test_renderer_takes_its_shading_from_the_scene(scene):
     from tactip_sim.render import Renderer
 
     assert Renderer(scene).shading == "diffused"
-    assert Renderer(ts.replace_in(scene, imaging={"shading": "lambert"})).shading == "lambert"
+    lambert = ts.replace_in(scene, imaging={"shading": "lambert", "cap_layer": "mitsuba"})
+    assert Renderer(lambert).shading == "lambert"
+    with pytest.raises(ValueError, match="use cap_layer='mitsuba'"):  # raster caps are diffused
+        Renderer(ts.replace_in(scene, imaging={"shading": "lambert"}))

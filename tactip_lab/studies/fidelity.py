@@ -73,7 +73,11 @@ def study_levels(scene: ts.Scene) -> list[Level]:
     """The scene's presets, then one-knob variants of ``balanced``."""
     w, h = scene.camera.resolution
     pitch = scene.camera.pixel_pitch_um
-    levels = [Level(n, "preset", {}, base=n) for n in sorted(scene.presets)]
+    levels, seen = [], []
+    for n in sorted(scene.presets):  # one level per distinct preset ("paper" is "balanced")
+        if scene.presets[n] not in seen:
+            seen.append(scene.presets[n])
+            levels.append(Level(n, "preset", {}, base=n))
     variants = [
         ("P1 elements", "physics", {"fidelity": {"element_order": 1}},
          "linear tets (lock for a near-incompressible gel)"),

@@ -245,9 +245,11 @@ def key_spec(dotted: str) -> Spec:
     return specs[key]
 
 
-def scene_to_dict(scene: Scene) -> dict[str, Any]:
+def scene_to_dict(scene: Scene, *, omit_at: Mapping[tuple[str, str], Any] | None = None
+                  ) -> dict[str, Any]:
     """The resolved scene as plain TOML-able data (lists, not tuples), without ``source``, and
-    without the keys of :data:`_OMIT_AT_DEFAULT` that hold their defaults."""
+    without the keys of :data:`_OMIT_AT_DEFAULT` that hold their defaults (``omit_at``: other
+    values at which to leave some of them out)."""
 
     def plain(v: Any) -> Any:
         if isinstance(v, tuple):
@@ -261,7 +263,8 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
     # keys added after scenes were hashed: omitted at their defaults (old hashes stay)
     for section, key in _OMIT_AT_DEFAULT:
         table = d.get(section, {})
-        if key in table and table[key] == _default_of(section, key):
+        at = (omit_at or {}).get((section, key), _default_of(section, key))
+        if key in table and table[key] == at:
             del table[key]
     return d
 
@@ -272,6 +275,12 @@ _OMIT_AT_DEFAULT = (("pins", "layout"), ("pins", "rotation_deg"), ("pins", "mapp
                     ("indenter", "friction_coefficient"), ("imaging", "cap_layer"),
                     ("protocol", "frame_average"), ("fidelity", "marker_tolerance_mm"),
                     ("fidelity", "pin_refinement"), ("window", "pin_friction"))
+
+#: Keys whose default changed after scenes were hashed (2026-11-29: the raster caps and the
+#: image mean became the defaults): the hash leaves them out at the value they had when they
+#: were added, so a scene hashes as it did before the change, and caches keyed by the hash
+#: never mix the two levels.
+_HASH_OMIT_AT = {("imaging", "cap_layer"): "mitsuba", ("protocol", "frame_average"): "features"}
 
 
 def _default_of(section: str, key: str) -> Any:
@@ -289,7 +298,7 @@ def scene_to_toml(scene: Scene) -> str:
 
 def scene_hash(scene: Scene, sections: tuple[str, ...] | None = None) -> str:
     """A short, stable hash of the whole scene or of some of its sections (not its name)."""
-    d = scene_to_dict(scene)
+    d = scene_to_dict(scene, omit_at=_HASH_OMIT_AT)
     d.pop("name", None)
     d.pop("presets", None)
     if sections is not None:

@@ -30,7 +30,7 @@ PRESET_KEYS: dict[str, tuple[str, ...]] = {
                  "refine_radius_mm", "element_order", "material_model", "contact_solver",
                  "pin_refinement"),
     "pins": ("model",),
-    "imaging": ("spp", "refraction", "shading"),
+    "imaging": ("spp", "refraction", "shading", "cap_layer"),
     "camera": ("resolution", "pixel_pitch_um"),
     "protocol": ("frames_per_sample", "frame_average"),
 }
@@ -40,21 +40,28 @@ rendering, render resolution, frames averaged). ``camera.resolution`` with
 
 BUILTIN_PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     # every cheap choice that keeps the geometry right: linear P1 elements, tips embedded in
-    # the gel, 1 sample per pixel, 8 frames averaged
+    # the gel, 1 sample per pixel, 8 frames averaged (Mitsuba caps, each frame perceived: the
+    # level the fidelity study measured under this name)
     "fast": {
         "fidelity": {"element_order": 1, "material_model": "linear", "contact_solver": "reduced",
                      "pin_refinement": "off"},
         "pins": {"model": "embedded"},
-        "imaging": {"spp": 1, "refraction": "analytic", "shading": "diffused"},
-        "protocol": {"frames_per_sample": 8},
+        "imaging": {"spp": 1, "refraction": "analytic", "shading": "diffused",
+                    "cap_layer": "mitsuba"},
+        "protocol": {"frames_per_sample": 8, "frame_average": "features"},
     },
-    # the sweep default: quadratic elements (P1 locks), rod pins, analytic refraction
-    "balanced": {
+    # the paper's protocol as it was run: quadratic elements (P1 locks), rod pins, analytic
+    # refraction, caps rendered by Mitsuba every pose and each of the 60 frames perceived (the
+    # features averaged). The defaults differ from it only in the raster caps and the image
+    # mean (docs/speed.md: growth-CoP R² within 0.005, 2.6x faster). "balanced" is its older
+    # name (the fidelity study's base level).
+    "paper": {
         "fidelity": {"element_order": 2, "material_model": "linear", "contact_solver": "reduced",
                      "pin_refinement": "off"},
         "pins": {"model": "rod"},
-        "imaging": {"spp": 4, "refraction": "analytic", "shading": "diffused"},
-        "protocol": {"frames_per_sample": 60},
+        "imaging": {"spp": 4, "refraction": "analytic", "shading": "diffused",
+                    "cap_layer": "mitsuba"},
+        "protocol": {"frames_per_sample": 60, "frame_average": "features"},
     },
     # the accuracy reference of the studies: large deformation (neo-Hookean, Newton; it solves
     # its own contact, so contact_solver does not apply) and caps shaded point by point at
@@ -68,10 +75,12 @@ BUILTIN_PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         "fidelity": {"mesh_edge_mm": 1.0, "element_order": 2, "material_model": "neo_hookean",
                      "contact_solver": "reduced", "pin_refinement": "auto"},
         "pins": {"model": "rod"},
-        "imaging": {"spp": 16, "refraction": "analytic", "shading": "lambert"},
-        "protocol": {"frames_per_sample": 60},
+        "imaging": {"spp": 16, "refraction": "analytic", "shading": "lambert",
+                    "cap_layer": "mitsuba"},
+        "protocol": {"frames_per_sample": 60, "frame_average": "features"},
     },
 }
+BUILTIN_PRESETS["balanced"] = BUILTIN_PRESETS["paper"]
 
 
 def _spec_of(section: str, key: str):
