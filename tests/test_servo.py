@@ -472,3 +472,35 @@ def test_controller_phases_and_failure_verdicts():
         ctl.step(_obs(k))
     assert ctl.outcome == "timed_out"
     assert ctl.end_frame - ctl.adjust_frame == p.frames(p.timeout_s)
+
+
+def test_chart_titles_are_wrapped_inside_the_figure():
+    """A title longer than its figure is wrapped onto lines that all fit (the servo chart's
+    title ran past both edges of a one-finger figure)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tactip_lab.fitting.plots import wrap_to_figure
+
+    fig, axes = plt.subplots(1, 2, figsize=(4.6, 3))
+    long = ("Grasp adjustment: one finger against a plate at roll 9°, pitch -6° (green: contact "
+            "detected; grey: adjustment starts) and more words to make it run past both edges")
+    fig.suptitle(long, fontsize=11)
+    axes[0].set_title("a short title")
+    axes[1].set_title("an axes title far too long for the half of a small figure it sits on")
+    r = fig.canvas.get_renderer()
+    assert fig.findobj(lambda a: getattr(a, "get_text", None) and a.get_text() == long)[0] \
+        .get_window_extent(r).width > fig.bbox.width  # the case: it did not fit
+    wrap_to_figure(fig)
+    fig.tight_layout()
+    fig.canvas.draw()
+    for t in [fig.findobj(lambda a: hasattr(a, "get_text") and "Grasp" in str(a.get_text()))[0],
+              axes[0].title, axes[1].title]:
+        box = t.get_window_extent(r)
+        assert box.x0 >= -1 and box.x1 <= fig.bbox.width + 1, t.get_text()
+    # the words are all kept, in order
+    assert fig.get_suptitle().split() == long.split()
+    assert axes[0].title.get_text() == "a short title"
+    plt.close(fig)

@@ -37,7 +37,36 @@ def predicted_vs_true(true_deg: np.ndarray, pred_deg: np.ndarray, out: Path, *, 
     if colour is not None and sc is not None:
         fig.colorbar(sc, ax=axes, label="depth (mm)", shrink=0.8)
     fig.suptitle(title)
+    wrap_to_figure(fig)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def wrap_to_figure(fig) -> None:
+    """Wrap the figure's suptitle and axes titles that would run past its edges onto more
+    lines (a title cut off at the figure's edge loses what a chart is of). Call it once the
+    titles are set, before ``tight_layout``."""
+    import textwrap
+
+    from matplotlib.text import Text
+
+    renderer = fig.canvas.get_renderer()
+    sup = fig.get_suptitle()
+    titles = {id(a.title): a for a in fig.axes}
+    for t in fig.findobj(Text):
+        text = t.get_text()
+        if id(t) in titles:
+            room = titles[id(t)].bbox.width * 1.15  # a title may overhang its axes a little
+        elif text and text == sup:
+            room = fig.bbox.width
+        else:
+            continue
+        for _ in range(6):
+            extent = t.get_window_extent(renderer).width
+            if not text or extent <= 0.96 * room:
+                break
+            longest = max(len(line) for line in t.get_text().split("\n"))
+            chars = max(12, int(longest * 0.96 * room / extent) - 1)
+            t.set_text("\n".join(textwrap.fill(line, chars) for line in text.split("\n")))

@@ -15,6 +15,7 @@ from tactip_lab.fitting.fit import (
     ScoreRow,
     features,
 )
+from tactip_lab.fitting.plots import wrap_to_figure
 from tactip_lab.sampling.dataset import Dataset
 
 
@@ -70,6 +71,7 @@ def tip_charts(out: Path, tip: str, datasets: dict[str, Dataset], train: Feature
             ax.set_ylabel(f"predicted {angle} (deg)")
             ax.set_title(f"{name}", fontsize=9)
     fig.suptitle(f"tip {tip}: 2nd-order model on the test sets")
+    wrap_to_figure(fig)
     fig.tight_layout()
     fig.savefig(charts / f"tip_{tip}_pred_vs_true.png", dpi=110)
     plt.close(fig)

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from tactip_lab.fitting.plots import wrap_to_figure
 from tactip_lab.sampling.dataset import atomic_write_bytes, atomic_write_text
 
 PAPER_BOF = {
@@ -222,6 +223,7 @@ def chart_observations(path: Path, cs, per_object: list[int]) -> None:
         axes[2 * r + 1, c].axis("off")
     fig.suptitle("one contact per object (centre action): frame - rest (top); marker "
                  "displacement x4 and cell growth (bottom)", fontsize=8)
+    wrap_to_figure(fig)
     fig.tight_layout()
     save_figure(fig, path, dpi=70)
 

@@ -61,17 +61,28 @@ def span_training_set(scene: Scene) -> PoseSet:
     return PoseSet("train_span", poses)
 
 
+def random_poses(scene: Scene, n: int, rng: np.random.Generator,
+                 depth_mm: float | tuple[float, float]) -> np.ndarray:
+    """``n`` poses (roll, pitch, depth) uniform in the protocol's roll/pitch box, the rolls
+    drawn first, then the pitches; at ``depth_mm``, or uniform in ``depth_mm = (lo, hi)``
+    (drawn after the angles). Every random pose set of the lab is drawn here."""
+    p = scene.protocol
+    roll = rng.uniform(*p.roll_range_deg, n)
+    pitch = rng.uniform(*p.pitch_range_deg, n)
+    depth = (rng.uniform(*depth_mm, n) if isinstance(depth_mm, tuple)
+             else np.full(n, float(depth_mm)))
+    return np.stack([roll, pitch, depth], axis=1)
+
+
 def evaluation_sets(scene: Scene) -> list[PoseSet]:
     """The random test sets, one per ``protocol.test_depth_offsets_mm`` (seeded)."""
     p = scene.protocol
     out = []
     for k, offset in enumerate(p.test_depth_offsets_mm):
         rng = np.random.default_rng([p.seed, 1000 + k])
-        roll = rng.uniform(*p.roll_range_deg, p.test_poses)
-        pitch = rng.uniform(*p.pitch_range_deg, p.test_poses)
-        depth = np.full(p.test_poses, p.training_depth_mm + offset)
-        out.append(PoseSet(f"test{offset:+.1f}mm".replace(".", "p"),
-                           np.stack([roll, pitch, depth], axis=1), depth_offset_mm=offset))
+        poses = random_poses(scene, p.test_poses, rng, p.training_depth_mm + offset)
+        out.append(PoseSet(f"test{offset:+.1f}mm".replace(".", "p"), poses,
+                           depth_offset_mm=offset))
     return out
 
 

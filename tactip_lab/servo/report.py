@@ -89,6 +89,8 @@ def chart(result: RunResult, path: str | Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from tactip_lab.fitting.plots import wrap_to_figure
+
     n = len(result.fingers)
     fig, axes = plt.subplots(4, n, figsize=(4.6 * n, 10.5), sharex="col", squeeze=False)
     for j, (f, s) in enumerate(zip(result.fingers, result.summaries, strict=True)):
@@ -139,8 +141,9 @@ def chart(result: RunResult, path: str | Path) -> None:
             h1, l1 = ax[3].get_legend_handles_labels()
             h2, l2 = tw3.get_legend_handles_labels()
             ax[3].legend(h1 + h2, l1 + l2, fontsize=7, loc="best")
-    fig.suptitle(f"Grasp adjustment: {result.label} (green: contact detected; grey: "
+    fig.suptitle(f"Grasp adjustment: {result.label}\n(green: contact detected; grey: "
                  "adjustment starts)", fontsize=11)
+    wrap_to_figure(fig)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -38,8 +38,10 @@ from typing import Any
 import numpy as np
 
 import tactip_sim as ts
+from tactip_lab.fitting.plots import wrap_to_figure
 from tactip_lab.sampling.chain import Chain, set_tag
 from tactip_lab.sampling.dataset import atomic_write_text, plain
+from tactip_lab.sampling.poses import random_poses
 from tactip_sim.scene import apply_preset, replace_in, scene_hash
 
 REFERENCE = "reference"
@@ -143,8 +145,7 @@ class StudyGrid:
         pitch = np.arange(q0, q1 + 1e-9, qs)
         rr, qq = np.meshgrid(roll, pitch, indexing="ij")
         train = np.stack([rr.ravel(), qq.ravel(), np.full(rr.size, d)], axis=1)
-        test = np.stack([rng.uniform(r0, r1, n_test), rng.uniform(q0, q1, n_test),
-                         np.full(n_test, d)], axis=1)
+        test = random_poses(scene, n_test, rng, d)
         return cls(acc, train, test, budget, cap)
 
 
@@ -463,6 +464,7 @@ def front_chart(results: Sequence[LevelResult], path: Path, *, title: str = "") 
         axes[0].scatter([], [], c=c, label=stage)
     axes[0].legend(loc="upper right", fontsize=8)
     fig.suptitle(title + " (errors vs the reference level; red rim = Pareto front)")
+    wrap_to_figure(fig)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from tactip_lab.fitting.plots import wrap_to_figure
 from tactip_lab.studies.stability.results import MapResult, Panel, _plain
 
 # ---------------------------------------------------------------------------------------------
@@ -146,6 +147,7 @@ def plot_map(res: MapResult, path: Path) -> None:
     fig.legend(list(legend.values()), list(legend.keys()), loc="upper center",
                bbox_to_anchor=(0.5, 0.0), ncol=min(len(legend), 5), fontsize=8, frameon=False)
     fig.suptitle(res.title, fontsize=11)
+    wrap_to_figure(fig)
     fig.tight_layout()
     fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
