@@ -177,9 +177,77 @@ def _check_overwrite(out: Path) -> None:
                          "(choose another path)")
 
 
+def _evaluate_field(args: argparse.Namespace) -> int:
+    """``tactip evaluate`` of a field model (``tactip sim2real --task edge`` / ``--shear``):
+    per-target MAE, RMSE and R² (wrapped errors for an angle over the full circle), pooled
+    over the folders and per folder, under ``"targets"``."""
+    import csv
+
+    from tactip_lab.fitting.bristol import BristolFolder
+    from tactip_lab.fitting.field_model import folder_fields, load_field_model, target_scores
+
+    model = load_field_model(args.model)
+    if args.feature not in (None, "field"):
+        raise ValueError(f"--feature {args.feature}: {args.model} is a field model (marker "
+                         "displacement field); it scores only that feature")
+    targets = model.targets
+    rows, ys, ps, total = [], [], [], 0
+    for d in args.datasets:
+        f = BristolFolder.open(d, rest=args.rest)
+        path = f.root / "targets.csv"
+        if not path.is_file():
+            raise ValueError(f"{f.root}: no targets.csv; a field model reads the Bristol "
+                             f"columns {', '.join(targets)}")
+        with path.open(newline="") as fh:
+            table = list(csv.DictReader(fh))
+        header = list(table[0]) if table else []
+        missing = [t for t in targets if t not in header]
+        if missing:
+            raise ValueError(f"{path}: no column {', '.join(missing)}, which {args.model} (task "
+                             f"{model.task!r}) predicts; columns: {', '.join(header)}")
+        y = np.array([[float(r[t]) for t in targets] for r in table])
+        flat = [t for j, t in enumerate(targets) if np.ptp(y[:, j]) == 0]
+        if flat:
+            varying = [k for k in header if k.startswith("pose_")
+                       and len({r[k] for r in table}) > 1]
+            raise ValueError(
+                f"{path}: column {', '.join(flat)} is constant ({y[0, targets.index(flat[0])]:g})"
+                f", so the folder is not of the {model.task!r} task {args.model} was fitted for "
+                f"(it predicts {', '.join(targets)}); the folder's varying pose columns are "
+                f"{', '.join(varying) or 'none'}: use a model of that task")
+        size = f.image_size
+        if tuple(size) != tuple(model.image_size):
+            raise ValueError(
+                f"{d}: frames are {size[0]}x{size[1]} but {args.model} was fitted on "
+                f"{model.image_size[0]}x{model.image_size[1]} frames (tactip sim2real writes "
+                "model.json for the 128x128 processed frames and model_raw.json for raw ones)")
+        x, _ = folder_fields(f, expected_count=args.expected_count,
+                             progress=not args.no_progress)
+        pred = model.predict(x)
+        s = target_scores(y, pred, targets)
+        rows.append({"dataset": str(d), "n_rows": len(y),
+                     "n_used": int(np.all(np.isfinite(pred), axis=1).sum()),
+                     "rest": str(f.rest), "rest_choice": f.rest_choice, "targets": s})
+        ys.append(y)
+        ps.append(pred)
+        total += len(y)
+        print(f"{d}: " + "; ".join(f"{t} MAE {v['mae']:.3f} {v['unit']}, RMSE {v['rmse']:.3f}, "
+                                   f"R² {v['r2']:.4f}" for t, v in s.items())
+              + f" ({rows[-1]['n_used']} of {len(y)} frames used)")
+    pooled = target_scores(np.concatenate(ys), np.concatenate(ps), targets)
+    report = {"model": str(args.model), "feature": "field", "task": model.task,
+              "targets": pooled, "n_rows": total,
+              "n_used": int(sum(r["n_used"] for r in rows)), "datasets": rows}
+    _write_json(args.json, report)
+    return 0
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from tactip_lab.fitting.field_model import is_field_model
     from tactip_lab.fitting.fit import FOLDER_FEATURES, VECTOR_FEATURES, load_any_model
 
+    if is_field_model(args.model):
+        return _evaluate_field(args)
     model, fitted_on = load_any_model(args.model)
     feature = fitted_on.get("feature")
     if args.feature and feature and args.feature != feature:
@@ -223,10 +291,17 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         pooled_y.append(t.angles_deg)
         flagged += rows[-1]["n_flagged"]
         total += len(frames.folder)
+    from tactip_lab.fitting.field_model import target_scores
+
+    names = [args.roll_column, args.pitch_column]
+    scored = target_scores(np.concatenate(pooled_y), np.concatenate(pooled_x),
+                           ["pose_4", "pose_5"])  # degrees, neither wraps
     report = {"model": str(args.model), "feature": feature,
               **_scores("all", np.concatenate(pooled_y), np.concatenate(pooled_x), None,
                         sum(r["n_used"] for r in rows), feature),
-              "n_flagged": flagged, "n_rows": total, "datasets": rows}
+              "n_flagged": flagged, "n_rows": total, "datasets": rows,
+              # per target (the columns scored: roll, pitch), pooled over the folders
+              "targets": dict(zip(names, scored.values(), strict=True))}
     report.pop("dataset")
     for r in rows:
         print(f"{r['dataset']}: R² roll {r['r2_roll']:.4f}, pitch {r['r2_pitch']:.4f}; RMSE "

@@ -124,8 +124,64 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+TASK_N = {"surface": 300, "edge": 400, "surface+shear": 200, "edge+shear": 200}
+"""Default simulated taps per task (``--n``)."""
+
+
+def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
+    """``--task edge`` or ``--shear``: field models (tactip_lab.real.task_run)."""
+    from tactip_lab.real.task_run import TaskConfig, run_task
+
+    for opt, given in (("--depth-range", args.depth_range != "2,5"),
+                       ("--feature", args.feature != "growth"), ("--order", args.order != 2),
+                       ("--reference", args.reference != "rest"),
+                       ("--tap-depth", args.tap_depth != "contact")):
+        if given:
+            raise ValueError(f"{opt} is for the surface taps' CoP models; --task {args.task}"
+                             f"{' --shear' if args.shear else ''} fits a field model on the "
+                             "lab's protocol (docs/sim2real.md)")
+    cfg = TaskConfig(task=task, n=args.n or TASK_N[task], seed=args.seed, k=args.k,
+                     shear_steps=args.shear_steps)
+    cfg.check()
+    for d in [*(args.real or []), *(args.real_raw or [])]:
+        if not Path(d).is_dir():
+            raise ValueError(f"--real {d}: no such folder (a labelled Bristol-layout folder)")
+    if args.fidelity is None:
+        args.fidelity = "fast"
+    scene = load_scene_args(args)
+    s = run_task(scene, args.out, cfg, real=args.real or [], real_raw=args.real_raw or [],
+                 progress=not args.no_progress, scene_source=args.scene)
+    out = Path(args.out)
+    print(f"field models fitted on {s['simulated']['n']} simulated taps of task {task}: "
+          f"{out / 'model.json'} (128x128 processed frames), {out / 'model_raw.json'} (raw); "
+          f"targets {', '.join(s['targets'])}")
+    for fmt, f in s["formats"].items():
+        p = f["predicted_by_simulation"]
+        print(f"  predicted by simulation ({fmt}, 5-fold CV): " + ", ".join(
+            f"{t} MAE {v['mae']:.2f} {v['unit']}" for t, v in p.items()))
+    for d, r in s["real"].items():
+        print(f"{d}: zero-shot " + ", ".join(f"{t} MAE {v['mae']:.2f} {v['unit']} (R² "
+                                             f"{v['r2']:.3f})" for t, v in
+                                             r["zero_shot"].items()))
+    if s["real"]:
+        print(f"every figure: {out / 'table.md'}, {out / 'summary.json'}")
+    return 0
+
+
 def _cmd_sim2real(args: argparse.Namespace) -> int:
     from tactip_lab.real.sim2real import Sim2RealConfig, run
+
+    task = args.task + ("+shear" if args.shear else "")
+    if task != "surface":
+        return _cmd_sim2real_task(args, task)
+    for opt, v in (("--real", args.real), ("--real-raw", args.real_raw)):
+        if v and len(v) > 1:
+            raise ValueError(f"{opt} given {len(v)} times: the surface taps' run scores one "
+                             "folder per format")
+    args.real = args.real[0] if args.real else None
+    args.real_raw = args.real_raw[0] if args.real_raw else None
+    if args.n is None:
+        args.n = TASK_N["surface"]
 
     try:
         lo, hi = (float(v) for v in args.depth_range.split(","))
@@ -194,8 +250,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     from tactip_lab.real.sim2real import AXIS_MAPS, TAP_DEPTHS
 
     p = sub.add_parser(
-        "sim2real", help="fit roll/pitch regressors on simulated taps only and score them on "
-        "real ones", description="Simulate N taps of a flat plate (roll, pitch uniform in the "
+        "sim2real", help="fit pose regressors on simulated taps only (surface, edge, with "
+        "or without shear) and score them on real ones", description="--task edge or --shear: "
+        "simulate N taps of the lab's protocol (tactip_lab/real/tasks.py; docs/sim2real.md), "
+        "fit a field model (marker displacement field -> pose_2/pose_6, or pose_4/pose_5) on "
+        "each format, save OUT/model.json (128x128) and OUT/model_raw.json (raw), and with "
+        "--real score them zero-shot, few-shot, against simulation's own cross-validation, "
+        "real-trained and a naive pixel baseline. --task surface (default): simulate N taps "
+        "of a flat plate (roll, pitch uniform in the "
         "scene's protocol ranges, depth uniform in --depth-range), convert them to the "
         "processed 128x128 binarised format, fit every CoP feature and order, save "
         "OUT/model.json (128x128) and OUT/model_raw.json (raw frames) for --feature/--order; "
@@ -204,11 +266,26 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Without --fidelity the scene's 'fast' preset is used.")
     add_scene_argument(p)
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--real", metavar="DIR", help="real labelled taps, 128x128 processed "
-                   "frames in the Bristol layout (e.g. ../shared/real/tactip331_tap128)")
-    p.add_argument("--real-raw", metavar="DIR", help="real labelled taps, raw frames in the "
-                   "Bristol layout (scored with model_raw.json)")
-    p.add_argument("--n", type=int, default=300, help="simulated taps (default 300)")
+    p.add_argument("--task", default="surface", choices=("surface", "edge"),
+                   help="the lab's task: 'surface' (default: flat-plate taps, roll/pitch CoP "
+                   "models, as before) or 'edge' (a straight edge: lateral position pose_2 mm, "
+                   "angle pose_6 deg over the full circle, depth pose_3; field models "
+                   "predicting pose_2 and pose_6)")
+    p.add_argument("--shear", action="store_true",
+                   help="the lab's shear protocol: each tap reaches its pose by a tangential "
+                   "move and twist made in contact (move_1, move_2 mm, move_4..6 deg, "
+                   "uniform in +-5), with Coulomb friction; field models")
+    p.add_argument("--shear-steps", type=int, default=4,
+                   help="load steps of the move in contact (--shear; default 4)")
+    p.add_argument("--real", metavar="DIR", action="append",
+                   help="real labelled taps, 128x128 processed frames in the Bristol layout "
+                   "(e.g. ../shared/real/tactip331_tap128); --task edge / --shear: may be "
+                   "given more than once")
+    p.add_argument("--real-raw", metavar="DIR", action="append",
+                   help="real labelled taps, raw frames in the Bristol layout (scored with "
+                   "model_raw.json)")
+    p.add_argument("--n", type=int, default=None,
+                   help="simulated taps (default 300 surface, 400 edge, 200 with --shear)")
     p.add_argument("--depth-range", default="2,5", metavar="LOW,HIGH",
                    help="tap depths, mm (default 2,5: the real data set's)")
     p.add_argument("--feature", default="growth", help="CoP feature of the saved models "

@@ -1,0 +1,340 @@
+"""Learned models on the marker displacement field, for any pose target of a Bristol data set.
+
+The CoP polynomials (:mod:`tactip_lab.fitting.fit`) map two numbers to roll and pitch. The
+lab's other tasks need more: the lateral position of an edge (``pose_2``, mm) and its angle over
+the full circle (``pose_6``, deg), under shear too. This module holds what ``tactip sim2real
+--task`` fits and ``tactip evaluate`` scores:
+
+- **The feature** (:func:`field_features`): every tracked marker's displacement against the
+  reference frame, in units of the reference field's RMS radius (so a 128x128 frame and a raw
+  640x480 frame of the same press give the same numbers up to the lens), smoothed onto a fixed
+  grid of :data:`GRID` x :data:`GRID` nodes over the field (a Gaussian kernel of
+  :data:`BANDWIDTH` field radii: lost markers leave no hole), then divided by its own RMS so
+  that the pattern, not its size, carries the pose (the simulated field spreads ~20 % more
+  per mm than the real one, docs/sim2real.md); the log of that size is kept as one more number.
+- **The regressor** (:class:`FieldModel`): scikit-learn's standardisation, PCA and kernel ridge
+  regression (RBF kernel), one output per target; a target that wraps (an angle over the full
+  circle, :data:`TARGETS`) is predicted as its sine and cosine and read back with ``atan2``.
+- **Scores** (:func:`target_scores`): MAE, RMSE and R² per target; for a wrapping angle the
+  error is wrapped to [-180, 180) and R² is taken about the circular mean.
+
+Saved as JSON (the fitted arrays, no pickle); :func:`load_field_model` checks the format.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT = "tactip_lab.FieldModel"
+VERSION = 1
+
+TARGETS: dict[str, dict[str, Any]] = {
+    "pose_2": {"unit": "mm", "wraps": False, "what": "lateral position (y)"},
+    "pose_3": {"unit": "mm", "wraps": False, "what": "depth (z)"},
+    "pose_4": {"unit": "deg", "wraps": False, "what": "roll (Rx)"},
+    "pose_5": {"unit": "deg", "wraps": False, "what": "pitch (Ry)"},
+    "pose_6": {"unit": "deg", "wraps": True, "what": "edge angle (Rz), full circle"},
+    "move_1": {"unit": "mm", "wraps": False, "what": "shear move x"},
+    "move_2": {"unit": "mm", "wraps": False, "what": "shear move y"},
+    "move_6": {"unit": "deg", "wraps": False, "what": "shear twist (Rz)"},
+}
+"""Targets a field model may predict (Bristol columns), their units and whether they wrap."""
+
+GRID = 15
+"""Grid nodes per side over [-GRID_EXTENT, GRID_EXTENT] field radii (nodes outside the disc of
+radius GRID_EXTENT dropped)."""
+GRID_EXTENT = 1.45
+"""Half-width of the grid in RMS field radii: a uniform disc of markers has its rim at
+sqrt(2) = 1.41 RMS radii."""
+BANDWIDTH = 0.12
+"""Gaussian kernel width (RMS field radii) of the grid smoothing: about 0.9 marker spacings on
+the 331-pin field (spacing / RMS radius = 16.9 / 126.7 on the raw frame, docs/sim2real.md)."""
+
+
+def grid_nodes(n: int = GRID, extent: float = GRID_EXTENT) -> np.ndarray:
+    """(k, 2) grid nodes (field radii) inside the disc of radius ``extent``."""
+    ax = np.linspace(-extent, extent, n)
+    g = np.stack(np.meshgrid(ax, ax, indexing="xy"), axis=-1).reshape(-1, 2)
+    return g[np.hypot(g[:, 0], g[:, 1]) <= extent + 1e-9]
+
+
+def field_features(rest: np.ndarray, points: np.ndarray, *, nodes: np.ndarray | None = None,
+                   bandwidth: float = BANDWIDTH) -> np.ndarray:
+    """The feature vector of one frame: ``points`` (m, 2) tracked in the order of ``rest``
+    (m, 2) (NaN rows lost), px.
+
+    Returns (2k + 1,): the smoothed displacement field on the grid (x components, then y),
+    divided by its RMS, and log10 of that RMS (in field radii). NaN everywhere when fewer than
+    half the markers are tracked.
+    """
+    rest = np.asarray(rest, dtype=float)
+    points = np.asarray(points, dtype=float)
+    nodes = grid_nodes() if nodes is None else nodes
+    c = rest.mean(axis=0)
+    s = float(np.sqrt(np.mean(np.sum((rest - c) ** 2, axis=1))))
+    ok = np.all(np.isfinite(points), axis=1)
+    out = np.full(2 * len(nodes) + 1, np.nan)
+    if ok.sum() < len(rest) / 2:
+        return out
+    r = (rest[ok] - c) / s
+    d = (points[ok] - rest[ok]) / s
+    d = d - np.median(d, axis=0)  # a shift of the whole array (camera, crop) is not a pose
+    w = np.exp(-np.sum((nodes[:, None, :] - r[None]) ** 2, axis=2) / (2 * bandwidth ** 2))
+    wsum = w.sum(axis=1)
+    g = (w @ d) / np.maximum(wsum, 1e-12)[:, None]
+    g[wsum < 1e-3] = 0.0  # no marker near the node
+    size = float(np.sqrt(np.mean(np.sum(g ** 2, axis=1))))
+    if size <= 0:
+        return out
+    g = g / size
+    out[:len(nodes)] = g[:, 0]
+    out[len(nodes):2 * len(nodes)] = g[:, 1]
+    out[-1] = np.log10(size)
+    return out
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (np.asarray(a, dtype=float) + 180.0) % 360.0 - 180.0
+
+
+def encode(y: np.ndarray, targets: list[str]) -> np.ndarray:
+    """Targets (n, t) -> regression outputs: a wrapping angle as (sin, cos)."""
+    cols = []
+    for j, name in enumerate(targets):
+        if TARGETS[name]["wraps"]:
+            a = np.deg2rad(y[:, j])
+            cols += [np.sin(a), np.cos(a)]
+        else:
+            cols.append(y[:, j])
+    return np.stack(cols, axis=1)
+
+
+def decode(z: np.ndarray, targets: list[str]) -> np.ndarray:
+    """Regression outputs -> targets (n, t) (angles in [-180, 180))."""
+    cols, k = [], 0
+    for name in targets:
+        if TARGETS[name]["wraps"]:
+            cols.append(_wrap(np.rad2deg(np.arctan2(z[:, k], z[:, k + 1]))))
+            k += 2
+        else:
+            cols.append(z[:, k])
+            k += 1
+    return np.stack(cols, axis=1)
+
+
+def target_scores(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> dict[str, Any]:
+    """Per target: ``mae``, ``rmse``, ``r2``, ``unit``, ``n``, ``wrapped``. A wrapping angle's
+    error is wrapped to [-180, 180); its R² is ``1 - sum(err²) / sum(dev²)`` with ``dev`` the
+    wrapped deviation from the circular mean."""
+    out = {}
+    for j, name in enumerate(targets):
+        t, p = np.asarray(y[:, j], dtype=float), np.asarray(pred[:, j], dtype=float)
+        ok = np.isfinite(t) & np.isfinite(p)
+        t, p = t[ok], p[ok]
+        wraps = TARGETS[name]["wraps"]
+        if len(t) < 2:
+            out[name] = {"mae": float("nan"), "rmse": float("nan"), "r2": float("nan"),
+                         "unit": TARGETS[name]["unit"], "n": int(len(t)), "wrapped": wraps}
+            continue
+        if wraps:
+            err = _wrap(p - t)
+            m = np.rad2deg(np.arctan2(np.sin(np.deg2rad(t)).mean(), np.cos(np.deg2rad(t)).mean()))
+            dev = _wrap(t - m)
+        else:
+            err = p - t
+            dev = t - t.mean()
+        ss = float(np.sum(dev ** 2))
+        out[name] = {"mae": float(np.mean(np.abs(err))),
+                     "rmse": float(np.sqrt(np.mean(err ** 2))),
+                     "r2": float(1 - np.sum(err ** 2) / ss) if ss > 0 else float("nan"),
+                     "unit": TARGETS[name]["unit"], "n": int(len(t)), "wrapped": wraps}
+    return out
+
+
+@dataclass
+class FieldModel:
+    """Standardise -> PCA -> kernel ridge (RBF) on :func:`field_features`, one output per
+    target (a wrapping angle as sine and cosine).
+
+    task : the task it was fitted for (``surface``, ``edge``; ``+shear``), checked by
+        ``tactip evaluate`` against the folder's columns
+    targets : Bristol columns it predicts
+    image_size : (width, height) of the frames it was fitted on (a model of one format is
+        refused on the other: the lens maps the field differently)
+    """
+
+    task: str
+    targets: list[str]
+    image_size: tuple[int, int]
+    n_components: int = 40
+    alpha: float = 1e-2
+    gamma: float | None = None
+    fitted_on: dict[str, Any] = field(default_factory=dict)
+    _scaler: Any = None
+    _pca: Any = None
+    _krr: Any = None
+
+    def __post_init__(self) -> None:
+        unknown = [t for t in self.targets if t not in TARGETS]
+        if unknown:
+            raise ValueError(f"targets {unknown} are not known: allowed {', '.join(TARGETS)}")
+
+    def fit(self, x: np.ndarray, y: np.ndarray) -> FieldModel:
+        from sklearn.decomposition import PCA
+        from sklearn.kernel_ridge import KernelRidge
+        from sklearn.preprocessing import StandardScaler
+
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(y), axis=1)
+        if ok.sum() < 10:
+            raise ValueError(f"only {int(ok.sum())} usable frames to fit on: at least 10")
+        x, y = x[ok], y[ok]
+        self._scaler = StandardScaler().fit(x)
+        xs = self._scaler.transform(x)
+        k = int(min(self.n_components, len(x) - 1, x.shape[1]))
+        self._pca = PCA(n_components=k, svd_solver="full").fit(xs)
+        xp = self._pca.transform(xs)
+        gamma = self.gamma if self.gamma is not None else 1.0 / (2.0 * k)
+        self.gamma = float(gamma)
+        self._krr = KernelRidge(kernel="rbf", alpha=self.alpha, gamma=gamma).fit(
+            xp, encode(y, self.targets))
+        return self
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        """(n, t) predicted targets; NaN rows where the features are not finite."""
+        if self._krr is None:
+            raise ValueError("the model is not fitted")
+        x = np.asarray(x, dtype=float)
+        out = np.full((len(x), len(self.targets)), np.nan)
+        ok = np.all(np.isfinite(x), axis=1)
+        if ok.any():
+            z = self._krr.predict(self._pca.transform(self._scaler.transform(x[ok])))
+            out[ok] = decode(np.atleast_2d(z), self.targets)
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "format": FORMAT, "version": VERSION, "task": self.task, "targets": self.targets,
+            "units": {t: TARGETS[t]["unit"] for t in self.targets},
+            "image_size": list(self.image_size), "n_components": self.n_components,
+            "alpha": self.alpha, "gamma": self.gamma,
+            "grid": {"n": GRID, "extent": GRID_EXTENT, "bandwidth": BANDWIDTH},
+            "fitted_on": self.fitted_on,
+            "scaler": {"mean": self._scaler.mean_.tolist(), "scale": self._scaler.scale_.tolist()},
+            "pca": {"mean": self._pca.mean_.tolist(), "components": self._pca.components_.tolist()},
+            "krr": {"x_fit": self._krr.X_fit_.tolist(),
+                    "dual_coef": np.asarray(self._krr.dual_coef_).tolist()},
+        }
+
+    def save(self, path: str | Path) -> Path:
+        from tactip_lab.sampling.dataset import atomic_write_text
+
+        path = Path(path)
+        atomic_write_text(path, json.dumps(self.to_json()) + "\n")
+        return path
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any], source: str = "model") -> FieldModel:
+        from sklearn.decomposition import PCA
+        from sklearn.kernel_ridge import KernelRidge
+        from sklearn.preprocessing import StandardScaler
+
+        if d.get("format") != FORMAT:
+            raise ValueError(f"{source}: not a field model (format {d.get('format')!r}, "
+                             f"expected {FORMAT!r})")
+        if d.get("version") != VERSION:
+            raise ValueError(f"{source}: field model version {d.get('version')!r}, this "
+                             f"version reads {VERSION}")
+        g = d.get("grid", {})
+        if (g.get("n"), g.get("extent"), g.get("bandwidth")) != (GRID, GRID_EXTENT, BANDWIDTH):
+            raise ValueError(f"{source}: fitted on another feature grid ({g}); refit it")
+        m = cls(task=d["task"], targets=list(d["targets"]), image_size=tuple(d["image_size"]),
+                n_components=int(d["n_components"]), alpha=float(d["alpha"]),
+                gamma=float(d["gamma"]), fitted_on=d.get("fitted_on", {}))
+        sc = StandardScaler()
+        sc.mean_ = np.asarray(d["scaler"]["mean"])
+        sc.scale_ = np.asarray(d["scaler"]["scale"])
+        sc.var_ = sc.scale_ ** 2
+        sc.n_features_in_ = len(sc.mean_)
+        pca = PCA(n_components=len(d["pca"]["components"]))
+        pca.mean_ = np.asarray(d["pca"]["mean"])
+        pca.components_ = np.asarray(d["pca"]["components"])
+        pca.n_components_ = len(pca.components_)
+        pca.n_features_in_ = len(pca.mean_)
+        pca.whiten = False
+        krr = KernelRidge(kernel="rbf", alpha=m.alpha, gamma=m.gamma)
+        krr.X_fit_ = np.asarray(d["krr"]["x_fit"])
+        krr.dual_coef_ = np.asarray(d["krr"]["dual_coef"])
+        krr.n_features_in_ = krr.X_fit_.shape[1]
+        m._scaler, m._pca, m._krr = sc, pca, krr
+        return m
+
+
+def is_field_model(path: str | Path) -> bool:
+    """Whether ``path`` is a field model file (read cheaply: its format key)."""
+    try:
+        with Path(path).open() as fh:
+            head = fh.read(200)
+    except OSError:
+        return False
+    return f'"format": "{FORMAT}"' in head
+
+
+def load_field_model(path: str | Path) -> FieldModel:
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: not a readable model file ({exc})") from None
+    return FieldModel.from_json(d, str(path))
+
+
+def task_targets(task: str) -> list[str]:
+    """The targets a task's model predicts (``surface``: roll, pitch; ``edge``: lateral position
+    and angle), with or without ``+shear``."""
+    base = task.split("+")[0]
+    if base == "surface":
+        return ["pose_4", "pose_5"]
+    if base == "edge":
+        return ["pose_2", "pose_6"]
+    raise ValueError(f"task {task!r} is not known: surface or edge (optionally +shear)")
+
+
+def folder_fields(folder: Any, *, expected_count: int | None = None, progress: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(features (n, 2k+1), reliable (n,)) of every frame of a :class:`~tactip_lab.fitting.
+    bristol.BristolFolder`, each tracked from the folder's reference as a tap
+    (:func:`~tactip_lab.fitting.bristol.tap_pipeline`). Frames perception flags keep their
+    features when at least half the markers are tracked (``reliable`` says which)."""
+    from tqdm import tqdm
+
+    import perception as pc
+
+    from .bristol import tap_pipeline
+
+    pipe = tap_pipeline(folder.reference, expected_count)
+    rest = np.asarray(pipe.rest_points, dtype=float)
+    nodes = grid_nodes()
+    x = np.full((len(folder), 2 * len(nodes) + 1), np.nan)
+    reliable = np.zeros(len(folder), dtype=bool)
+    for i, path in enumerate(tqdm(folder.images, disable=not progress, unit="frame",
+                                  desc=folder.root.name, dynamic_ncols=True)):
+        pipe.reset()
+        try:
+            f = pipe.process(str(path))
+        except pc.PerceptionError:
+            continue
+        x[i] = field_features(rest, f.points, nodes=nodes)
+        reliable[i] = bool(f.reliable)
+    return x, reliable
+
+
+__all__ = ["BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "TARGETS", "FieldModel", "decode",
+           "encode", "field_features", "folder_fields", "grid_nodes", "is_field_model",
+           "load_field_model", "target_scores", "task_targets"]

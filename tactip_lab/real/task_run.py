@@ -1,0 +1,327 @@
+"""``tactip sim2real --task edge | --shear``: field models fitted on simulated taps of the lab's
+tasks (:mod:`tactip_lab.real.tasks`), scored on real labelled folders.
+
+Per real folder (``--real DIR``, repeatable), the figures of docs/sim2real.md:
+
+- **zero-shot**: the saved model on every real tap (no real label used);
+- **few-shot** (k = 20 labelled taps, seeded draw): a correction of the zero-shot predictions
+  fitted on those k alone, ``a * pred + b`` per linear target, a constant offset (the
+  circular mean of the k errors) for a wrapping angle; scored on the other taps;
+- **predicted by simulation**: 5-fold cross-validation of the same model within the simulated
+  taps (what the simulation says the real sensor will achieve);
+- **real-trained**: 5-fold cross-validation of the same model on the real folder;
+- **naive baseline**: PCA (50 components) of the 64x64 pixels + ridge (alpha 1), real-trained,
+  5-fold cross-validated (issue 53's baseline).
+
+Hyper-parameters are fixed beforehand (:class:`~tactip_lab.fitting.field_model.FieldModel`'s
+defaults); none is chosen on a real score.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import tactip_sim as ts
+from tactip_lab.fitting.field_model import (
+    TARGETS,
+    FieldModel,
+    folder_fields,
+    target_scores,
+    task_targets,
+)
+from tactip_lab.sampling.dataset import atomic_write_text
+
+from .tasks import EDGE_CONVENTION, convert_128, simulate_task
+
+FOLDS = 5
+NAIVE_COMPONENTS = 50
+NAIVE_ALPHA = 1.0
+
+
+@dataclass(frozen=True)
+class TaskConfig:
+    task: str = "edge"  # surface | edge, with "+shear"
+    n: int = 400
+    seed: int = 0
+    k: int = 20
+    shear_steps: int = 4
+
+    def check(self) -> None:
+        if self.task not in ("edge", "edge+shear", "surface+shear"):
+            raise ValueError(f"task {self.task!r}: the field-model tasks are edge, edge with "
+                             "--shear and surface with --shear")
+        if not 20 <= self.n <= 100_000:
+            raise ValueError(f"--n={self.n} is out of range: allowed [20, 100000]")
+        if not 3 <= self.k <= 1000:
+            raise ValueError(f"--k={self.k} is out of range: allowed [3, 1000]")
+        if not 1 <= self.shear_steps <= 100:
+            raise ValueError(f"--shear-steps={self.shear_steps} is out of range: [1, 100]")
+
+
+def folder_columns(root: Path) -> dict[str, np.ndarray]:
+    """Every ``pose_*``/``move_*`` column of a folder's ``targets.csv`` (floats)."""
+    import csv
+
+    path = root / "targets.csv"
+    with path.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    out = {}
+    for k in rows[0] if rows else []:
+        if k.startswith(("pose_", "move_")):
+            try:
+                out[k] = np.array([float(r[k]) for r in rows])
+            except ValueError:
+                raise ValueError(f"{path}: column {k} holds a value that is not a number") \
+                    from None
+    return out
+
+
+def check_task_columns(path: Path, cols: dict[str, np.ndarray], targets: list[str],
+                       task: str) -> None:
+    """A folder fits a task when it has the model's target columns and they vary; an edge
+    folder given to a surface model (or the reverse) is refused naming what differs."""
+    missing = [t for t in targets if t not in cols]
+    if missing:
+        raise ValueError(f"{path}: no column {', '.join(missing)}, which the {task!r} model "
+                         f"predicts ({', '.join(targets)}); columns: {', '.join(cols) or 'none'}")
+    flat = [t for t in targets if np.ptp(cols[t]) == 0]
+    if flat:
+        other = ("edge (pose_2, pose_6)" if task.startswith("surface")
+                 else "surface (pose_4, pose_5)")
+        varying = [k for k, v in cols.items() if k.startswith("pose_") and np.ptp(v) > 0]
+        raise ValueError(
+            f"{path}: column {', '.join(flat)} is constant ({cols[flat[0]][0]:g}), so this "
+            f"folder is not of the {task!r} task the model was fitted for (it predicts "
+            f"{', '.join(targets)}); its varying pose columns are {', '.join(varying) or 'none'}"
+            f" — a folder of the {other} task? Use a model of that task")
+
+
+def cached_fields(folder: Path, cache: Path, *, key: str = "", expected_count: int = 331,
+                  progress: bool = False) -> np.ndarray:
+    """:func:`folder_fields` of a Bristol folder, cached as npz (valid for the same frame
+    count, reference choice and ``key``)."""
+    from tactip_lab.fitting.bristol import BristolFolder
+
+    f = BristolFolder.open(folder)
+    tag = f"{f.rest_choice}|{len(f)}|{key}"
+    if cache.is_file():
+        z = np.load(cache, allow_pickle=False)
+        if str(z["tag"]) == tag:
+            return z["x"]
+    x, _ = folder_fields(f, expected_count=expected_count, progress=progress)
+    tmp = cache.with_name(cache.stem + ".tmp.npz")
+    np.savez(tmp, x=x, tag=tag)
+    tmp.replace(cache)
+    return x
+
+
+def few_shot(pred: np.ndarray, y: np.ndarray, targets: list[str], k: int, seed: int
+             ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """The few-shot correction from ``k`` seeded rows; returns (rows scored, corrected
+    predictions of them, the correction)."""
+    idx = np.random.default_rng([seed, k]).permutation(len(pred))
+    shot, rest = idx[:k], idx[k:]
+    out = pred[rest].copy()
+    corr: dict[str, Any] = {}
+    for j, t in enumerate(targets):
+        if TARGETS[t]["wraps"]:
+            e = np.deg2rad(y[shot, j] - pred[shot, j])
+            off = float(np.rad2deg(np.arctan2(np.sin(e).mean(), np.cos(e).mean())))
+            out[:, j] = (out[:, j] + off + 180) % 360 - 180
+            corr[t] = {"offset": off}
+        else:
+            a, b = np.polyfit(pred[shot, j], y[shot, j], 1)
+            out[:, j] = a * out[:, j] + b
+            corr[t] = {"gain": float(a), "offset": float(b)}
+    return rest, out, corr
+
+
+def cv_predict(x: np.ndarray, y: np.ndarray, targets: list[str], image_size, *, seed: int = 0
+               ) -> np.ndarray:
+    """5-fold cross-validated predictions of a :class:`FieldModel` (folds shuffled, seeded)."""
+    from sklearn.model_selection import KFold
+
+    pred = np.full(y.shape, np.nan)
+    for tr, te in KFold(FOLDS, shuffle=True, random_state=seed).split(x):
+        m = FieldModel("cv", targets, tuple(image_size)).fit(x[tr], y[tr])
+        pred[te] = m.predict(x[te])
+    return pred
+
+
+def naive_pixels(folder: Path) -> np.ndarray:
+    """(n, 4096) the folder's frames as 64x64 grey pixels in [0, 1] (area resampling)."""
+    import cv2
+
+    from tactip_lab.fitting.bristol import BristolFolder
+
+    f = BristolFolder.open(folder)
+    out = []
+    for p in f.images:
+        g = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        out.append(cv2.resize(g, (64, 64), interpolation=cv2.INTER_AREA).ravel() / 255.0)
+    return np.asarray(out)
+
+
+def naive_cv(pixels: np.ndarray, y: np.ndarray, targets: list[str], *, seed: int = 0
+             ) -> np.ndarray:
+    """5-fold CV predictions of the naive baseline (PCA of the pixels + ridge; a wrapping
+    angle as sine and cosine)."""
+    from sklearn.decomposition import PCA
+    from sklearn.linear_model import Ridge
+    from sklearn.model_selection import KFold
+    from sklearn.pipeline import make_pipeline
+
+    from tactip_lab.fitting.field_model import decode, encode
+
+    pred = np.full(y.shape, np.nan)
+    for tr, te in KFold(FOLDS, shuffle=True, random_state=seed).split(pixels):
+        m = make_pipeline(PCA(n_components=min(NAIVE_COMPONENTS, len(tr) - 1)),
+                          Ridge(alpha=NAIVE_ALPHA)).fit(pixels[tr], encode(y[tr], targets))
+        pred[te] = decode(m.predict(pixels[te]), targets)
+    return pred
+
+
+def _short(s: dict[str, Any]) -> dict[str, Any]:
+    return {t: {k: v[k] for k in ("mae", "rmse", "r2", "unit", "n")} for t, v in s.items()}
+
+
+def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[str] = (),
+             real_raw: list[str] = (), progress: bool = True, scene_source: str = ""
+             ) -> dict[str, Any]:
+    """Simulate, convert, fit ``OUT/model.json`` (128x128) and ``OUT/model_raw.json`` (raw),
+    and with ``real`` score every real folder; the summary goes to ``OUT/summary.json`` and
+    ``OUT/table.md``."""
+    import time
+
+    from tactip_sim.scene.load import scene_hash
+
+    cfg.check()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    targets = task_targets(cfg.task)
+    count = scene.pins.count
+    for d in [*real, *real_raw]:  # refuse a folder of another task before any simulation
+        check_task_columns(Path(d) / "targets.csv", folder_columns(Path(d)), targets, cfg.task)
+    t0 = time.perf_counter()
+    sim = simulate_task(scene, out / "sim", cfg.task, cfg.n, seed=cfg.seed,
+                        shear_steps=cfg.shear_steps, progress=progress)
+    t_sim = time.perf_counter() - t0
+    sim128 = convert_128(sim, out / "sim128", count)
+    cols = folder_columns(sim)
+    y_sim = np.stack([cols[t] for t in targets], axis=1)
+    x128 = cached_fields(sim128, out / "sim128_fields.npz",
+                         key=(sim128 / "crop.json").read_text(), expected_count=count,
+                         progress=progress)
+    xraw = cached_fields(sim, out / "sim_raw_fields.npz", expected_count=count,
+                         progress=progress)
+    timing = json.loads((sim / "timing.json").read_text())
+    summary: dict[str, Any] = {
+        "scene": scene_source, "scene_hash": scene_hash(scene), "task": cfg.task,
+        "targets": targets, "config": cfg.__dict__, "edge_convention":
+        EDGE_CONVENTION.__dict__, "simulated": {"n": int(len(y_sim)), "seconds": t_sim,
+                                                "seconds_per_tap": timing.get("seconds_per_tap"),
+                                                "failed": timing.get("failed", [])},
+        "formats": {}, "real": {}}
+    models = {}
+    for fmt, x, size, name in (("128x128", x128, (128, 128), "model.json"),
+                               ("raw", xraw, tuple(scene.camera.resolution), "model_raw.json")):
+        m = FieldModel(cfg.task, targets, size, fitted_on={
+            "simulated": str(sim), "format": fmt, "scene": scene_source,
+            "scene_hash": scene_hash(scene), "n_sim": int(len(y_sim)),
+            "edge_convention": EDGE_CONVENTION.__dict__}).fit(x, y_sim)
+        m.save(out / name)
+        models[fmt] = m
+        pred = cv_predict(x, y_sim, targets, size, seed=cfg.seed)
+        summary["formats"][fmt] = {"model": str(out / name), "frames_usable": int(
+            np.all(np.isfinite(x), axis=1).sum()), "predicted_by_simulation": _short(
+            target_scores(y_sim, pred, targets))}
+    for fmt, folders in (("128x128", real), ("raw", real_raw)):
+        for d in folders:
+            summary["real"][str(d)] = score_real(models[fmt], Path(d), out, cfg, fmt,
+                                                 progress=progress)
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    atomic_write_text(out / "table.md", table_markdown(summary))
+    return summary
+
+
+def score_real(model: FieldModel, folder: Path, out: Path, cfg: TaskConfig, fmt: str, *,
+               progress: bool = False) -> dict[str, Any]:
+    """Zero-shot, few-shot, real-trained and naive figures of ``model`` on one real folder;
+    the predictions go to ``OUT/real_<name>.npz`` and a chart to ``OUT/real_<name>.png``."""
+    targets = model.targets
+    cols = folder_columns(folder)
+    y = np.stack([cols[t] for t in targets], axis=1)
+    name = folder.name
+    x = cached_fields(folder, out / f"real_{name}_fields.npz", progress=progress,
+                      expected_count=331)
+    zero = model.predict(x)
+    rows, few, corr = few_shot(zero, y, targets, cfg.k, cfg.seed)
+    real_cv = cv_predict(x, y, targets, model.image_size, seed=cfg.seed)
+    naive = naive_cv(naive_pixels(folder), y, targets, seed=cfg.seed)
+    np.savez(out / f"real_{name}.npz", truth=y, zero_shot=zero, few_shot_rows=rows,
+             few_shot=few, real_cv=real_cv, naive_cv=naive, targets=np.array(targets))
+    res = {"format": fmt, "n": int(len(y)),
+           "frames_usable": int(np.all(np.isfinite(x), axis=1).sum()),
+           "zero_shot": _short(target_scores(y, zero, targets)),
+           "few_shot": {"k": cfg.k, "correction": corr,
+                        **_short(target_scores(y[rows], few, targets))},
+           "real_trained_cv": _short(target_scores(y, real_cv, targets)),
+           "naive_cv": _short(target_scores(y, naive, targets))}
+    chart(out / f"real_{name}.png", y, zero, targets, f"{name}: zero-shot ({cfg.task})")
+    return res
+
+
+def chart(path: Path, y: np.ndarray, pred: np.ndarray, targets: list[str], title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = target_scores(y, pred, targets)
+    fig, axs = plt.subplots(1, len(targets), figsize=(4.4 * len(targets), 4.2))
+    for ax, j, t in zip(np.atleast_1d(axs), range(len(targets)), targets, strict=True):
+        p = pred[:, j]
+        if TARGETS[t]["wraps"]:  # unwrap the prediction onto the truth's side
+            p = y[:, j] + ((p - y[:, j] + 180) % 360 - 180)
+        ax.scatter(y[:, j], p, s=4, alpha=0.5)
+        lo, hi = float(np.nanmin(y[:, j])), float(np.nanmax(y[:, j]))
+        ax.plot([lo, hi], [lo, hi], "k--", lw=0.8)
+        u = TARGETS[t]["unit"]
+        ax.set_xlabel(f"true {t} ({TARGETS[t]['what']}), {u}")
+        ax.set_ylabel(f"predicted, {u}")
+        ax.set_title(f"MAE {s[t]['mae']:.2f} {u}, R² {s[t]['r2']:.3f}", fontsize=9)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def table_markdown(summary: dict[str, Any]) -> str:
+    targets = summary["targets"]
+    head = "| real folder | figure | " + " | ".join(
+        f"{t} MAE ({TARGETS[t]['unit']})" for t in targets) + " | " + " | ".join(
+        f"{t} R²" for t in targets) + " |"
+    lines = [head, "|" + "---|" * (2 + 2 * len(targets))]
+    for d, r in summary["real"].items():
+        pred = summary["formats"]["128x128" if r["format"] == "128x128" else "raw"][
+            "predicted_by_simulation"]
+        for label, s in (("zero-shot", r["zero_shot"]),
+                         (f"few-shot (k = {r['few_shot']['k']})", r["few_shot"]),
+                         ("predicted by simulation (sim CV)", pred),
+                         ("real-trained (5-fold CV)", r["real_trained_cv"]),
+                         ("naive baseline (5-fold CV)", r["naive_cv"])):
+            lines.append(f"| {Path(d).name} | {label} | " + " | ".join(
+                f"{s[t]['mae']:.2f}" for t in targets) + " | " + " | ".join(
+                f"{s[t]['r2']:.3f}" for t in targets) + " |")
+    if not summary["real"]:
+        lines.append("| (no --real folder) | | " + " | ".join("" for _ in 2 * targets) + " |")
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["TaskConfig", "check_task_columns", "few_shot", "folder_columns", "run_task",
+           "score_real", "table_markdown"]

@@ -1,0 +1,340 @@
+"""The Bristol lab's edge and shear protocols in simulation (``tactip sim2real --task``).
+
+The lab records four tasks with its 331-pin TacTip (``../shared/real``): surface taps, edge
+taps, and both under shear. Their protocol is read from the lab's public collection code
+(tactile_gym_sim2real, ``data_collection/real/{edge_2d,surface_3d}/collect_*_data_rand.py``
+and ``collect_data.py``; docs/sim2real.md, "The lab's tasks") and from the data sets'
+``meta.json``:
+
+- **Edge** (``edge_2d``): a flat-topped block whose straight edge runs along the work frame's
+  x axis; the sensor taps it vertically with its centre at ``pose_2`` mm (uniform in ±6) from
+  the edge, turned about its own axis by ``pose_6`` deg (uniform over the full circle,
+  -179..180), ``pose_3`` mm deep (uniform 3..5). The rows are sorted by ``pose_6`` then
+  ``pose_2`` (``np.lexsort``), so a slice of the file covers a slice of the circle.
+- **Surface** (``surface_3d``): a flat surface, ``pose_4``/``pose_5`` ±15 deg, depth 2..5 mm
+  (taps) or 2.5..5.5 mm (shear).
+- **Shear**: the robot goes down vertically to ``pose - move`` (in contact), then moves to
+  ``pose`` in contact (one straight move of position and orientation); the frame is taken
+  there. ``move_1``, ``move_2`` mm and ``move_4..6`` deg uniform in ±5, ``move_3`` = 0.
+
+In simulation the sensor stays still and the object moves: the block is a watertight box
+mesh (:func:`block_indenter`) placed by :class:`tactip_sim.Pose`'s ``offset_mm`` (in the
+indenter's axes) and ``yaw_deg``; the plate is the scene's. The conventions that map the lab's
+labels onto these (which side of the edge the block lies for ``pose_2 > 0``, the sign and
+origin of ``pose_6``) are :data:`EDGE_CONVENTION`, each checked as docs/sim2real.md says.
+
+**Depth.** The lab's edge script puts its work frame 2 mm above the edge's top face
+(``work_frame`` z 54 mm, its comment "edge height = 52.0mm"; the same ``work_frame`` is in the
+edge sets' ``meta.json``), with the tool centre point at the sensor's tip (``robot_tcp`` 101 mm).
+So the tip is pushed :data:`EDGE_DEPTH_OFFSET_MM` less than ``pose_3`` past the top face
+(1-3 mm for the 3-5 mm labels). With the sensor's centre beside the block the first contact
+is lower on the dome, so the simulated indentation beyond first contact is that minus the
+drop (:func:`edge_contact_depth`). The surface sets' depth is taken as labelled, as the
+surface taps always were (their table height is not published; the surface script repeats
+the edge's comment).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import tactip_sim as ts
+
+COLUMNS = ["sensor_image", "pose_1", "pose_2", "pose_3", "pose_4", "pose_5", "pose_6",
+           "move_1", "move_2", "move_3", "move_4", "move_5", "move_6"]
+"""Columns of a simulated task folder (the lab's ``targets.csv``, without its bookkeeping)."""
+
+PROTOCOLS: dict[str, dict[str, Any]] = {
+    "surface": {"pose_3": (2.0, 5.0), "pose_4": (-15.0, 15.0), "pose_5": (-15.0, 15.0)},
+    "surface+shear": {"pose_3": (2.5, 5.5), "pose_4": (-15.0, 15.0), "pose_5": (-15.0, 15.0)},
+    "edge": {"pose_2": (-6.0, 6.0), "pose_3": (3.0, 5.0), "pose_6": (-179.0, 180.0)},
+    "edge+shear": {"pose_2": (-6.0, 6.0), "pose_3": (3.0, 5.0), "pose_6": (-179.0, 180.0)},
+}
+"""The lab's pose ranges per task (``poses_rng`` of its collection scripts; the surface taps'
+2..5 mm is the shared data set's range)."""
+SHEAR_MOVES = {"move_1": (-5.0, 5.0), "move_2": (-5.0, 5.0), "move_4": (-5.0, 5.0),
+               "move_5": (-5.0, 5.0), "move_6": (-5.0, 5.0)}
+"""The lab's ``moves_rng`` for shear (mm, deg); ``move_3`` is 0."""
+
+
+@dataclass(frozen=True)
+class EdgeConvention:
+    """How the lab's edge labels map onto the simulation's block.
+
+    lateral_sign : the sensor's centre lies ``lateral_sign * pose_2`` mm inside the block
+        (positive: over the block)
+    angle_sign, angle_origin_deg : the block's yaw in the sensor frame is
+        ``angle_sign * pose_6 + angle_origin_deg``
+    """
+
+    lateral_sign: float = 1.0
+    angle_sign: float = 1.0
+    angle_origin_deg: float = 0.0
+
+    def yaw(self, pose_6: np.ndarray) -> np.ndarray:
+        return (self.angle_sign * np.asarray(pose_6) + self.angle_origin_deg + 180) % 360 - 180
+
+
+EDGE_CONVENTION = EdgeConvention()
+"""The conventions in use (docs/sim2real.md, "Edge conventions", says how each was checked)."""
+
+BLOCK_MM = (80.0, 40.0, 20.0)
+"""The block (x along the edge, y across, z height), mm: wider than the pad (40 mm) both ways so
+that only its one edge meets it."""
+EDGE_DEPTH_OFFSET_MM = 2.0
+"""The edge sets' ``pose_3`` less the tip's depth past the block's top face (the lab's
+``work_frame`` z 54 mm against its stated edge height 52 mm: read from its code, not fitted)."""
+EDGE_TAP_NOTE = """Edge taps are pressed with friction (:data:`FRICTION_ASSUMED`, ``tap_steps``
+load steps), not frictionless: at the block's corner the contact pushes the skin away from the
+block, and without friction on the top face the whole skin slides sideways. Measured on the
+identified scene (``fast``), centre 3 mm inside the edge, 2 mm deep: the mean marker shift on
+the raw frame is 5.1 px frictionless (one press), 0.7 px at mu 0.5 and 0.0-0.5 px at mu 1
+(2 or 4 steps); the real edge taps show a field radial about the contact, no such shift
+(docs/sim2real.md)."""
+FRICTION_ASSUMED = 0.5
+"""Coulomb coefficient between skin and object for the shear moves: *assumed* (not published
+for the lab's skin; silicone on acrylic or PLA is commonly 0.5-1; docs/fem.md runs its
+friction checks at 0.5)."""
+
+
+def block_indenter():
+    """A box whose top face's edge along local x is the edge: after
+    :class:`~tactip_sim.fem.contact.indenters.MeshIndenter` re-centres it, the block spans local
+    y in [-BLOCK_MM[1]/2, +BLOCK_MM[1]/2] and its edge is at local y = +BLOCK_MM[1]/2."""
+    import trimesh
+
+    from tactip_sim.fem import MeshIndenter
+
+    box = trimesh.creation.box(extents=BLOCK_MM)
+    return MeshIndenter(box, name="edge_block")
+
+
+def edge_pose(inside_mm: float, yaw_deg: float, depth_mm: float) -> ts.Pose:
+    """The block with the sensor's centre ``inside_mm`` inside its edge (negative: beside it),
+    its edge at ``yaw_deg`` in the sensor frame, ``depth_mm`` beyond first contact."""
+    return ts.Pose(depth_mm=float(depth_mm), yaw_deg=float(yaw_deg),
+                   offset_mm=(0.0, float(inside_mm) - BLOCK_MM[1] / 2))
+
+
+def edge_contact_depth(sim: Any, indenter: Any, inside_mm: float, yaw_deg: float,
+                       tip_depth_mm: float) -> float:
+    """Indentation beyond first contact when the block's top face is ``tip_depth_mm`` past the
+    pad's tip: the first contact point (the pad node highest under the block) is lower than
+    the tip by ``tip z - contact z`` when the sensor's centre is beside the block."""
+    from tactip_sim.fem import place
+
+    pl = place(indenter, edge_pose(inside_mm, yaw_deg, 0.0), sim._cand_rest,
+               skin_thickness_mm=sim.body.skin_thickness_mm)
+    return float(tip_depth_mm - (sim.tip_mm[2] - pl.contact_point_mm[2]))
+
+
+def draw_poses(task: str, n: int, seed: int) -> np.ndarray:
+    """(n, 12) uniform draws of ``pose_1..6, move_1..6`` in the lab's ranges (seeded)."""
+    if task not in PROTOCOLS:
+        raise ValueError(f"task {task!r} is not known: {', '.join(PROTOCOLS)}")
+    rng = np.random.default_rng([seed, 53, len(task)])
+    out = np.zeros((n, 12))
+    names = COLUMNS[1:]
+    for k, (lo, hi) in PROTOCOLS[task].items():
+        out[:, names.index(k)] = rng.uniform(lo, hi, n)
+    if task.endswith("+shear"):
+        for k, (lo, hi) in SHEAR_MOVES.items():
+            out[:, names.index(k)] = rng.uniform(lo, hi, n)
+    return out
+
+
+def sim_pose(task: str, row: np.ndarray, *, sim: Any = None, indenter: Any = None,
+             convention: EdgeConvention = EDGE_CONVENTION, axes: str = "-x-y") -> ts.Pose:
+    """The simulator's pose for a label row (``pose_1..6`` of the lab; the move not applied).
+
+    Surface: the data set's (pose_4, pose_5) are the sensor's rotation against the surface;
+    the plate's roll and pitch follow through ``axes`` (:data:`~.sim2real.AXIS_MAPS`, default
+    both signs flipped, docs/sim2real.md) and the depth is ``pose_3``. Edge:
+    :data:`EDGE_CONVENTION` and :func:`edge_contact_depth`."""
+    from .sim2real import AXIS_MAPS
+
+    p = dict(zip(COLUMNS[1:7], row[:6], strict=True))
+    if task.startswith("surface"):
+        m = np.asarray(AXIS_MAPS[axes], dtype=float)
+        roll, pitch = np.linalg.solve(m, [p["pose_4"], p["pose_5"]])
+        return ts.Pose(roll_deg=float(roll), pitch_deg=float(pitch), depth_mm=float(p["pose_3"]))
+    inside = convention.lateral_sign * p["pose_2"]
+    yaw = float(convention.yaw(p["pose_6"]))
+    depth = edge_contact_depth(sim, indenter, inside, yaw, p["pose_3"] - EDGE_DEPTH_OFFSET_MM)
+    return edge_pose(inside, yaw, depth)
+
+
+def shear_path(task: str, row: np.ndarray, steps: int, *, sim: Any, indenter: Any,
+               convention: EdgeConvention = EDGE_CONVENTION, axes: str = "-x-y"
+               ) -> list[ts.Pose]:
+    """The lab's shear move as simulator poses: from ``pose - move`` to ``pose`` in ``steps``
+    equal steps of the labels (each step's depth found again for the edge).
+
+    The move is the sensor's, in the work frame: a translation ``(move_1, move_2)`` of the
+    sensor is a translation of the object by minus that, which in the object's own axes
+    (``offset_mm``) is the same vector for the edge (its axes are the work frame's turned by the
+    yaw) and the move's projection for the plate. The twist ``move_6`` turns the sensor about
+    its axis (the edge's yaw; the plate's yaw, which a flat plate's geometry does not see but
+    its friction does). ``move_4``/``move_5`` (tilts made in contact) are applied to the plate's
+    roll and pitch; for the edge (a 2-D task, the lab's labels have no tilt) they are left out
+    (*assumed* small: the edge protocol's ``pose_4``/``pose_5`` are 0).
+    """
+    pose, move = row[:6], row[6:]
+    out = []
+    for j in range(1, steps + 1):
+        t = j / steps
+        r = pose - (1 - t) * move
+        if task.startswith("surface"):
+            p = sim_pose(task, np.concatenate([r, np.zeros(6)]), axes=axes)
+            # the sensor moved by (1 - t) * move short of the pose: the plate by minus that
+            back = -(1 - t) * np.asarray(move[:2])
+            out.append(ts.Pose(roll_deg=p.roll_deg, pitch_deg=p.pitch_deg, depth_mm=p.depth_mm,
+                               offset_mm=(float(-back[0]), float(-back[1])),
+                               yaw_deg=float((1 - t) * move[5])))
+        else:
+            # the sensor's work-frame position is pose_1, pose_2 less the remaining move
+            r2 = np.array(r)
+            inside = convention.lateral_sign * r2[1]
+            yaw = float(convention.yaw(r2[5]))
+            depth = edge_contact_depth(sim, indenter, inside, yaw,
+                                       r2[2] - EDGE_DEPTH_OFFSET_MM)
+            # the sensor at work x = pose_1 - (1 - t) move_1; the block's axes are the work
+            # frame's, turned by 180 deg about z when lateral_sign = +1 (its y runs against
+            # the work frame's): the block's origin sits at minus the sensor's position
+            along = convention.lateral_sign * r2[0]
+            out.append(ts.Pose(depth_mm=depth, yaw_deg=yaw,
+                               offset_mm=(float(along), inside - BLOCK_MM[1] / 2)))
+    return out
+
+
+def tap_poses(pose: ts.Pose, steps: int) -> list[ts.Pose]:
+    """A vertical tap to ``pose`` in ``steps`` equal steps of depth (from first contact)."""
+    from dataclasses import replace
+
+    return [replace(pose, depth_mm=pose.depth_mm * j / steps) for j in range(1, steps + 1)]
+
+
+def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 0,
+                  convention: EdgeConvention = EDGE_CONVENTION, axes: str = "-x-y",
+                  shear_steps: int = 4, tap_steps: int = 2, friction: float = FRICTION_ASSUMED,
+                  progress: bool = True) -> Path:
+    """``n`` simulated taps of ``task`` rendered (raw format) into ``out`` as a Bristol folder
+    (``targets.csv`` in the lab's columns, ``images/image_NNNNN.png``, ``images/rest.png``,
+    ``timing.json``). Resumable: frames already written are kept (the labels are seeded)."""
+    import time
+
+    import cv2
+    from tqdm import tqdm
+
+    from tactip_lab.sampling.chain import Chain
+    from tactip_lab.sampling.dataset import atomic_write_text
+
+    out = Path(out)
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    rows = draw_poses(task, n, seed)
+    chain = Chain(scene, frames=1)
+    if not (out / "images" / "rest.png").is_file():
+        cv2.imwrite(str(out / "images" / "rest.png"), chain.rest_image)
+    indenter = block_indenter() if task.startswith("edge") else chain.sim.indenter
+    shear = task.endswith("+shear")
+    names, times, failed = [], [], []
+    for i in tqdm(range(n), disable=not progress, unit="tap", desc=task, dynamic_ncols=True):
+        name = f"image_{i + 1:05d}.png"
+        target = out / "images" / name
+        if target.is_file():
+            names.append(name)
+            continue
+        t0 = time.perf_counter()
+        try:
+            if shear:  # a vertical tap to pose - move, then the move in contact
+                poses = shear_path(task, rows[i], shear_steps, sim=chain.sim, indenter=indenter,
+                                   convention=convention, axes=axes)
+                states, _ = chain.sim.continue_path(tap_poses(poses[0], tap_steps) + poses[1:],
+                                                    friction=friction, indenter=indenter)
+                state = states[-1]
+            elif task == "edge":  # a tap with friction (EDGE_TAP_NOTE)
+                pose = sim_pose(task, rows[i], sim=chain.sim, indenter=indenter,
+                                convention=convention, axes=axes)
+                states, _ = chain.sim.continue_path(tap_poses(pose, tap_steps),
+                                                    friction=friction, indenter=indenter)
+                state = states[-1]
+            else:
+                pose = sim_pose(task, rows[i], sim=chain.sim, indenter=indenter,
+                                convention=convention, axes=axes)
+                state = chain.sim.press(pose, indenter, surface=False)
+        except (ValueError, ArithmeticError) as exc:  # a pose out of the pad's range, or
+            failed.append({"row": i + 1, "error": str(exc)})  # a path that failed: recorded
+            continue
+        r = chain.render(state, 53, i, frames=1)
+        cv2.imwrite(str(target), r.images[0])
+        times.append(time.perf_counter() - t0)
+        names.append(name)
+    done = {nm for nm in names}
+    lines = [",".join(COLUMNS)]
+    for i in range(n):
+        name = f"image_{i + 1:05d}.png"
+        if name in done:
+            lines.append(",".join([name] + [repr(float(v)) for v in rows[i]]))
+    atomic_write_text(out / "targets.csv", "\n".join(lines) + "\n")
+    info = {"task": task, "n": n, "seed": seed, "convention": convention.__dict__,
+            "axes": axes, "friction": friction if task != "surface" else 0.0,
+            "shear_steps": shear_steps if shear else 0,
+            "tap_steps": tap_steps if task != "surface" else 0,
+            "failed": failed}
+    old = out / "timing.json"
+    prev = json.loads(old.read_text()) if old.is_file() else {}
+    if times:
+        info["seconds_per_tap"] = float(np.mean(times))
+        info["taps_timed"] = len(times)
+    elif "seconds_per_tap" in prev:
+        info["seconds_per_tap"], info["taps_timed"] = prev["seconds_per_tap"], prev["taps_timed"]
+    atomic_write_text(old, json.dumps(info, indent=2) + "\n")
+    return out
+
+
+def convert_128(sim: Path, dest: Path, expected_count: int, field_128: dict | None = None
+                ) -> Path:
+    """A simulated task folder (raw) in the processed 128x128 format, as
+    :func:`~.sim2real.write_128` converts the surface taps: the crop mapping the simulated rest
+    field onto the real format's (:data:`~.sim2real.FIELD_128`), area resampling, the grey
+    level giving the rest markers the real blob area. ``targets.csv`` is copied."""
+    import shutil
+
+    import cv2
+
+    from tactip_lab.sampling.dataset import atomic_write_text
+
+    from .sim2real import BLOB_AREA_128, FIELD_128, blob_level, crop_box, resample_128, to_128
+
+    field_128 = dict(FIELD_128) if field_128 is None else field_128
+    rest = cv2.imread(str(sim / "images" / "rest.png"), cv2.IMREAD_GRAYSCALE)
+    box = crop_box(rest, field_128, expected_count)
+    level = blob_level(resample_128(rest, box))
+    record = json.dumps({"box_px": {"x0": box[0], "y0": box[1], "side": box[2]},
+                         "field_128": field_128, "grey_level": level,
+                         "blob_area_px": BLOB_AREA_128}, indent=2) + "\n"
+    redo = not (dest / "crop.json").is_file() or (dest / "crop.json").read_text() != record
+    (dest / "images").mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(dest / "images" / "rest.png"), to_128(rest, box, level))
+    with (sim / "targets.csv").open(newline="") as fh:
+        names = [r["sensor_image"] for r in csv.DictReader(fh)]
+    for name in names:
+        target = dest / "images" / name
+        if redo or not target.is_file():
+            frame = cv2.imread(str(sim / "images" / name), cv2.IMREAD_GRAYSCALE)
+            cv2.imwrite(str(target), to_128(frame, box, level))
+    shutil.copyfile(sim / "targets.csv", dest / "targets.csv")
+    atomic_write_text(dest / "crop.json", record)
+    return dest
+
+
+__all__ = ["BLOCK_MM", "COLUMNS", "EDGE_CONVENTION", "EDGE_DEPTH_OFFSET_MM", "FRICTION_ASSUMED",
+           "PROTOCOLS", "SHEAR_MOVES", "EdgeConvention", "block_indenter", "convert_128",
+           "draw_poses", "edge_contact_depth", "edge_pose", "shear_path", "sim_pose",
+           "simulate_task", "tap_poses"]

@@ -1,0 +1,293 @@
+"""The lab's edge and shear tasks (tactip_lab/real/tasks.py, task_run.py) and the field model
+(tactip_lab/fitting/field_model.py): known answers on tiny synthetic data, seconds in all."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tactip_lab.fitting.field_model import (
+    FieldModel,
+    decode,
+    encode,
+    field_features,
+    grid_nodes,
+    load_field_model,
+    target_scores,
+)
+
+from .test_bristol import folder  # noqa: F401 (the synthetic labelled folder fixture)
+
+
+def _lattice(n_side: int = 21, spacing: float = 6.0, centre=(64.0, 64.0)) -> np.ndarray:
+    ax = (np.arange(n_side) - (n_side - 1) / 2) * spacing
+    g = np.stack(np.meshgrid(ax, ax), axis=-1).reshape(-1, 2)
+    g = g[np.hypot(g[:, 0], g[:, 1]) <= (n_side - 1) / 2 * spacing]
+    return g + centre
+
+
+def _bump(rest: np.ndarray, at, amp: float = 1.5, width: float = 15.0) -> np.ndarray:
+    """Markers pushed radially away from ``at`` (a press there)."""
+    v = rest - np.asarray(at, dtype=float)
+    r = np.hypot(v[:, 0], v[:, 1])[:, None]
+    return rest + amp * v / np.maximum(r, 1e-9) * np.exp(-(r / width) ** 2) * (r > 0)
+
+
+# --- the feature ---------------------------------------------------------------------------
+
+def test_features_ignore_a_shift_and_the_frame_scale_and_keep_the_size_apart():
+    rest = _lattice()
+    moved = _bump(rest, (80.0, 60.0))
+    f = field_features(rest, moved)
+    # a shift of the whole array (camera, crop) is not a pose
+    np.testing.assert_allclose(field_features(rest, moved + (2.0, -1.0)), f, atol=1e-12)
+    # the same press in a frame 5x larger (raw against 128x128): the same numbers
+    big = field_features(5 * rest, 5 * moved)
+    np.testing.assert_allclose(big, f, atol=1e-12)
+    # twice the displacement: the same pattern, log10 of the size up by log10(2)
+    twice = field_features(rest, rest + 2 * (moved - rest))
+    np.testing.assert_allclose(twice[:-1], f[:-1], atol=1e-9)
+    assert twice[-1] - f[-1] == pytest.approx(np.log10(2.0), abs=1e-9)
+
+
+def test_features_locate_the_press():
+    """The smoothed field is largest around the press and points away from it."""
+    rest = _lattice()
+    nodes = grid_nodes()
+    c = rest.mean(axis=0)
+    s = np.sqrt(np.mean(np.sum((rest - c) ** 2, axis=1)))
+    at = np.array([40.0, 70.0])
+    f = field_features(rest, _bump(rest, at, width=12.0), nodes=nodes)
+    k = len(nodes)
+    g = np.stack([f[:k], f[k:2 * k]], axis=1)
+    mag = np.hypot(g[:, 0], g[:, 1])
+    node_px = nodes * s + c
+    dist = np.hypot(*(node_px - at).T)
+    near = dist < 12.0
+    assert mag[near].mean() > 3 * mag[dist > 40.0].mean()
+    out = np.sum(g[near & (dist > 4)] * (node_px[near & (dist > 4)] - at), axis=1)
+    assert np.all(out > 0)  # outward from the press
+
+
+def test_features_lost_markers():
+    rest = _lattice()
+    moved = _bump(rest, (70.0, 70.0))
+    few = moved.copy()
+    few[: len(rest) // 2 + 1] = np.nan  # more than half lost: no features
+    assert np.all(np.isnan(field_features(rest, few)))
+    some = moved.copy()
+    some[::17] = np.nan  # a few lost: the smoothing fills them in
+    a, b = field_features(rest, some), field_features(rest, moved)
+    assert np.all(np.isfinite(a))
+    assert np.corrcoef(a[:-1], b[:-1])[0, 1] > 0.99
+
+
+# --- angles and scores -----------------------------------------------------------------------
+
+def test_wrapped_angle_encoding_and_scores():
+    y = np.array([[1.0, 179.0], [2.0, -179.0], [3.0, 90.0], [4.0, -45.0]])
+    targets = ["pose_2", "pose_6"]
+    np.testing.assert_allclose(decode(encode(y, targets), targets), y, atol=1e-9)
+    pred = y + [[0.5, 2.0], [-0.5, -2.0], [0.0, 4.0], [1.0, -4.0]]
+    pred[:, 1] = (pred[:, 1] + 180) % 360 - 180  # 181 -> -179, -181 -> 179
+    s = target_scores(y, pred, targets)
+    assert s["pose_6"]["mae"] == pytest.approx(3.0)  # |2|, |2|, |4|, |4|: wrapped
+    assert s["pose_6"]["rmse"] == pytest.approx(np.sqrt((4 + 4 + 16 + 16) / 4))
+    assert s["pose_2"]["mae"] == pytest.approx(0.5)
+    assert s["pose_6"]["unit"] == "deg" and s["pose_2"]["unit"] == "mm"
+    # R² of the angle about the circular mean, by a second route (complex numbers)
+    z = np.exp(1j * np.deg2rad(y[:, 1]))
+    mean = np.angle(z.mean())
+    dev = np.angle(z * np.exp(-1j * mean), deg=True)
+    err = np.angle(np.exp(1j * np.deg2rad(pred[:, 1] - y[:, 1])), deg=True)
+    assert s["pose_6"]["r2"] == pytest.approx(1 - np.sum(err ** 2) / np.sum(dev ** 2))
+
+
+# --- the model -------------------------------------------------------------------------------
+
+def _synthetic(n: int, seed: int):
+    """Features that carry a lateral position and an angle over the full circle."""
+    rng = np.random.default_rng(seed)
+    pos = rng.uniform(-6, 6, n)
+    ang = rng.uniform(-180, 180, n)
+    a = np.deg2rad(ang)
+    base = np.stack([np.cos(a), np.sin(a), pos / 6, pos * np.cos(a) / 6], axis=1)
+    mix = np.random.default_rng(99).normal(size=(4, 30))
+    x = base @ mix + 0.01 * rng.normal(size=(n, 30))
+    return x, np.stack([pos, ang], axis=1)
+
+
+def test_field_model_learns_a_full_circle_and_survives_json(tmp_path):
+    x, y = _synthetic(400, 0)
+    m = FieldModel("edge", ["pose_2", "pose_6"], (128, 128), n_components=10).fit(x, y)
+    xt, yt = _synthetic(200, 1)
+    pred = m.predict(xt)
+    s = target_scores(yt, pred, ["pose_2", "pose_6"])
+    assert s["pose_6"]["mae"] < 3.0  # across the +-180 seam too
+    assert s["pose_2"]["mae"] < 0.3
+    seam = np.abs(yt[:, 1]) > 170
+    assert seam.sum() > 3
+    err = (pred[seam, 1] - yt[seam, 1] + 180) % 360 - 180
+    assert np.abs(err).max() < 10
+    path = m.save(tmp_path / "model.json")
+    back = load_field_model(path)
+    np.testing.assert_allclose(back.predict(xt), pred, atol=1e-10)
+    assert back.task == "edge" and back.image_size == (128, 128)
+    xt[0, 3] = np.nan
+    assert np.all(np.isnan(back.predict(xt[:1])))
+
+
+def test_field_model_refuses_another_file(tmp_path):
+    p = tmp_path / "m.json"
+    p.write_text(json.dumps({"format": "perception.PoseRegressor"}))
+    with pytest.raises(ValueError, match="not a field model"):
+        load_field_model(p)
+    with pytest.raises(ValueError, match="not known"):
+        FieldModel("edge", ["pose_9"], (128, 128))
+
+
+# --- few-shot and task checks ------------------------------------------------------------------
+
+def test_few_shot_correction_recovers_a_known_gain_and_offset():
+    from tactip_lab.real.task_run import few_shot
+
+    rng = np.random.default_rng(3)
+    y = np.stack([rng.uniform(-6, 6, 100), rng.uniform(-180, 180, 100)], axis=1)
+    pred = np.stack([1.25 * y[:, 0] - 0.4, (y[:, 1] + 170 + 180) % 360 - 180], axis=1)
+    rows, fixed, corr = few_shot(pred, y, ["pose_2", "pose_6"], 20, 0)
+    assert corr["pose_2"]["gain"] == pytest.approx(0.8)
+    assert corr["pose_2"]["offset"] == pytest.approx(0.32)
+    assert corr["pose_6"]["offset"] == pytest.approx(-170.0)
+    np.testing.assert_allclose(fixed[:, 0], y[rows, 0], atol=1e-9)
+    err = (fixed[:, 1] - y[rows, 1] + 180) % 360 - 180
+    np.testing.assert_allclose(err, 0.0, atol=1e-9)
+    assert len(rows) == 80
+
+
+def test_a_folder_of_another_task_is_refused(tmp_path):
+    from tactip_lab.real.task_run import check_task_columns
+
+    cols = {"pose_2": np.zeros(5), "pose_3": np.linspace(2, 5, 5), "pose_4": np.ones(5) * 3,
+            "pose_5": np.linspace(-5, 5, 5), "pose_6": np.zeros(5)}
+    cols["pose_4"][0] = 1
+    with pytest.raises(ValueError, match=r"targets.csv: column pose_2, pose_6 is constant"):
+        check_task_columns(tmp_path / "targets.csv", cols, ["pose_2", "pose_6"], "edge")
+    with pytest.raises(ValueError, match="no column move_1"):
+        check_task_columns(tmp_path / "targets.csv", cols, ["move_1"], "edge+shear")
+    check_task_columns(tmp_path / "targets.csv", cols, ["pose_4", "pose_5"], "surface+shear")
+
+
+def _bristol_folder(root, n=4, size=(128, 128), edge=False):
+    import cv2
+
+    (root / "images").mkdir(parents=True)
+    lines = ["sensor_image,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6"]
+    for i in range(n):
+        cv2.imwrite(str(root / "images" / f"image_{i}.png"), np.zeros(size[::-1], np.uint8))
+        p2, p6 = (i - 1.5, 30.0 * i) if edge else (0.0, 0.0)
+        lines.append(f"image_{i}.png,0,{p2},{3 + i / 2},{i - 1},{2 - i},{p6}")
+    (root / "targets.csv").write_text("\n".join(lines) + "\n")
+    return root
+
+
+def test_evaluate_refuses_a_folder_of_another_task_and_another_format(tmp_path, capsys):
+    from tactip_sim.commands import main
+
+    x, y = _synthetic(60, 0)
+    model = FieldModel("edge", ["pose_2", "pose_6"], (128, 128), n_components=5).fit(x, y)
+    path = model.save(tmp_path / "model.json")
+    surface = _bristol_folder(tmp_path / "surface")
+    assert main(["evaluate", str(path), str(surface), "--no-progress"]) != 0
+    err = capsys.readouterr().err
+    assert "surface/targets.csv: column pose_2, pose_6 is constant" in err
+    assert "pose_4, pose_5" in err  # what the folder varies instead
+    raw = _bristol_folder(tmp_path / "raw", size=(640, 480), edge=True)
+    assert main(["evaluate", str(path), str(raw), "--no-progress"]) != 0
+    err = capsys.readouterr().err
+    assert "frames are 640x480" in err and "model_raw.json" in err
+
+
+def test_evaluate_of_a_cop_model_writes_targets(folder, tmp_path):  # noqa: F811
+    """The roll/pitch CoP model's evaluate JSON carries ``targets`` too, the same figures as
+    its own roll/pitch keys (a second computation)."""
+    from tactip_sim.commands import main
+
+    root, _ = folder
+    model, ev = tmp_path / "m.json", tmp_path / "ev.json"
+    assert main(["fit", str(root), "--order", "1", "--feature", "growth", "--out", str(model),
+                 "--no-progress"]) == 0
+    assert main(["evaluate", str(model), str(root), "--json", str(ev), "--no-progress"]) == 0
+    r = json.loads(ev.read_text())
+    t = r["targets"]
+    assert set(t) == {"pose_4", "pose_5"} and t["pose_4"]["unit"] == "deg"
+    assert t["pose_4"]["rmse"] == pytest.approx(r["rmse_roll_deg"])
+    assert t["pose_5"]["r2"] == pytest.approx(r["r2_pitch"])
+    assert t["pose_4"]["n"] == r["n_used"]
+
+
+# --- the protocol in simulation ------------------------------------------------------------------
+
+def _dome(radius=20.0, n=60000):
+    """Points on the cap (z > 0.75 R) of a hemisphere of radius R with its tip at (0, 0, R),
+    golden-spiral spaced (~0.2 mm apart)."""
+    k = np.arange(n) + 0.5
+    z = 1 - k / n  # upper hemisphere only
+    phi = np.pi * (1 + 5 ** 0.5) * k
+    r = np.sqrt(1 - z ** 2)
+    p = radius * np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    return p[p[:, 2] > 0.75 * radius]
+
+
+@pytest.mark.parametrize("inside,yaw", [(3.0, 0.0), (-4.0, 30.0), (-6.0, -120.0)])
+def test_edge_depth_follows_the_dome_beside_the_block(inside, yaw):
+    """Beside the block the first contact is lower on the dome by R - sqrt(R² - e²): the
+    indentation beyond first contact is the tip's depth less that drop."""
+    from tactip_lab.real.tasks import block_indenter, edge_contact_depth
+
+    radius = 20.0
+    sim = SimpleNamespace(_cand_rest=_dome(radius), tip_mm=np.array([0.0, 0.0, radius]),
+                          body=SimpleNamespace(skin_thickness_mm=0.0))
+    d = edge_contact_depth(sim, block_indenter(), inside, yaw, 2.0)
+    drop = 0.0 if inside > 0 else radius - np.sqrt(radius ** 2 - inside ** 2)
+    assert d == pytest.approx(2.0 - drop, abs=0.05)  # the points are ~0.2 mm apart
+
+
+def test_edge_pose_puts_the_edge_where_asked():
+    """The block's edge crosses the sensor's axis at ``inside`` mm along the block's normal,
+    whatever the yaw: the block's signed distance at the sensor's axis is -inside."""
+    from tactip_lab.real.tasks import block_indenter, edge_pose
+
+    ind = block_indenter()
+    for inside, yaw in [(2.0, 0.0), (-3.0, 75.0), (4.5, -150.0)]:
+        pose = edge_pose(inside, yaw, 0.0)
+        rot = pose.rotation
+        origin = rot @ np.array([*pose.offset_mm, 0.0])
+        # a point on the sensor's axis just above the block's top face, in block axes
+        q = (np.array([0.0, 0.0, 0.001]) - origin) @ rot
+        d, _ = ind.sdf(q[None])
+        assert d[0] == pytest.approx(-min(inside, 0.001) if inside > 0 else -inside, abs=2e-3)
+
+
+def test_lab_ranges_and_shear_path():
+    from tactip_lab.real.tasks import COLUMNS, EdgeConvention, draw_poses, shear_path
+
+    rows = draw_poses("edge+shear", 500, 0)
+    names = COLUMNS[1:]
+    assert np.all(np.abs(rows[:, names.index("pose_2")]) <= 6)
+    assert rows[:, names.index("pose_3")].min() >= 3 and rows[:, names.index("pose_3")].max() <= 5
+    assert np.ptp(rows[:, names.index("pose_6")]) > 350  # the full circle
+    assert np.all(rows[:, names.index("move_3")] == 0)
+    assert np.all(np.abs(rows[:, names.index("move_1")]) <= 5)
+    np.testing.assert_array_equal(rows, draw_poses("edge+shear", 500, 0))  # seeded
+    conv = EdgeConvention(1.0, -1.0, 90.0)
+    assert conv.yaw(np.array([0.0, 100.0, -100.0])).tolist() == [90.0, -10.0, -170.0]
+    plate = shear_path("surface+shear", np.array([0, 0, 3.0, 5.0, -4.0, 0, 2.0, -1.0, 0, 0, 0,
+                                                  3.0]), 4, sim=None, indenter=None)
+    assert len(plate) == 4
+    last, first = plate[-1], plate[0]
+    assert last.offset_mm == (0.0, 0.0) and last.yaw_deg == 0.0
+    assert first.offset_mm == pytest.approx((1.5, -0.75))  # 3/4 of the move still to make
+    assert (last.roll_deg, last.pitch_deg) == (-5.0, 4.0)  # the -x-y axes
