@@ -1,6 +1,7 @@
 """Time the recognition pieces whose design was chosen by measurement.
 
     python benchmarks/bench_recognition.py [--poses 7] [--contacts DIR] [--quick-camera]
+                                           [--no-presses] [--cnn-seeds 1]
 
 * ``press``: one FEM press per object of the library (seconds, median over ``--poses``
   contact positions) and how many presses failed to converge; for the objects with an
@@ -10,8 +11,10 @@
 * ``contact``: one whole contact through the chain (press, render, noise, perceive), median;
 * with ``--contacts DIR`` (a contacts data set of ``tactip recognise``): LogitBoost (ours,
   100 iterations of stumps) against scikit-learn's histogram gradient boosting with depth-1
-  trees, and the NumPy CNN's seconds per epoch and held-out accuracy at 32x40 and 60x80
-  inputs (every fourth contact held out).
+  trees, and the CNN's (PyTorch, one thread) seconds per epoch, milliseconds per image to
+  predict and held-out accuracy at 32x40 and 60x80 inputs (every fourth contact held out;
+  ``--cnn-seeds N``: N initialisations, each printed), after the seconds ``import torch``
+  took in this process. ``--no-presses`` skips the first two.
 """
 
 from __future__ import annotations
@@ -85,12 +88,11 @@ def bench_presses(poses: int, quick_camera: bool) -> None:
               f"{np.median(tc):.3f} |")
 
 
-def bench_learning(folder: str, epochs: int) -> None:
+def bench_learning(folder: str, epochs: int, seeds: int = 1) -> None:
     import cv2
     from sklearn.ensemble import HistGradientBoostingClassifier
 
     from tactip_lab.recognition.boost import LogitBoost
-    from tactip_lab.recognition.cnn import SmallCNN
     from tactip_lab.recognition.contacts import load_contacts
     from tactip_lab.recognition.features import difference_images, marker_field
 
@@ -111,18 +113,25 @@ def bench_learning(folder: str, epochs: int) -> None:
         print(f"{name}: fit {fit:.2f} s on {tr.sum()} contacts x {X.shape[1]} inputs, "
               f"held-out accuracy {acc:.3f}")
     D = difference_images(cs.images, cs.rest_image)
+    t0 = time.perf_counter()
+    import torch
+
+    from tactip_lab.recognition.cnn import SmallCNN
+
+    print(f"import torch {torch.__version__}: {time.perf_counter() - t0:.2f} s")
     for h, w in ((32, 40), (60, 80)):
         Xi = np.stack([cv2.resize(d, (w, h), interpolation=cv2.INTER_AREA) for d in D])
-        net = SmallCNN(len(cs.names), (h, w), rng=0)
-        t0 = time.perf_counter()
-        net.fit(Xi[tr], y[tr], epochs=epochs)
-        per_epoch = (time.perf_counter() - t0) / epochs
-        t1 = time.perf_counter()
-        p = net.predict_proba(Xi[te])
-        pred = (time.perf_counter() - t1) / te.sum()
-        print(f"CNN {h}x{w}: {per_epoch:.2f} s per epoch of {tr.sum()} images, "
-              f"{1e3 * pred:.3f} ms per image to predict, held-out accuracy after {epochs} "
-              f"epochs {np.mean(p.argmax(axis=1) == y[te]):.3f}")
+        for seed in range(seeds):
+            net = SmallCNN(len(cs.names), (h, w), rng=seed)
+            t0 = time.perf_counter()
+            net.fit(Xi[tr], y[tr], epochs=epochs)
+            per_epoch = (time.perf_counter() - t0) / epochs
+            t1 = time.perf_counter()
+            p = net.predict_proba(Xi[te])
+            pred = (time.perf_counter() - t1) / te.sum()
+            print(f"CNN {h}x{w} seed {seed}: {per_epoch:.3f} s per epoch of {tr.sum()} "
+                  f"images, {1e3 * pred:.3f} ms per image to predict, held-out accuracy "
+                  f"after {epochs} epochs {np.mean(p.argmax(axis=1) == y[te]):.3f}")
 
 
 def main() -> int:
@@ -131,10 +140,18 @@ def main() -> int:
     p.add_argument("--contacts", help="a contacts data set for the learning benchmarks")
     p.add_argument("--quick-camera", action="store_true", help="320x240 instead of 640x480")
     p.add_argument("--cnn-epochs", type=int, default=30, help="CNN training epochs")
+    p.add_argument("--cnn-seeds", type=int, default=1, help="CNN initialisations (seeds 0..N-1)")
+    p.add_argument("--no-presses", action="store_true", help="only the learning benchmarks")
     args = p.parse_args()
-    bench_presses(args.poses, args.quick_camera)
+    for name in ("poses", "cnn_epochs", "cnn_seeds"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name.replace('_', '-')}={getattr(args, name)}: allowed >= 1")
+    if args.no_presses and not args.contacts:
+        p.error("--no-presses leaves nothing to time without --contacts DIR")
+    if not args.no_presses:
+        bench_presses(args.poses, args.quick_camera)
     if args.contacts:
-        bench_learning(args.contacts, args.cnn_epochs)
+        bench_learning(args.contacts, args.cnn_epochs, args.cnn_seeds)
     return 0
 
 

@@ -209,24 +209,36 @@ def test_moment_descriptors_known_answers():
     assert patch_views(np.zeros((3, 60, 80))).shape[:2] == (3, 30)  # the paper's 30 sub-images
 
 
-def test_cnn_gradients_match_finite_differences():
+def test_cnn_is_the_documented_network():
+    """The forward pass (zero-padded 3x3 convolutions, ReLU, 2x2 max pooling, dense,
+    softmax) against the same network computed with SciPy's 2-D correlation, same weights."""
+    from scipy.signal import correlate2d
+
     from tactip_lab.recognition.cnn import SmallCNN
 
     rng = np.random.default_rng(0)
     net = SmallCNN(3, (8, 12), channels=(2, 3), rng=1)
-    x, y = rng.normal(size=(4, 8, 12)), np.array([0, 1, 2, 1])
-    _, grads = net.loss_and_grads(x, y, weight_decay=1e-3)
-    for name, p in net.params.items():
-        for _ in range(6):
-            idx = tuple(int(rng.integers(s)) for s in p.shape)
-            old = p[idx]
-            p[idx] = old + 1e-6
-            up, _ = net.loss_and_grads(x, y, 1e-3)
-            p[idx] = old - 1e-6
-            down, _ = net.loss_and_grads(x, y, 1e-3)
-            p[idx] = old
-            num = (up - down) / 2e-6
-            assert abs(num - grads[name][idx]) <= 1e-6 * max(1.0, abs(num)), name
+    x = rng.normal(size=(4, 8, 12))
+    conv1, conv2, dense = (m for m in net.net if hasattr(m, "weight"))
+    w = [np.asarray(m.weight.detach(), dtype=float) for m in (conv1, conv2, dense)]
+    b = [np.asarray(m.bias.detach(), dtype=float) for m in (conv1, conv2, dense)]
+
+    def conv_relu_pool(a, wk, bk):
+        z = np.stack([sum(correlate2d(a[i], wk[o, i], mode="same") for i in range(len(a)))
+                      + bk[o] for o in range(len(wk))])
+        z = np.maximum(z, 0.0)
+        c, h, wd = z.shape
+        return z.reshape(c, h // 2, 2, wd // 2, 2).max(axis=(2, 4))
+
+    expect = []
+    for img in x:
+        a = conv_relu_pool(conv_relu_pool(img[None], w[0], b[0]), w[1], b[1])
+        logits = w[2] @ a.ravel() + b[2]
+        e = np.exp(logits - logits.max())
+        expect.append(e / e.sum())
+    p = net.predict_proba(x)
+    assert p.shape == (4, 3) and np.allclose(p.sum(axis=1), 1.0)
+    assert np.allclose(p, expect, rtol=1e-5, atol=1e-7)
 
 
 def test_cnn_learns_where_the_blob_is_and_is_deterministic():
@@ -241,8 +253,12 @@ def test_cnn_learns_where_the_blob_is_and_is_deterministic():
     b = SmallCNN(2, (12, 16), rng=3).fit(x[:48], y[:48], epochs=6)
     assert np.array_equal(a.predict_proba(x[48:]), b.predict_proba(x[48:]))
     assert np.mean(a.predict_proba(x[48:]).argmax(axis=1) == y[48:]) == 1.0
+    c = SmallCNN(2, (12, 16), rng=4).fit(x[:48], y[:48], epochs=6)
+    assert not np.array_equal(a.predict_proba(x[48:]), c.predict_proba(x[48:]))
     with pytest.raises(ValueError, match="multiples of 4"):
         SmallCNN(2, (10, 16))
+    with pytest.raises(ValueError, match="labels y span 0..2"):
+        SmallCNN(2, (12, 16)).fit(x[:3], np.array([0, 1, 2]))
 
 
 # ---------------------------------------------------------------- through the chain, CLI

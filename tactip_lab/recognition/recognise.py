@@ -86,7 +86,7 @@ def run_recognition(scene: ts.Scene, library: Library, out: str | Path, *,
         return None
     t_contacts = time.perf_counter() - t_start
     steps = Steps(out / "steps", {"contacts": cs.meta["identity"],
-                                  "settings": settings.as_dict()})
+                                  "settings": settings.as_dict(), **_learners(settings)})
     folds = st.split_folds(cs, settings.runs, settings.seed)
     from tactip_lab.recognition.features import marker_field
 
@@ -142,6 +142,16 @@ def run_recognition(scene: ts.Scene, library: Library, out: str | Path, *,
     summary["seconds"] = time.perf_counter() - t_start
     write_outputs(out, cs, settings, summary, scene, library)
     return summary
+
+
+def _learners(settings: Settings) -> dict[str, str]:
+    """What computes the steps beyond the settings: the CNN's library and version (the
+    NumPy network of earlier versions left steps that must not be reused)."""
+    if "cnn" not in settings.methods:
+        return {}
+    from importlib.metadata import version
+
+    return {"cnn": f"torch {version('torch')}"}
 
 
 def _curves_only(r: dict[str, Any]) -> dict[str, Any]:
