@@ -13,8 +13,8 @@ from scipy.spatial import cKDTree
 
 import perception as pc
 from perception.synthetic import render_markers
-from tactip_lab.fitting.fit import FeatureTable
 from tactip_lab.fitting.bristol import BristolFolder, ColumnMap, cross_validate, folder_features
+from tactip_lab.fitting.fit import FeatureTable
 from tactip_lab.sampling.dataset import DatasetError
 
 C = np.array([320.0, 240.0])
@@ -137,13 +137,13 @@ def test_a_plain_labels_csv_with_descriptive_columns_is_read(folder, tmp_path):
     out = ["image,depth_mm,roll_deg_Rx,pitch_deg_Ry,pose_4"]
     for line in rows[1:]:
         name, _, _, depth, roll, pitch, _ = line.split(",")
-        out.append(f"{name},{depth},{roll},{pitch},99")  # a decoy pose_4 column
+        out.append(f"{name},{depth},{roll},{pitch},42")  # a decoy pose_4 column
     (plain / "labels.csv").write_text("\n".join(out) + "\n")
     ref = BristolFolder.open(root)
     f = BristolFolder.open(plain)
     assert (f.columns.roll, f.columns.pitch, f.columns.depth) == ("pose_4", "pitch_deg_Ry",
                                                                   "depth_mm")
-    assert np.all(f.angles_deg[:, 0] == 99)  # pose_4 is present: the default stays
+    assert np.all(f.angles_deg[:, 0] == 42)  # pose_4 is present: the default stays
     f = BristolFolder.open(plain, columns=ColumnMap(roll="roll_deg_Rx"))
     np.testing.assert_array_equal(f.angles_deg, ref.angles_deg)
     assert f.rest.name == ref.rest.name and [p.name for p in f.images] == \

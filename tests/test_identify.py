@@ -120,15 +120,17 @@ def test_tilt_candidates_recover_a_known_tilt_and_offer_no_false_twin(tmp_path):
 def test_identify_taps_option_is_checked_before_any_work(tmp_path, capsys):
     from tactip_sim.commands import main
 
-    rc = main(["identify", str(SCENES / "tactip_331.toml"), "--real", str(tmp_path),
+    real = tmp_path / "real"  # (its own folder: an output inside an input is refused)
+    real.mkdir()
+    rc = main(["identify", str(SCENES / "tactip_331.toml"), "--real", str(real),
                "--out", str(tmp_path / "x.toml"), "--taps", str(tmp_path / "missing")])
     assert rc != 0 and "--taps" in capsys.readouterr().err
-    rc = main(["identify", str(SCENES / "tactip_331.toml"), "--real", str(tmp_path),
-               "--out", str(tmp_path / "x.toml"), "--taps", str(tmp_path), "--k", "2"])
+    rc = main(["identify", str(SCENES / "tactip_331.toml"), "--real", str(real),
+               "--out", str(tmp_path / "x.toml"), "--taps", str(real), "--k", "2"])
     assert rc != 0 and "--k=2 is out of range" in capsys.readouterr().err
     raw = SHARED / "real" / "tactip331_tap"  # labelled, but raw 640x480 frames
     if raw.is_dir():
-        rc = main(["identify", str(SCENES / "tactip_331.toml"), "--real", str(tmp_path),
+        rc = main(["identify", str(SCENES / "tactip_331.toml"), "--real", str(real),
                    "--out", str(tmp_path / "x.toml"), "--taps", str(raw)])
         assert rc != 0 and "processed 128x128 format" in capsys.readouterr().err
     assert not (tmp_path / "x.toml").exists()

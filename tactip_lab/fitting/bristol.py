@@ -152,10 +152,16 @@ class BristolFolder:
             raise DatasetError(f"{root}: no targets.csv (a Bristol-layout folder holds "
                                "targets.csv and the images it names; a plain labels.csv "
                                "is read too)")
-        with path.open(newline="") as fh:
-            reader = csv.DictReader(fh)
-            header = reader.fieldnames or []
-            rows = list(reader)
+        try:  # utf-8-sig: a byte-order mark before the header (a spreadsheet's export) is read
+            with path.open(newline="", encoding="utf-8-sig") as fh:
+                reader = csv.DictReader(fh)
+                header = reader.fieldnames or []
+                rows = list(reader)
+        except UnicodeDecodeError as exc:
+            raise DatasetError(f"{path}: not a text (CSV) file: byte {exc.start} is not UTF-8 "
+                               "(a binary file, or another encoding: save it as UTF-8)") from None
+        except csv.Error as exc:
+            raise DatasetError(f"{path}: not a readable CSV file ({exc})") from None
         columns = _aliased(columns, header)
         if not rows:
             raise DatasetError(f"{path}: no rows")
@@ -175,11 +181,14 @@ class BristolFolder:
                 raise DatasetError(f"{path}: no column {col!r} ({opt}); columns: "
                                    f"{', '.join(header)}")
         table = {c: [r[c] for r in rows] for c in header}
+        _check_unique_rows(table[image_col], path)
         images = [_find_image(root, name, path, i) for i, name in enumerate(table[image_col])]
-        angles = np.stack([_floats(table[columns.roll], path, columns.roll) * columns.roll_sign,
-                           _floats(table[columns.pitch], path, columns.pitch)
+        angles = np.stack([_angles(table[columns.roll], path, columns.roll) * columns.roll_sign,
+                           _angles(table[columns.pitch], path, columns.pitch)
                            * columns.pitch_sign], axis=1)
-        depth = (_floats(table[columns.depth], path, columns.depth)
+        depth = (_finite(_floats(table[columns.depth], path, columns.depth), path,
+                         f"depth column {columns.depth!r} (--depth-column)",
+                         "it chooses the reference frame")
                  if columns.depth and columns.depth in header else np.full(len(rows), np.nan))
         sizes = {}
         for p in images:
@@ -249,6 +258,55 @@ def _floats(values: Sequence[str], path: Path, col: str) -> np.ndarray:
         return np.array([float(v) for v in values])
     except ValueError as exc:
         raise DatasetError(f"{path}: column {col!r} is not numeric ({exc})") from None
+
+
+ANGLE_LIMIT_DEG = 90.0
+"""Roll and pitch labels must lie in (-90, 90) degrees: a pad tilted 90 degrees or more to a
+surface does not press it (the simulator's own poses have the same range,
+:class:`tactip_sim.fem.Pose`). The real data sets span +-15 degrees."""
+
+
+def _rows(bad: np.ndarray) -> str:
+    """'row 3', 'rows 3, 7 and 9', 'rows 3, 7, 9 ... (12 rows)' (1-based data rows)."""
+    idx = [int(i) + 1 for i in np.flatnonzero(bad)]
+    if len(idx) == 1:
+        return f"row {idx[0]}"
+    shown = ", ".join(str(i) for i in idx[:5])
+    return (f"rows {shown}" + (f" ... ({len(idx)} rows)" if len(idx) > 5 else "")
+            if len(idx) > 2 else f"rows {idx[0]} and {idx[1]}")
+
+
+def _finite(values: np.ndarray, path: Path, what: str, why: str) -> np.ndarray:
+    bad = ~np.isfinite(values)
+    if bad.any():
+        raise DatasetError(f"{path}: {what} is not finite in {_rows(bad)} (e.g. "
+                           f"{values[bad][0]!r}); {why}: fix or remove those rows")
+    return values
+
+
+def _angles(values: Sequence[str], path: Path, col: str) -> np.ndarray:
+    """A roll or pitch column: finite, in (-90, 90) degrees (:data:`ANGLE_LIMIT_DEG`)."""
+    a = _finite(_floats(values, path, col), path, f"column {col!r}",
+                "an angle label must be a number")
+    bad = np.abs(a) >= ANGLE_LIMIT_DEG
+    if bad.any():
+        raise DatasetError(f"{path}: column {col!r} holds {a[bad][0]:g} degrees in "
+                           f"{_rows(bad)}, outside the physical range (-90, 90) of a roll or "
+                           "pitch label (radians? another column? give the angle columns with "
+                           "--roll-column/--pitch-column)")
+    return a
+
+
+def _check_unique_rows(names: Sequence[str], path: Path) -> None:
+    """Each image once: a duplicated row (or an image labelled twice) would sit in two
+    cross-validation folds, training and testing on the same frame."""
+    first: dict[str, int] = {}
+    for i, name in enumerate(names):
+        if name in first:
+            raise DatasetError(f"{path}: {name} is named in rows {first[name] + 1} and {i + 1} "
+                               "(a duplicated row?): one frame in two rows would be used twice "
+                               "and leak across cross-validation folds; remove the copy")
+        first[name] = i
 
 
 def _find_image(root: Path, name: str, path: Path, row: int) -> Path:
@@ -535,8 +593,12 @@ def cross_validate(table: FeatureTable, order: int, folds: int, *, seed: int = 0
     sample predicted by the model fitted without its fold (shuffled folds, seeded), R² over all
     predictions."""
     n = len(table.cop_px)
+    if n < 2:
+        raise ValueError(f"{n} usable frames (with a reliable CoP): cross-validation needs at "
+                         "least 2 (are the frames those of this sensor? see `tactip features`)")
     if folds < 2 or folds > n:
-        raise ValueError(f"--cv={folds} is out of range: allowed [2, {n}] (the usable frames)")
+        raise ValueError(f"--cv={folds} is out of range: allowed [2, {n}] (the usable frames; "
+                         "without --cv, the choice of feature and order uses 5 folds)")
     idx = np.random.default_rng(seed).permutation(n)
     pred = np.full((n, 2), np.nan)
     for k in range(folds):

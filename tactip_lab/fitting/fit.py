@@ -287,9 +287,42 @@ def load_any_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
         data = json.loads(Path(path).read_text())
     except (OSError, ValueError, UnicodeDecodeError) as exc:
         raise ModelError(f"cannot read model file {str(path)!r}: {exc}") from None
+    if isinstance(data, dict):
+        check_declared(data, path)
     if isinstance(data, dict) and data.get("format") == "perception.VectorRegressor":
         return VectorRegressor.from_dict(data), data.get("fitted_on", {})
     return load_model(path)
+
+
+ANGLE_NAMES = ("roll_deg", "pitch_deg")
+"""What every model of this tool predicts, in this order (``angle_names``): its outputs are
+compared with the roll and pitch columns of a folder, and servo steers roll and pitch."""
+
+
+def check_declared(data: dict[str, Any], path: str | Path) -> None:
+    """Every field a model file declares, checked against its use (a hand-edited or foreign
+    file is refused naming the field, never scored as if it said something else).
+
+    Raises
+    ------
+    perception.errors.ModelError
+        ``angle_names`` not (roll_deg, pitch_deg) in this order; ``fitted_on.feature`` not a
+        feature of this tool.
+    """
+    from perception.errors import ModelError
+
+    names = data.get("angle_names")
+    if names is not None and (not isinstance(names, list | tuple)
+                              or list(names) != list(ANGLE_NAMES)):
+        raise ModelError(f"{path}: angle_names={names!r}, but a model's outputs are compared "
+                         f"with roll then pitch ({', '.join(ANGLE_NAMES)}): a model with its "
+                         "outputs in another order or of other angles is not scored; refit it")
+    fitted_on = data.get("fitted_on")
+    if isinstance(fitted_on, dict):  # (image_size is checked where it is used: evaluate)
+        feature = fitted_on.get("feature")
+        if feature is not None and feature not in SWEEP_FEATURES:
+            raise ModelError(f"{path}: fitted_on.feature={feature!r} is not a feature of this "
+                             f"tool ({', '.join(SWEEP_FEATURES)}); refit it")
 
 
 @dataclass(frozen=True)

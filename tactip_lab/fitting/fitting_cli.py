@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from tactip_sim.commands.args import int_in
+from tactip_sim.commands.outputs import declare
 
 
 def _folder_arguments(p: argparse.ArgumentParser) -> None:
@@ -119,8 +120,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         feature, order = features[0], orders[0]
     train = frames.features(feature, keep_flagged=args.keep_flagged)
     model = fit_model(train, order, feature)
-    out = Path(args.out) if args.out else Path(args.dataset) / f"model_order{order}.json"
-    _check_overwrite(out)
+    out = Path(args.out)
     save_model(model, out, feature=feature,
                fitted_on={"data": str(Path(args.dataset).resolve()), "rows": len(frames.folder),
                           "used": len(train.cop_px), **frames.summary()})
@@ -163,18 +163,18 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_overwrite(out: Path) -> None:
-    """A model file may replace a model file, never anything else (a user's file)."""
-    if not out.exists():
-        return
+def _is_model_file(path: Path) -> bool:
+    """A model file may replace a model file (the output rule's ``own``); any other existing
+    file needs ``--overwrite``."""
     try:
-        is_model = json.loads(out.read_text()).get("format") in (
-            "perception.PoseRegressor", "perception.VectorRegressor")
-    except (OSError, ValueError, UnicodeDecodeError, AttributeError):
-        is_model = False
-    if out.is_dir() or not is_model:
-        raise ValueError(f"--out {out} exists and is not a model file: refusing to overwrite it "
-                         "(choose another path)")
+        data = json.loads(path.read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(data, dict) and data.get("format") in (
+        "perception.PoseRegressor", "perception.VectorRegressor")
+
+
+_is_model_file.what = "a model file"  # type: ignore[attr-defined]  (named in the refusal)
 
 
 def _evaluate_field(args: argparse.Namespace) -> int:
@@ -356,7 +356,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--order", default="auto", choices=["1", "2", "3", "auto"],
                    help="polynomial order; 'auto' (default): the best of 1-3 by "
                    "cross-validation")
-    p.add_argument("--out", help="model file (default DATASET/model_orderN.json)")
+    p.add_argument("--out", required=True, metavar="MODEL.json",
+                   help="model file to write (outside DATASET: a command never writes into "
+                   "what it reads); an existing model file is replaced, any other file only "
+                   "with --overwrite")
     p.add_argument("--cv", type=int_in(2), metavar="K",
                    help="K-fold cross-validation (K >= 2): report the chosen model's CV R² "
                    "and, when a choice was made (auto), the nested-CV R² of the choice; "
@@ -370,6 +373,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "'-' prints them")
     _folder_arguments(p)
     p.set_defaults(func=_cmd_fit)
+    declare(p, "fit", inputs={"dataset": "folder", "rest": "file"},
+            files=["out", "plot", "json"], stdout=["json"], own={"out": _is_model_file})
 
     p = sub.add_parser(
         "evaluate", help="score a fitted model on labelled folders",
@@ -385,6 +390,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "image sizes)")
     _folder_arguments(p)
     p.set_defaults(func=_cmd_evaluate)
+    declare(p, "evaluate", inputs={"model": "file", "datasets": "folder", "rest": "file"},
+            files=["json"], stdout=["json"])
 
     p = sub.add_parser(
         "features", help="per-frame features of a labelled folder (CSV)",
@@ -395,6 +402,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="CSV file to write")
     _folder_arguments(p)
     p.set_defaults(func=_cmd_features)
+    declare(p, "features", inputs={"dataset": "folder", "rest": "file"}, files=["out"])
 
 
 __all__ = ["register"]

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from tactip_lab.sampling.sampling_cli import check_scale, scale_arguments, scene_and_fidelity
 from tactip_sim.commands import add_scene_argument
+from tactip_sim.commands.outputs import declare, manifest_kind
 
 
 def _feature_argument(p: argparse.ArgumentParser, what: str) -> None:
@@ -75,6 +76,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     scale_arguments(p)
     add_tolerance_arguments(p)
     p.set_defaults(func=_cmd_calibrate)
+    declare(p, "calibrate", inputs={"scene": "toml", "rig": "file-or-name", "study": "folder"},
+            folders=["out"], legacy=lambda d: manifest_kind(d) == "tactip-sim calibration")
 
 
 def register_study(studies: argparse._SubParsersAction) -> None:
@@ -86,3 +89,7 @@ def register_study(studies: argparse._SubParsersAction) -> None:
         description=rig_budget.__doc__.splitlines()[0])
     rig_budget.configure_parser(s)
     s.set_defaults(func=rig_budget.main)
+    declare(s, "study rig", inputs={"scene": "toml", "rig": "file-or-name"}, folders=["out"],
+            legacy=lambda d: (d / "summary.json").is_file() or any(
+                manifest_kind(c) == "tactip-sim calibration" for c in d.iterdir()
+                if c.is_dir()))

@@ -259,7 +259,7 @@ def identify(scene: ts.Scene, image: str | Path, *, free: tuple[str, ...] = DEFA
     ------
     ValueError
         Unknown parameter names; an image of another size than ``camera.resolution``; fewer
-        than half of the scene's markers found in the image.
+        than half, or more than twice, the scene's markers found in the image.
     """
     from scipy.optimize import least_squares
 
@@ -281,6 +281,10 @@ def identify(scene: ts.Scene, image: str | Path, *, free: tuple[str, ...] = DEFA
     if len(real) < scene.pins.count / 2:
         raise ValueError(f"{image}: only {len(real)} markers found, fewer than half of the "
                          f"scene's pins.count={scene.pins.count}: not a rest frame of this sensor")
+    if len(real) > 2 * scene.pins.count:  # a 97-pin scene on a 331-marker frame paired 68
+        raise ValueError(f"{image}: {len(real)} markers found, more than twice the scene's "
+                         f"pins.count={scene.pins.count}: a rest frame of another sensor (give "
+                         "the scene of that sensor, e.g. scenes/tactip_331.toml)")
     spacing = _marker_spacing(real)
     gate = 0.5 * spacing
     before = residuals_of(scene, real, gate_px=max(gate, 1e9))

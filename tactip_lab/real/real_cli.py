@@ -7,6 +7,22 @@ import json
 from pathlib import Path
 
 from tactip_sim.commands import add_scene_argument, load_scene_args
+from tactip_sim.commands.outputs import declare
+
+REAL_DATA_FILES = {"real": ("predicted_vs_true.png", "real_predictions.npz",
+                            "real128_features.npz", "table.md"),
+                   "real_raw": ("real_raw_features.npz", "table.md")}
+"""What a surface sim2real run writes from --real / --real-raw: a rerun into the same folder
+without that option removes them first, so no earlier run's real-data scores stay beside the
+new models (table.md is rewritten at the end of every run)."""
+
+
+def _clear_earlier_real_files(out: Path, args: argparse.Namespace) -> None:
+    for option, names in REAL_DATA_FILES.items():
+        if getattr(args, option):
+            continue
+        for name in names:
+            (out / name).unlink(missing_ok=True)
 
 
 def _choose_by_taps(scene, image, free, args):
@@ -71,8 +87,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     if not 3 <= args.k <= 1000:
         raise ValueError(f"--k={args.k} is out of range: allowed [3, 1000]")
     if args.taps is not None:
-        from tactip_lab.real.sim2real import FRAME_128
         from tactip_lab.fitting.bristol import BristolFolder
+        from tactip_lab.real.sim2real import FRAME_128
 
         taps = BristolFolder.open(args.taps)  # a Bristol folder's errors name the file
         if taps.image_size != FRAME_128:
@@ -182,7 +198,6 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
     args.real_raw = args.real_raw[0] if args.real_raw else None
     if args.n is None:
         args.n = TASK_N["surface"]
-
     try:
         lo, hi = (float(v) for v in args.depth_range.split(","))
     except ValueError:
@@ -194,6 +209,7 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
     if args.fidelity is None:
         args.fidelity = "fast"
     scene = load_scene_args(args)
+    _clear_earlier_real_files(Path(args.out), args)
     s = run(scene, args.out, cfg, real=args.real, real_raw=args.real_raw, workers=args.workers,
             progress=not args.no_progress, scene_source=args.scene)
     out = Path(args.out)
@@ -246,6 +262,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "default 20)")
     p.add_argument("--json", metavar="OUT.json", help="write the identification report")
     p.set_defaults(func=_cmd_identify)
+    declare(p, "identify", inputs={"scene": "toml", "real": "path", "taps": "folder"},
+            files=["out", "json"])
 
     from tactip_lab.real.sim2real import AXIS_MAPS, TAP_DEPTHS
 
@@ -313,3 +331,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=1, help="local worker processes")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_sim2real)
+    declare(p, "sim2real", inputs={"scene": "toml", "real": "folder", "real_raw": "folder"},
+            folders=["out"], legacy=lambda d: (d / "sim" / "manifest.json").is_file())

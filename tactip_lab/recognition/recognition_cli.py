@@ -18,6 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from tactip_sim.commands.args import int_in
+from tactip_sim.commands.outputs import declare, manifest_kind
 
 QUICK_CAMERA = {"resolution": [320, 240], "pixel_pitch_um": 16.8}
 """--quick renders at half the default resolution (the sensor's field of view unchanged)."""
@@ -38,10 +39,16 @@ def _cmd_recognise(args: argparse.Namespace) -> int:
 
     for name in ("repeats", "frames", "runs", "trials", "contacts", "workers", "cnn_epochs"):
         _positive_int(name.replace("_", "-"), getattr(args, name))
+    names = None
+    if args.object is not None:  # `--object ''` ran every object (as `--tips ""` did)
+        names = [n.strip() for n in args.object.split(",")]
+        if not all(names):
+            raise ValueError(f"--object {args.object!r} holds an empty name: give "
+                             "comma-separated names of the library's objects, e.g. ball,cube")
     scene = load_scene_args(args)
     library = load_library(args.objects)
-    if args.object:
-        library = library.subset([n.strip() for n in args.object.split(",") if n.strip()])
+    if names is not None:
+        library = library.subset(names)
     base = QUICK if args.quick else Settings()
     if args.quick:
         scene = ts.replace_in(scene, camera=QUICK_CAMERA)
@@ -136,6 +143,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--limit", type=int, help=argparse.SUPPRESS)  # stop early (tests resume)
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_recognise)
+    declare(p, "recognise", inputs={"scene": "toml", "objects": "folder"}, folders=["out"],
+            legacy=lambda d: manifest_kind(d) == "tactip-sim recognition study")
 
     p = sub.add_parser(
         "select-markers", help="choose the informative markers by ID3 (Table II layout)",
@@ -166,6 +175,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-nested", action="store_true", help="skip the nested check")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_select)
+    declare(p, "select-markers", inputs={"dataset": "folder"}, folders=["out"],
+            legacy=lambda d: manifest_kind(d) == "tactip-sim marker selection")
+
 
 
 __all__ = ["register"]

@@ -9,6 +9,7 @@ import numpy as np
 
 from tactip_sim.commands import add_scene_argument, load_scene_args, parse_overrides, with_overrides
 from tactip_sim.commands.args import int_in, scene_key_type
+from tactip_sim.commands.outputs import declare, manifest_kind
 
 
 def scale_arguments(p: argparse.ArgumentParser) -> None:
@@ -46,7 +47,7 @@ def scene_and_fidelity(args: argparse.Namespace):
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from tactip_lab.sampling.poses import PoseSet, evaluation_sets, training_set
+    from tactip_lab.sampling.poses import PoseSet, evaluation_sets, random_poses, training_set
     from tactip_lab.sampling.sweep import SweepSpec, run_sweep
 
     check_scale(args)
@@ -55,9 +56,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         p = scene.protocol
         rng = np.random.default_rng([p.seed if args.seed is None else args.seed, 99])
         depth = p.training_depth_mm if args.depth is None else args.depth
-        poses = np.stack([rng.uniform(*p.roll_range_deg, args.random),
-                          rng.uniform(*p.pitch_range_deg, args.random),
-                          np.full(args.random, depth)], axis=1)
+        poses = random_poses(scene, args.random, rng, depth)
         pose_set = PoseSet(f"random{args.random}", poses)
     elif args.poses == "train":
         pose_set = training_set(scene)
@@ -105,4 +104,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     scale_arguments(p)
     add_tolerance_arguments(p)
     p.set_defaults(func=_cmd_sweep)
+    # no marker: a dataset folder has its own manifest and refuses any file it did not write
+    declare(p, "sweep", inputs={"scene": "toml", "study": "folder"}, folders=["out"],
+            mark=False, legacy=lambda d: manifest_kind(d) == "tactip-sim dataset")
 

@@ -9,6 +9,7 @@ from typing import Any
 
 from tactip_sim.commands import add_scene_argument, load_scene_args
 from tactip_sim.commands.args import float_in, int_in
+from tactip_sim.commands.outputs import declare, manifest_kind
 
 
 def _params(args: argparse.Namespace):
@@ -74,6 +75,31 @@ def _cmd_servo(args: argparse.Namespace) -> int:
                          "--batch N")
     if isinstance(args.seed, int) and args.seed < 0:
         raise ValueError(f"--seed={args.seed} must be a non-negative integer")
+    grasp_spec = None
+    if args.object is not None:
+        from tactip_lab.servo.grasp_objects import grasp
+
+        grasp_spec = grasp(args.object, args.grasps)
+        fingers = [f.name for f in grasp_spec.fingers]
+        twice = sorted({n for n in fingers if fingers.count(n) > 1})
+        if twice:  # each finger writes trace_<name>.csv: one trace was lost
+            raise ValueError(f"--grasps {args.grasps}: object {args.object!r} names finger "
+                             f"{twice[0]!r} twice; each finger needs its own name (its trace "
+                             f"file is trace_<name>.csv)")
+        if args.fingers:
+            keep = [n.strip() for n in args.fingers.split(",") if n.strip()]
+            unknown = sorted(set(keep) - set(fingers))
+            if unknown or not keep:
+                raise ValueError(f"--fingers={args.fingers!r}: {args.object} has fingers "
+                                 f"{', '.join(fingers)}")
+            grasp_spec = dataclasses.replace(
+                grasp_spec, fingers=tuple(f for f in grasp_spec.fingers if f.name in keep))
+    if args.object is None and args.batch is None:
+        from tactip_lab.servo.plant import plate_contact
+
+        roll = 0.0 if args.surface_roll is None else args.surface_roll
+        pitch = 0.0 if args.surface_pitch is None else args.surface_pitch
+        plate_contact(roll, pitch)  # a bad angle fails before the chain is built
     params = _params(args)
     scene = load_scene_args(args)
     model = load_servo_model(args.model, scene, tip=args.tip, nominal=args.nominal)
@@ -83,26 +109,6 @@ def _cmd_servo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if args.batch is not None:
         return _batch(args, scene, model, params, out)
-    grasp_spec = None
-    if args.object is not None:
-        from tactip_lab.servo.grasp_objects import grasp
-
-        grasp_spec = grasp(args.object, args.grasps)
-        fingers = [f.name for f in grasp_spec.fingers]
-        if args.fingers:
-            keep = [n.strip() for n in args.fingers.split(",") if n.strip()]
-            unknown = sorted(set(keep) - set(fingers))
-            if unknown or not keep:
-                raise ValueError(f"--fingers={args.fingers!r}: {args.object} has fingers "
-                                 f"{', '.join(fingers)}")
-            grasp_spec = dataclasses.replace(
-                grasp_spec, fingers=tuple(f for f in grasp_spec.fingers if f.name in keep))
-    else:
-        from tactip_lab.servo.plant import plate_contact
-
-        roll = 0.0 if args.surface_roll is None else args.surface_roll
-        pitch = 0.0 if args.surface_pitch is None else args.surface_pitch
-        plate_contact(roll, pitch)  # a bad angle fails before the chain is built
     chain = servo_chain(scene, model, nominal=args.nominal)
     progress = not args.no_progress
     if grasp_spec is not None:
@@ -208,6 +214,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-charts", action="store_true", help="skip the PNG charts")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_servo)
+    declare(p, "servo", inputs={"scene": "toml", "model": "file", "grasps": "toml"},
+            folders=["out"], legacy=lambda d: manifest_kind(d) == "tactip-sim servo")
+
 
 
 __all__ = ["register"]

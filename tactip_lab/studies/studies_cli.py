@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from tactip_sim.commands.outputs import declare
+
 
 def register(studies: argparse._SubParsersAction) -> None:
     """``tactip study fidelity`` and ``tactip study stability``, added to the ``study`` group."""
@@ -14,6 +16,8 @@ def register(studies: argparse._SubParsersAction) -> None:
         description=fidelity.__doc__.splitlines()[0])
     fidelity.configure_parser(s)
     s.set_defaults(func=fidelity.main)
+    declare(s, "study fidelity", inputs={"scene": "toml"}, folders=["out"],
+            legacy=lambda d: (d / "summary.json").is_file() and (d / "levels.csv").is_file())
 
     from tactip_lab.studies import stability
 
@@ -22,3 +26,5 @@ def register(studies: argparse._SubParsersAction) -> None:
         description=stability.__doc__.splitlines()[0])
     stability.configure_parser(s)
     s.set_defaults(func=stability.main)
+    declare(s, "study stability", inputs={"scene": "toml"}, folders=["out"],
+            legacy=lambda d: (d / "summary.json").is_file() and (d / "report.md").is_file())

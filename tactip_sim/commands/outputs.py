@@ -12,22 +12,25 @@ name what it reads (scene files, images, model files, labelled folders...) and w
   the reverse), a FIFO, a device (``/dev/zero``), an unreadable file, a TOML file with a
   byte-order mark or that is not UTF-8 text: each refused naming the option and the file.
 * **No user file is replaced** without ``--overwrite``. An output file that exists is refused,
-  unless the command recognises it as its own (``fit`` replaces a model file) or it lies in
-  an output folder of the same command.
+  unless it is the tool's own: a file a command wrote there and nobody changed since (the
+  register :data:`REGISTER` in the cache folder keeps the size, time and SHA-256 of every
+  output file a command finished), a file the command recognises (``fit`` replaces a model
+  file), or a file inside an output folder of the same command.
 * **Output folders carry a marker** (:data:`MARKER`, the command that made them). A folder
   made by another command is refused; a folder without a marker that holds anything is
   refused (a user's folder: its same-named files would be replaced), unless it is recognisably
   the command's own from before markers existed (``legacy``) or ``--overwrite`` is given.
   A file is never written inside a folder another command made.
-* **One writer per output folder.** :func:`hold` takes an exclusive lock (``flock``) on
-  :data:`LOCK` for the run; a second writer is refused naming the one holding it (command,
-  process id, host, start). The lock dies with its process (also on SIGKILL): nothing stale is
-  left to clear. (``flock`` may not lock across machines on some network file systems.)
+* **One writer per output folder.** :func:`hold` takes an exclusive lock (``flock``) on the
+  folder itself for the run and records the writer (command, process id, host, start) in the
+  marker; a second writer is refused naming it. The lock dies with its process (also on
+  SIGKILL): no lock file, nothing stale to clear. (``flock`` may not lock across machines on
+  some network file systems.)
 * The parents of every output are checked up front: a missing folder is created, a file in
   the way, or a folder the user may not write in, is named before any work.
 
-A folder the run created and left holding only the marker and the lock (a refusal later in
-the command, Ctrl-C before the first file) is removed again.
+A folder the run created and left holding only the marker (a refusal later in the command,
+Ctrl-C before the first file) is removed again.
 """
 
 from __future__ import annotations
@@ -46,10 +49,13 @@ from pathlib import Path
 from typing import Any
 
 MARKER = ".tactip-output.json"
-"""In every output folder: ``{"tool": "tactip", "command": ..., "created_utc": ...}``."""
-LOCK = ".tactip-lock"
-"""In every output folder: the lock file of the run writing it (holder's details inside)."""
-OWN_FILES = (MARKER, LOCK)
+"""In every output folder: ``{"tool": "tactip", "command": ..., "created_utc": ...,
+"writer": {the last run that held the lock}}``."""
+REGISTER = "outputs.json"
+"""In the cache folder (:func:`tactip_sim.cache.cache_dir`): path -> size, mtime and SHA-256
+of the output files commands wrote (the newest :data:`REGISTER_SIZE`)."""
+REGISTER_SIZE = 2000
+OWN_FILES = (MARKER,)
 """The files of the rule itself: a folder holding only these is empty for every other use."""
 
 INPUT_KINDS = ("file", "folder", "path", "toml", "file-or-name")
@@ -79,13 +85,17 @@ class Spec:
     legacy: Callable[[Path], bool] | None = None
     stdout: tuple[str, ...] = ()
     siblings: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    mark: bool = True
+    """False: the folders get no marker (a folder format that refuses any file it did not
+    write, e.g. a sweep's dataset, which has its own manifest); they are still locked."""
 
 
 def declare(parser: argparse.ArgumentParser, command: str, *,
             inputs: dict[str, str] | None = None, files: Sequence[str] = (),
             folders: Sequence[str] = (), own: dict[str, Callable[[Path], bool]] | None = None,
             legacy: Callable[[Path], bool] | None = None, stdout: Sequence[str] = (),
-            siblings: dict[str, tuple[str, ...]] | None = None, overwrite: bool = True) -> Spec:
+            siblings: dict[str, tuple[str, ...]] | None = None, overwrite: bool = True,
+            mark: bool = True) -> Spec:
     """Declare ``parser``'s inputs and outputs (argument ``dest`` names, as the parser has
     them) and add ``--overwrite`` (unless ``overwrite=False``). Returns the :class:`Spec`, which
     :func:`claim` applies before the command runs."""
@@ -107,7 +117,7 @@ def declare(parser: argparse.ArgumentParser, command: str, *,
                             help="replace existing files that this command did not make "
                             "(never its own inputs)")
     spec = Spec(command, inputs, tuple(files), tuple(folders), names, dict(own or {}), legacy,
-                tuple(stdout), dict(siblings or {}))
+                tuple(stdout), dict(siblings or {}), mark)
     parser.set_defaults(_outputs=spec)
     return spec
 
@@ -161,7 +171,7 @@ def check_input(path: str | os.PathLike[str], name: str, kind: str = "path") -> 
     if not os.access(p, os.R_OK | (os.X_OK if is_dir else 0)):
         raise OutputError(f"{name} {str(path)!r}: permission denied (not readable by this "
                           "user)")
-    if kind == "toml":
+    if kind == "toml" or (kind == "file-or-name" and p.suffix.lower() == ".toml"):
         head = p.read_bytes()[: 1 << 20]
         if head.startswith(b"\xef\xbb\xbf"):
             raise OutputError(f"{name} {str(path)!r} starts with a UTF-8 byte-order mark "
@@ -189,6 +199,16 @@ def marker_of(folder: Path) -> dict[str, Any] | None:
     except (OSError, ValueError, UnicodeDecodeError):
         return {}
     return data if isinstance(data, dict) else {}
+
+
+def manifest_kind(folder: Path) -> str | None:
+    """The ``kind`` of ``folder``'s ``manifest.json`` (how an output folder of a command made
+    before folders were marked is recognised: ``legacy``), or None."""
+    try:
+        data = json.loads((Path(folder) / "manifest.json").read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    return data.get("kind") if isinstance(data, dict) else None
 
 
 def _marked_ancestor(path: Path) -> tuple[Path, str] | None:
@@ -245,11 +265,13 @@ def check_output_file(path: Path, name: str, inputs: list[tuple[str, Path]], *,
         if st is not None and _what(st.st_mode):
             raise OutputError(f"{name} {str(path)!r} is {_what(st.st_mode)}: give a regular "
                               "file's path")
-        ours = marked is not None or (own is not None and own(path))
+        ours = (marked is not None or (own is not None and own(path))
+                or _registered(out))
         if not overwrite and not ours:
-            raise OutputError(f"{name} {str(path)!r} exists and was not made by tactip "
-                              f"{command}: refusing to replace it (give --overwrite to "
-                              "replace it, or another path)")
+            what = (f"is not {own.what}" if hasattr(own, "what")
+                    else "was not written by tactip (or was changed since)")
+            raise OutputError(f"{name} {str(path)!r} exists and {what}: refusing to replace "
+                              "it (give --overwrite to replace it, or another path)")
         if not os.access(path, os.W_OK) and not os.access(path.parent, os.W_OK):
             raise OutputError(f"{name} {str(path)!r}: permission denied")
     _check_parent(path, name)
@@ -300,10 +322,72 @@ def check_output_folder(path: Path, name: str, inputs: list[tuple[str, Path]], *
     return out
 
 
+# --- the register of files the tool wrote -------------------------------------------------
+
+def _register_path() -> Path:
+    from tactip_sim import cache
+
+    return cache.cache_dir() / REGISTER
+
+
+def _fingerprint(path: Path) -> list[Any] | None:
+    import hashlib
+
+    try:
+        st = path.stat()
+        if not stat.S_ISREG(st.st_mode):
+            return None
+        h = hashlib.sha256()
+        with path.open("rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    except OSError:
+        return None
+    return [st.st_size, st.st_mtime_ns, h.hexdigest()]
+
+
+def _read_register() -> dict[str, Any]:
+    try:
+        data = json.loads(_register_path().read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _registered(path: Path) -> bool:
+    """Whether ``path`` is a file a command wrote there, unchanged since."""
+    entry = _read_register().get(str(path))
+    return entry is not None and entry == _fingerprint(path)
+
+
+def register_outputs(paths: Sequence[Path]) -> None:
+    """Record ``paths`` (written by a command that finished) in the register. A register that
+    cannot be written only costs the next run an ``--overwrite``."""
+    import tempfile
+
+    data = _read_register()
+    for p in paths:
+        fp = _fingerprint(p)
+        if fp is not None:
+            data.pop(str(p), None)
+            data[str(p)] = fp
+    data = dict(list(data.items())[-REGISTER_SIZE:])
+    target = _register_path()
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{REGISTER}.", suffix=".tmp")
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(json.dumps(data))
+        os.replace(tmp, target)
+    except OSError:
+        with contextlib.suppress(OSError, UnboundLocalError):
+            Path(tmp).unlink(missing_ok=True)
+
+
 # --- the lock ----------------------------------------------------------------------------
 
-_HELD: dict[Path, list[Any]] = {}
-"""Folders this process holds the lock of: resolved path -> [open file, count] (re-entrant)."""
+_HELD: dict[Path, list[int]] = {}
+"""Folders this process holds the lock of: resolved path -> [fd, count] (re-entrant)."""
 
 
 class BusyError(OutputError):
@@ -312,13 +396,14 @@ class BusyError(OutputError):
 
 @contextlib.contextmanager
 def hold(folder: str | os.PathLike[str], command: str) -> Iterator[None]:
-    """Hold ``folder``'s write lock while the block runs (the folder must exist). Re-entrant
-    within one process.
+    """Hold ``folder``'s write lock while the block runs (the folder must exist); a marked
+    folder records the writer in its marker. Re-entrant within one process.
 
     Raises
     ------
     BusyError
-        Another process holds it: the message names its command, process id, host and start.
+        Another process holds it: the message names its command, process id, host and start
+        (as its marker recorded them).
     """
     import fcntl
 
@@ -330,32 +415,31 @@ def hold(folder: str | os.PathLike[str], command: str) -> Iterator[None]:
         finally:
             _release(key)
         return
-    fh = open(key / LOCK, "a+", encoding="utf-8")  # noqa: SIM115 - held across the block
+    fd = os.open(key, os.O_RDONLY | os.O_DIRECTORY)
     try:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
-        fh.seek(0)
-        who = fh.read().strip()
-        fh.close()
-        try:
-            w = json.loads(who)
-            who = (f"tactip {w.get('command')}, process {w.get('pid')} on {w.get('host')}, "
-                   f"started {w.get('started_utc')}")
-        except (ValueError, AttributeError):
-            who = "another process"
+        os.close(fd)
+        w = (marker_of(key) or {}).get("writer")
+        who = (f"tactip {w.get('command')}, process {w.get('pid')} on {w.get('host')}, "
+               f"started {w.get('started_utc')}") if isinstance(w, dict) else "another process"
         raise BusyError(f"{str(folder)!r} is being written by another run ({who}): two writers "
                         "would mix their files; wait for it to end, or choose another "
                         "folder") from None
-    fh.seek(0)
-    fh.truncate()
-    fh.write(json.dumps({"command": command, "pid": os.getpid(), "host": socket.gethostname(),
-                         "started_utc": datetime.now(UTC).isoformat(timespec="seconds")}))
-    fh.flush()
-    _HELD[key] = [fh, 1]
+    _HELD[key] = [fd, 1]
     try:
+        m = marker_of(key)
+        if m is not None:
+            write_marker(key, str(m.get("command", command)), created=m.get("created_utc"),
+                         writer={"command": command, "pid": os.getpid(),
+                                 "host": socket.gethostname(), "started_utc": _now()})
         yield
     finally:
         _release(key)
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
 
 
 def _release(key: Path) -> None:
@@ -365,10 +449,9 @@ def _release(key: Path) -> None:
     entry[1] -= 1
     if entry[1] == 0:
         del _HELD[key]
-        fh = entry[0]
         with contextlib.suppress(OSError):
-            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
-        fh.close()
+            fcntl.flock(entry[0], fcntl.LOCK_UN)
+        os.close(entry[0])
 
 
 # --- applying the rule -------------------------------------------------------------------
@@ -415,6 +498,7 @@ def claim(args: argparse.Namespace) -> Iterator[None]:
                               "output needs its own")
         outs[p] = name
 
+    written: list[Path] = []
     for dest in spec.files:
         for v in _values(getattr(args, dest, None)):
             if dest in spec.stdout and str(v) == "-":
@@ -422,8 +506,9 @@ def claim(args: argparse.Namespace) -> Iterator[None]:
             name = spec.names[dest]
             paths = [Path(v)] + [Path(v).with_suffix(s) for s in spec.siblings.get(dest, ())]
             for p in paths:
-                unique(check_output_file(p, name, inputs, command=spec.command,
-                                         overwrite=overwrite, own=spec.own.get(dest)), name, p)
+                written.append(check_output_file(p, name, inputs, command=spec.command,
+                                                 overwrite=overwrite, own=spec.own.get(dest)))
+                unique(written[-1], name, p)
     folders: list[Path] = []
     for dest in spec.folders:
         for v in _values(getattr(args, dest, None)):
@@ -437,18 +522,25 @@ def claim(args: argparse.Namespace) -> Iterator[None]:
             created = not d.exists()
             d.mkdir(parents=True, exist_ok=True)
             stack.callback(_tidy, d, created)
-            stack.enter_context(hold(d, spec.command))
-            if marker_of(d) is None:
+            if spec.mark and marker_of(d) is None:
                 write_marker(d, spec.command)
+            stack.enter_context(hold(d, spec.command))
         yield
+    if written:
+        register_outputs(written)
 
 
-def write_marker(folder: Path, command: str) -> None:
-    """Mark ``folder`` as made by ``tactip command`` (written atomically)."""
+def write_marker(folder: Path, command: str, *, created: str | None = None,
+                 writer: dict[str, Any] | None = None) -> None:
+    """Mark ``folder`` as made by ``tactip command`` (written atomically), with the run that
+    writes it now (``writer``, recorded by :func:`hold`)."""
     import tempfile
 
-    text = json.dumps({"tool": "tactip", "command": command,
-                       "created_utc": datetime.now(UTC).isoformat(timespec="seconds")}) + "\n"
+    data: dict[str, Any] = {"tool": "tactip", "command": command,
+                            "created_utc": created or _now()}
+    if writer is not None:
+        data["writer"] = writer
+    text = json.dumps(data) + "\n"
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tactip-marker.", suffix=".tmp")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
@@ -506,6 +598,6 @@ def describe_os_error(exc: OSError) -> str:
     return f"cannot write or read {target!r}: {what}"
 
 
-__all__ = ["LOCK", "MARKER", "OWN_FILES", "BusyError", "OutputError", "Spec", "check_input",
+__all__ = ["MARKER", "OWN_FILES", "BusyError", "OutputError", "Spec", "check_input",
            "check_output_file", "check_output_folder", "claim", "declare", "describe_os_error",
-           "hold", "marker_of", "write_marker"]
+           "hold", "manifest_kind", "marker_of", "write_marker"]
