@@ -9,6 +9,8 @@ milliseconds per frame of
 
 * ``detect``: ``detect_markers_detailed`` with the sensor region, the marker size and the pixel
   noise measured on the rest frame, as ``FeaturePipeline`` runs it;
+* ``detect, frame alone``: ``detect_markers_detailed(frame, expected_count=N)``, a frame read
+  with nothing known but its pin count (the ``detect`` command);
 * ``track``: ``MarkerTracker.update`` from a reset tracker;
 * ``voronoi``: the clipped cell areas of the tracked markers in the pipeline's region, as the
   pipeline computes them (``FeaturePipeline.voronoi``, which reuses the last triangulation while
@@ -28,8 +30,10 @@ under the same load means much. Each repeat runs every stage of both once, in a 
 order.
 
 Frames: a synthetic 97-marker frame (rest and pressed, ``perception.synthetic``), the real
-331-pin rest frame against itself (``--real``), and any pair given with ``--frames`` (e.g. a
-rendered rest frame and a pressed frame from a calibration sweep's ``images/`` folder).
+331-pin rest frame against itself (``--real``), two raw 640x480 331-pin taps, two of the lab's
+128x128 binarised taps (a 4-5 mm deep one against a shallow one), and any pair given with
+``--frames`` (e.g. a rendered rest frame and a pressed frame from a calibration sweep's
+``images/`` folder).
 """
 
 from __future__ import annotations
@@ -103,6 +107,9 @@ def _stages(lib, rest_image: np.ndarray, image: np.ndarray, expected: int) -> di
     def detect():
         return lib.detect_markers_detailed(image, **opts)
 
+    def detect_alone():  # a frame read alone, told the pin count only (the detect command)
+        return lib.detect_markers_detailed(image, expected_count=expected)
+
     def track():
         tracker.reset()
         return tracker.update(det.points, areas=det.areas_px)
@@ -128,7 +135,8 @@ def _stages(lib, rest_image: np.ndarray, image: np.ndarray, expected: int) -> di
         pipe.reset()
         pipe.process(image)
 
-    return {"detect": detect, "track": track, "voronoi": lambda: areas_of(seeds), "cop": cop,
+    return {"detect": detect, "detect, frame alone": detect_alone, "track": track,
+            "voronoi": lambda: areas_of(seeds), "cop": cop,
             "total": total, "FeaturePipeline.process": process,
             "process after reset()": first}, det.count
 
@@ -212,6 +220,15 @@ def main(argv: list[str] | None = None) -> int:
                           image, image, 331))
         else:
             print(f"real frame not found at {real}: skipped")
+        taps = sorted((args.real / "tactip331_tap_raw" / "images").glob("*.png"))
+        if len(taps) >= 2:
+            cases.append((f"real 331-pin raw taps ({taps[-1].name} against {taps[0].name})",
+                          pc.read_image(taps[0]), pc.read_image(taps[-1]), 331))
+        small = args.real / "tactip331_tap128" / "images"
+        if (small / "image_501.png").is_file() and (small / "image_822.png").is_file():
+            cases.append(("real 331-pin 128x128 binarised taps (image_822.png, 4-5 mm deep, "
+                          "against image_501.png)", pc.read_image(small / "image_501.png"),
+                          pc.read_image(small / "image_822.png"), 331))
         if args.frames is not None:
             rest_path, frame_path = args.frames
             cases.append((f"{frame_path.name} against {rest_path.name}",

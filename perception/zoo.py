@@ -11,13 +11,14 @@ count) and, where the source allows, whose marker positions are known:
   their *reference positions* are the detections on the unchanged source frame, and are used
   only where the variant maps the source's pixels by a known geometric transform (crop, pad,
   resize, inversion, blur, noise, illumination, JPEG) and the source frame's own detection
-  found the pin count exactly. For binarised variants of grey sources the reference is the
-  grey frame's centroid, which a threshold may legitimately move (an asymmetric marker cut at
-  another level): those variants report positions against it all the same, and the docs say
-  which families that concerns.
+  found the pin count exactly. Binarised variants of grey real sources carry no positions:
+  a threshold moves each marker's centroid by a fraction of a source pixel (an asymmetric
+  marker cut at another level), so the grey frame's centroids are no truth for them (the
+  simulated binarised variants score positions against the exact centres).
 
 The transforms are the ones the field records: a crop of the circular field, resizing to
-96-1280 px (area, linear, cubic, nearest), padding, binarisation (the lab's adaptive mean
+96-1280 px (area when shrinking, linear when enlarging, nearest for whole-number enlargements
+of binarised frames), padding, binarisation (the lab's adaptive mean
 threshold of ``tactile_image_processing`` - block 11, C -30, and its default block 61, C 5 -,
 Otsu, a fixed half level), inverted polarity, bright debris and glare arcs along the rim,
 Gaussian blur, JPEG artefacts, uneven illumination and sensor noise.
@@ -308,6 +309,8 @@ def rim_debris(frame: Frame, centre: np.ndarray, radius: float, spacing: float,
     img, pts = frame
     out = img.copy()
     level = int(np.percentile(img, 99.9))
+    # a two-level frame gets two-level debris (drawn without anti-aliasing)
+    line = cv2.LINE_8 if len(np.unique(img[::4, ::4])) <= 2 else cv2.LINE_AA
     for _ in range(n):
         ang = rng.uniform(0, 2 * np.pi)
         r = radius + spacing * rng.uniform(2.0, 3.0)
@@ -316,14 +319,14 @@ def rim_debris(frame: Frame, centre: np.ndarray, radius: float, spacing: float,
         b = a * rng.uniform(0.4, 1.0)
         cv2.ellipse(out, (int(round(c[0] * 16)), int(round(c[1] * 16))),
                     (max(int(round(a * 16)), 8), max(int(round(b * 16)), 8)),
-                    float(rng.uniform(0, 180)), 0, 360, level, -1, cv2.LINE_AA, 4)
+                    float(rng.uniform(0, 180)), 0, 360, level, -1, line, 4)
     for _ in range(arcs):
         a0 = rng.uniform(0, 360)
         r = radius + spacing * rng.uniform(2.0, 3.0)
         thick = max(int(round(0.3 * diameter)), 1)
         cv2.ellipse(out, (int(round(centre[0] * 16)), int(round(centre[1] * 16))),
                     (int(round(r * 16)), int(round(r * 16))), 0.0, a0, a0 + rng.uniform(15, 50),
-                    level, thick, cv2.LINE_AA, 4)
+                    level, thick, line, 4)
     return out, pts
 
 
@@ -354,7 +357,10 @@ def _real_variants(src: ZooSource, rng: np.random.Generator, full: bool
     labs = []
     if tag == "raw331":
         for block, cc in LAB_THRESHOLDS if full else LAB_THRESHOLDS[:1]:
-            lab = lab_threshold(crop, block, cc)
+            # a threshold moves each marker's centroid by a fraction of a pixel (an
+            # asymmetric profile cut at another level): the grey frame's detections are no
+            # reference for it, positions are not scored
+            lab = (lab_threshold(crop, block, cc)[0], None)
             deb = rim_debris(lab, cz, src.radius, src.spacing, src.diameter, rng)
             labs.append((f"lab[{block},{cc}]", lab, deb))
     sizes = _sizes(full)
@@ -382,9 +388,9 @@ def _real_variants(src: ZooSource, rng: np.random.Generator, full: bool
                        shrink(deb))
                 yield (f"{tag} lab-binarised inverted", f"{v} {name} inverted{tail}",
                        invert(shrink(deb)))
-            yield f"{tag} otsu-binarised", f"{v} otsu", otsu(fr)
+            yield f"{tag} otsu-binarised", f"{v} otsu", (otsu(fr)[0], None)
             if full:
-                yield f"{tag} otsu-binarised", f"{v} half", half_level(fr)
+                yield f"{tag} otsu-binarised", f"{v} half", (half_level(fr)[0], None)
             yield f"{tag} rim debris", f"{v} debris", rim_debris(fr, c, r, sp, d, rng)
         else:
             yield f"{tag} rim debris", f"{v} debris", rim_debris(fr, c, r, sp, d, rng)
