@@ -196,11 +196,18 @@ def _guard(res: Result, category: str, what: str, fn: Callable[[], str],
         if not str(exc).strip():
             res.fail(category, "silent", f"{what}: refused without a message")
             return
+    except _WorkStarted as exc:  # the command's long work began: a refusal came too late
+        res.fail(category, "silent", f"{what}: the work ({exc}) started before any refusal")
+        return
     except Exception as exc:  # noqa: BLE001 - any other error is the defect counted
         res.fail(category, "traceback", f"{what}: {type(exc).__name__}: {exc}"[:300])
         return
     if verdict.startswith("SILENT"):
         res.fail(category, "silent", f"{what}: {verdict}")
+    elif verdict.startswith("LOST"):
+        res.fail(category, "data loss", f"{what}: {verdict}")
+    elif verdict.startswith("UNCLEAR"):
+        res.fail(category, "unclear", f"{what}: {verdict}")
     else:
         res.add(category, verdict)
 
@@ -375,7 +382,8 @@ def csv_cases(rng: np.random.Generator, n: int, text: str) -> Iterator[tuple[str
     for _ in range(n):
         kind = rng.choice(["truncate", "duplicate row", "drop column", "nan label",
                            "text label", "missing image", "blank lines", "header only",
-                           "binary", "swap header", "inf label", "huge label"])
+                           "binary", "swap header", "inf label", "huge label",
+                           "angle out of range", "same image twice", "bom"])
         body = list(lines)
         i = int(rng.integers(1, len(body)))
         cells = body[i].split(",")
@@ -390,11 +398,23 @@ def csv_cases(rng: np.random.Generator, n: int, text: str) -> Iterator[tuple[str
         elif kind == "drop column":
             j = int(rng.integers(0, 7))
             body = [",".join(c for k, c in enumerate(line.split(",")) if k != j) for line in body]
-        elif kind in ("nan label", "text label", "inf label", "huge label"):
-            cells[int(rng.integers(3, 6))] = {"nan label": "nan", "text label": "abc",
-                                              "inf label": "inf",
-                                              "huge label": "1e300"}[kind]
+        elif kind in ("nan label", "text label", "inf label", "huge label",
+                      "angle out of range"):
+            j = int(rng.integers(3, 6)) if kind != "angle out of range" else int(
+                rng.integers(4, 6))
+            cells[j] = {"nan label": "nan", "text label": "abc", "inf label": "inf",
+                        "huge label": "1e300",
+                        "angle out of range": str(rng.choice([90, -90, 2630, 1e6]))}[kind]
             body[i] = ",".join(cells)
+            kind = f"{kind} in pose_{j}"
+        elif kind == "same image twice":
+            k = 1 + (i % (len(body) - 1))
+            if k == i:
+                k = 1 + ((i + 1) % (len(body) - 1))
+            cells[0] = body[k].split(",")[0]
+            body[i] = ",".join(cells)
+        elif kind == "bom":
+            body[0] = "\ufeff" + body[0]
         elif kind == "missing image":
             cells[0] = "image_999.png"
             body[i] = ",".join(cells)
@@ -423,7 +443,8 @@ def fuzz_folders_and_models(res: Result, rng: np.random.Generator, n: int, tmp: 
         if work.exists():
             shutil.rmtree(work)
         shutil.copytree(good, work)
-        (work / "targets.csv").write_text(csv_text, encoding="latin-1")
+        (work / "targets.csv").write_text(csv_text, encoding="utf-8" if csv_text.startswith(
+            "\ufeff") else "latin-1")
         out = tmp / "fit_out"
         shutil.rmtree(out, ignore_errors=True)
         out.mkdir()
@@ -433,6 +454,11 @@ def fuzz_folders_and_models(res: Result, rng: np.random.Generator, n: int, tmp: 
                                 "--no-progress"])
             if rc != 0:
                 return "refused" if err.strip() else "SILENT refused without a message"
+            implausible = kind.startswith(("duplicate row", "same image twice", "nan label",
+                                           "inf label", "angle out of range")) or (
+                kind.startswith("huge label") and not kind.endswith("pose_3"))
+            if implausible:  # labels no sensor gives, or a frame in two CV folds
+                return f"SILENT fitted on implausible labels ({kind})"
             saved = json.loads((out / "m.json").read_text())
             flat = json.dumps(saved)
             if "NaN" in flat or "Infinity" in flat:
@@ -562,6 +588,297 @@ def fuzz_cli_numbers(res: Result, rng: np.random.Generator, n: int) -> None:
         _guard(res, "cli number", f"{name} {action.option_strings[0]} {text!r}", run)
 
 
+# --- issue 54: outputs onto inputs, two writers, special files ----------------------------
+
+class _WorkStarted(Exception):
+    """Raised by a command's work function in the fuzz run: a refusal must come before it."""
+
+
+_WORK = [("tactip_lab.protocol.calibrate", "calibrate"), ("tactip_lab.real.sim2real", "run"),
+         ("tactip_lab.real.identify", "identify"), ("tactip_lab.real.identify", "tilt_candidates"),
+         ("tactip_lab.recognition.recognise", "run_recognition"),
+         ("tactip_lab.recognition.select", "run_selection"),
+         ("tactip_lab.recognition.contacts", "load_contacts"),
+         ("tactip_lab.servo.model", "load_servo_model"), ("tactip_lab.sampling.sweep", "run_sweep"),
+         ("tactip_sim.commands.validate_lens", "run"), ("tactip_sim.simulator", "Simulator")]
+"""The long work of each command (simulation, recognition, selection): replaced in the fuzz
+run by :class:`_WorkStarted`, so a refusal that comes after the work began is counted (and
+no case runs a simulation)."""
+
+
+@contextlib.contextmanager
+def _no_long_work() -> Iterator[None]:
+    import importlib
+
+    saved = []
+    for module, name in _WORK:
+        m = importlib.import_module(module)
+        saved.append((m, name, getattr(m, name)))
+
+        def started(*a, _name=name, **k):
+            raise _WorkStarted(_name)
+        setattr(m, name, started)
+    try:
+        yield
+    finally:
+        for m, name, f in saved:
+            setattr(m, name, f)
+
+
+def _snapshot(paths: list[Path]) -> dict[str, bytes]:
+    out = {}
+    for root in paths:
+        files = [root] if root.is_file() else sorted(root.rglob("*")) if root.is_dir() else []
+        out.update({str(p): p.read_bytes() for p in files if p.is_file()})
+    return out
+
+
+def _judge_refusal(rc: int, err: str, option: str, what: str) -> str:
+    """The verdict of a case that must be refused before any work, naming ``option``."""
+    if "Traceback" in err:
+        raise RuntimeError(err[-300:])
+    if rc == 0:
+        return f"SILENT {what}: accepted (exit 0)"
+    if "_WorkStarted" in err or "work started" in err:
+        return f"SILENT {what}: refused only after the work began"
+    if option not in err:
+        return f"UNCLEAR {what}: the message does not name {option}: {err.strip()[:160]}"
+    return "refused"
+
+
+def _fixtures54(tmp: Path, good: Path, model: Path) -> dict[str, Path]:
+    """Inputs the issue-54 categories point outputs at: the labelled folder and its model, a
+    scene, a rest frame, a folder of each command that makes one."""
+    import shutil
+
+    from tactip_sim.commands.outputs import write_marker
+
+    f = {"ds": good, "model": model, "scene": tmp / "S.toml", "rest": tmp / "rest.png"}
+    f["scene"].write_bytes(SCENE.read_bytes())
+    shutil.copyfile(good / "images" / "image_1.png", f["rest"])
+    for command in ("recognise", "calibrate", "sim2real", "servo", "select-markers",
+                    "validate-lens", "detect"):
+        d = tmp / f"made_by_{command}"
+        (d / "contacts").mkdir(parents=True, exist_ok=True)
+        write_marker(d, command)
+        (d / "report.md").write_text(f"{command}'s report\n")
+        f[command] = d
+    return f
+
+
+def _output_cases(rng: np.random.Generator, f: dict[str, Path]) -> list[tuple[str, list, str,
+                                                                              list[Path]]]:
+    """(what, argv, option, inputs that must stay byte-identical): an output of a command
+    pointed at one of its inputs (the file, a file inside the folder, the folder itself, a
+    new file inside it) or at a folder another command made."""
+    ds, model, scene, rest = f["ds"], f["model"], f["scene"], f["rest"]
+    inside_ds = [ds / "targets.csv", ds / "images" / "image_2.png", ds / "new.json", ds]
+    cases = []
+    for x in inside_ds:
+        cases += [("fit --json", ["fit", ds, "--order", "1", "--out", f["ds"].parent / "fm.json",
+                                  "--json", x], "--json", [ds]),
+                  ("fit --out", ["fit", ds, "--order", "1", "--out", x], "--out", [ds]),
+                  ("fit --plot", ["fit", ds, "--order", "1", "--cv", "2", "--out",
+                                  f["ds"].parent / "fm.json", "--plot", x], "--plot", [ds]),
+                  ("evaluate --json", ["evaluate", model, ds, "--json", x], "--json",
+                   [ds, model]),
+                  ("features --out", ["features", ds, "--out", x], "--out", [ds])]
+    cases += [("evaluate --json onto the model", ["evaluate", model, ds, "--json", model],
+               "--json", [ds, model]),
+              ("detect --csv onto the image", ["detect", rest, "--out", rest.parent / "det",
+                                               "--csv", rest], "--csv", [rest]),
+              ("detect --out holding the image", ["detect", rest, "--out", rest.parent],
+               "--out", [rest]),
+              ("identify --out onto the scene", ["identify", scene, "--real", rest, "--out",
+                                                 scene], "--out", [scene, rest]),
+              ("identify --json onto the rest frame", ["identify", scene, "--real", rest,
+                                                       "--out", rest.parent / "id.toml",
+                                                       "--json", rest], "--json",
+               [scene, rest]),
+              ("select-markers --out its input", ["select-markers", f["recognise"], "--out",
+                                                  f["recognise"]], "--out", [f["recognise"]]),
+              ("select-markers --out holding its input",
+               ["select-markers", f["recognise"] / "contacts", "--out", f["recognise"]], "--out",
+               [f["recognise"]])]
+    folder_commands = {
+        "calibrate": ["calibrate", scene, "--quick"], "sim2real": ["sim2real", scene],
+        "servo": ["servo", scene, "--model", model, "--surface-roll", "1"],
+        "select-markers": ["select-markers", f["recognise"]],
+        "recognise": ["recognise", scene, "--objects", SCENE.parent / "objects"],
+        "sweep": ["sweep", scene, "--random", "2"], "validate-lens": ["validate-lens", scene],
+        "detect": ["detect", rest]}
+    for command, argv in folder_commands.items():
+        other = [c for c in ("recognise", "calibrate", "sim2real", "servo", "select-markers",
+                             "validate-lens", "detect") if c != command]
+        target = f[other[int(rng.integers(len(other)))]]
+        cases.append((f"{command} --out a folder of another command", [*argv, "--out", target],
+                       "--out", [target]))
+        cases.append((f"{command} --out the user's folder", [*argv, "--out", ds.parent /
+                                                             "users"], "--out",
+                       [ds.parent / "users"]))
+    order = rng.permutation(len(cases))
+    return [cases[int(i)] for i in order]
+
+
+def fuzz_outputs(res: Result, rng: np.random.Generator, n: int, tmp: Path, good: Path,
+                 model: Path) -> None:
+    """Outputs onto inputs: every case must be refused, naming the option, before any work,
+    with the inputs byte-identical (a changed input is counted as data loss). The output is
+    spelled as given, relative, through '..', or as a symbolic or hard link to the input."""
+    import os
+    f = _fixtures54(tmp, good, model)
+    users = good.parent / "users"
+    users.mkdir(exist_ok=True)
+    for name in ("report.md", "summary.json", "r2_table.md", "notes.txt"):
+        (users / name).write_text("the user's own\n")
+    cases = _output_cases(rng, f)
+    links = tmp / "links"
+    links.mkdir(exist_ok=True)
+    with _no_long_work():
+        for i in range(n):
+            what, argv, option, keep = cases[i % len(cases)]
+            # the output spelled another way: relative, through '..', a symbolic or hard link
+            out = Path(argv[argv.index(option) + 1])
+            spelling = str(rng.choice(["as given", "relative", "dotdot", "symlink",
+                                       "hardlink"]))
+            if spelling == "relative":
+                alias = Path(os.path.relpath(out, Path.cwd()))
+            elif spelling == "dotdot":
+                alias = out.parent / ".." / out.parent.name / out.name
+            elif spelling in ("symlink", "hardlink") and out.exists() and (
+                    spelling == "symlink" or out.is_file()):
+                alias = links / f"{i}_{out.name}"
+                (os.symlink if spelling == "symlink" else os.link)(out, alias)
+            else:
+                spelling, alias = "as given", out
+            argv = [*argv[:argv.index(option) + 1], alias, *argv[argv.index(option) + 2:]]
+            what = f"{what} ({spelling})"
+            before = _snapshot(keep)
+
+            def run(argv=argv, option=option, what=what, keep=keep, before=before) -> str:
+                rc, err = _run_cli([str(a) for a in argv] + ["--no-progress"] *
+                                   (argv[0] in ("fit", "evaluate", "features")))
+                if _snapshot(keep) != before:
+                    return f"LOST {what}: an input changed"
+                return _judge_refusal(rc, err, option, what)
+            _guard(res, "outputs onto inputs", what, run)
+
+
+_HOLDER = """
+import sys
+from contextlib import ExitStack
+from tactip_sim.commands.outputs import hold
+with ExitStack() as stack:
+    for d in sys.argv[1:]:
+        stack.enter_context(hold(d, "fuzz-holder"))
+    print("held", flush=True)
+    sys.stdin.read()
+"""
+
+
+def fuzz_two_writers(res: Result, rng: np.random.Generator, n: int, tmp: Path,
+                     f: dict[str, Path]) -> None:
+    """A second writer into a folder another process writes: refused, naming the holder,
+    before any work."""
+    import os
+    import subprocess
+
+    commands = {"calibrate": ["calibrate", f["scene"], "--quick"],
+                "sim2real": ["sim2real", f["scene"]],
+                "servo": ["servo", f["scene"], "--model", f["model"], "--surface-roll", "1"],
+                "select-markers": ["select-markers", f["recognise"] / "contacts"],
+                "validate-lens": ["validate-lens", f["scene"]], "detect": ["detect", f["rest"]]}
+    folders = {c: f[c] for c in commands}
+    holder = subprocess.Popen([sys.executable, "-c", _HOLDER, *map(str, folders.values())],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with _no_long_work():
+            for _ in range(n):
+                command = list(commands)[int(rng.integers(len(commands)))]
+                argv = [*commands[command], "--out", folders[command]]
+
+                def run(argv=argv, command=command) -> str:
+                    rc, err = _run_cli([str(a) for a in argv])
+                    verdict = _judge_refusal(rc, err, "being written by another run",
+                                             f"{command} beside a writer")
+                    if verdict == "refused" and f"process {holder.pid}" not in err:
+                        return f"UNCLEAR {command}: the holder is not named: {err[:160]}"
+                    return verdict
+                _guard(res, "two writers", command, run)
+    finally:
+        holder.communicate("")
+
+
+def fuzz_special_files(res: Result, rng: np.random.Generator, n: int, tmp: Path,
+                       f: dict[str, Path]) -> None:
+    """A FIFO, a device, a folder for a file, a file for a folder, a missing path, a TOML file
+    with a byte-order mark or binary, as every kind of input: refused naming the option and
+    what the path is, never read (a FIFO would hang a reader), never 'does not exist' for a
+    path that exists."""
+    import os
+    import threading
+
+    fifo = tmp / "pipe"
+    if not fifo.exists():
+        os.mkfifo(fifo)
+
+    def unblock() -> None:  # a reader of the FIFO gets a byte and EOF instead of hanging
+        with contextlib.suppress(OSError), open(fifo, "w") as fh:
+            fh.write("x")
+
+    bom = tmp / "bom.toml"
+    bom.write_bytes(b"\xef\xbb\xbf" + SCENE.read_bytes())
+    binary = tmp / "binary.toml"
+    binary.write_bytes(bytes(range(256)) * 4)
+    specials = {"FIFO": fifo, "device": Path("/dev/zero"), "folder": tmp,
+                "missing": tmp / "missing.x", "file": f["rest"], "bom": bom, "binary": binary}
+    out = tmp / "special_out"
+    inputs = [  # (command argv with SPECIAL in the input's place, option, kind of input)
+        (["scene", "SPECIAL"], "SCENE", "toml"),
+        (["calibrate", "SPECIAL", "--out", out], "SCENE", "toml"),
+        (["calibrate", f["scene"], "--rig", "SPECIAL", "--out", out], "--rig", "toml"),
+        (["fit", "SPECIAL", "--out", out / "m.json"], "DATASET", "folder"),
+        (["evaluate", "SPECIAL", f["ds"]], "MODEL", "file"),
+        (["evaluate", f["model"], "SPECIAL"], "DATASETS", "folder"),
+        (["detect", "SPECIAL", "--out", out], "IMAGE", "file"),
+        (["identify", f["scene"], "--real", "SPECIAL", "--out", out / "x.toml"], "--real",
+         "path"),
+        (["servo", f["scene"], "--model", "SPECIAL", "--surface-roll", "1", "--out", out],
+         "--model", "file"),
+        (["servo", f["scene"], "--model", f["model"], "--object", "cube", "--grasps",
+          "SPECIAL", "--out", out], "--grasps", "toml"),
+        (["recognise", f["scene"], "--objects", "SPECIAL", "--out", out], "--objects",
+         "folder"),
+        (["select-markers", "SPECIAL", "--out", out], "DATASET", "folder"),
+        (["sim2real", f["scene"], "--real", "SPECIAL", "--out", out], "--real", "folder"),
+    ]
+    reasons = {"FIFO": "FIFO", "device": "device", "folder": "folder", "missing": "no such",
+               "file": "file", "bom": "byte-order mark", "binary": "not a text"}
+    with _no_long_work():
+        for _ in range(n):
+            argv, option, kind = inputs[int(rng.integers(len(inputs)))]
+            special = list(specials)[int(rng.integers(len(specials)))]
+            ok_for = {"path": ("file", "folder", "bom", "binary"), "folder": ("folder",),
+                      "file": ("file", "bom", "binary"), "toml": ("file",)}
+            if special in ok_for[kind]:
+                continue  # a plausible input: not this category's case
+            if special == "FIFO":
+                threading.Thread(target=unblock, daemon=True).start()
+            case = [str(specials[special]) if a == "SPECIAL" else str(a) for a in argv]
+
+            def run(case=case, option=option, special=special, kind=kind) -> str:
+                rc, err = _run_cli(case)
+                verdict = _judge_refusal(rc, err, option, f"{special} as {option}")
+                reason = ("is a file" if kind == "folder" and special in ("bom", "binary")
+                          else reasons[special])
+                if verdict == "refused" and reason not in err:
+                    return f"UNCLEAR {special} as {option}: {err.strip()[:160]}"
+                return verdict
+            _guard(res, "special files", f"{special} as {case[0]} {option}", run)
+
+
 def run_fuzz(n: int, seed: int, tmp: Path) -> Result:
     """All categories, ``n`` cases each (seeded)."""
     res = Result()
@@ -574,6 +891,10 @@ def run_fuzz(n: int, seed: int, tmp: Path) -> Result:
         fuzz_cache(res, rng, n, tmp / "cache")
         fuzz_images(res, rng, n, tmp)
         fuzz_folders_and_models(res, rng, n, tmp)
+        fuzz_outputs(res, rng, n, tmp, tmp / "good", tmp / "good_model.json")
+        f = _fixtures54(tmp, tmp / "good", tmp / "good_model.json")
+        fuzz_two_writers(res, rng, max(2, n // 3), tmp, f)
+        fuzz_special_files(res, rng, n, tmp, f)
     return res
 
 
@@ -583,7 +904,8 @@ def summary(res: Result) -> str:
         text = ", ".join(f"{v} {k}" for k, v in sorted(counts.items(), key=lambda x: -x[1]))
         lines.append(f"| {cat} | {sum(counts.values())} | {text} |")
     lines.append(f"| **all** | {res.cases()} | tracebacks {res.tally['traceback']}, silent "
-                 f"{res.tally['silent']}, escaped writes {res.tally['escaped write']} |")
+                 f"{res.tally['silent']}, data loss {res.tally['data loss']}, unclear "
+                 f"{res.tally['unclear']}, escaped writes {res.tally['escaped write']} |")
     return "\n".join(lines)
 
 

@@ -600,3 +600,24 @@ def test_cache_info_counts_the_tools_entries_only(tmp_path, monkeypatch):
     ours = [p for p in tmp_path.rglob("*") if p.is_file() and "thesis" not in p.parts]
     assert len(ours) >= 1
     assert f": {len(ours)} files" in out.getvalue(), out.getvalue()  # not the 3 chapters
+
+
+def test_a_second_calibration_through_the_api_is_refused_too(tmp_path):
+    """The run log (runs.json) holds its folder's lock from its creation to finish()."""
+    from tactip_lab.sampling.runlog import RunLog
+    from tactip_sim.commands.outputs import BusyError
+
+    holder = subprocess.Popen([sys.executable, "-c", _HOLDER, str(tmp_path)],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(BusyError, match="being written by another run"):
+            RunLog(tmp_path / "runs.json", frames=1)
+        assert not (tmp_path / "runs.json").exists()  # refused before it wrote anything
+    finally:
+        holder.communicate("")
+    log = RunLog(tmp_path / "runs.json", frames=1)
+    log.tick()
+    log.finish()
+    assert json.loads((tmp_path / "runs.json").read_text())[0]["samples_computed"] == 1

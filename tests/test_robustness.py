@@ -108,7 +108,7 @@ def test_ctrl_c_while_python_exits_ends_with_one_line_and_130(tmp_path):
     ignored in: <module 'threading'>"). Here a thread keeps Python's exit waiting."""
     code = ("import sys, threading, time\n"
             "from tactip_sim.commands.launch import main\n"
-            "threading.Thread(target=time.sleep, args=(60,)).start()\n"
+            "threading.Thread(target=threading.Event().wait).start()  # never ends\n"
             f"code = main(['scene', {str(SCENE)!r}])\n"
             "print('returned', code, file=sys.stderr, flush=True)\n"
             "sys.exit(code)\n")
@@ -119,14 +119,14 @@ def test_ctrl_c_while_python_exits_ends_with_one_line_and_130(tmp_path):
         first = proc.stderr.readline()
         assert first.startswith("returned 0"), first + proc.stderr.read()
         time.sleep(0.2)  # Python is now waiting for the thread
-        t0 = time.monotonic()
         proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=30)
+        # the thread never ends: a process that waited for it would never exit by itself (the
+        # timeout only guards the test run; the assertions are on how the process ended)
+        out, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert time.monotonic() - t0 < 20  # it did not wait for the thread's 60 s
-    assert proc.returncode == 130, err
+    assert proc.returncode == 130, err  # it ended by itself, with the interrupt's status
     assert "Traceback" not in err and "Exception ignored" not in err, err
     assert err.strip().splitlines() == ["tactip: interrupted while exiting (the command had ended)"]
     assert tomllib.loads(out)["tolerances"]["stiffness_rel"] == 0.05  # the output is all there

@@ -6,6 +6,13 @@ in ``runs.json`` beside the datasets, rewritten (atomically) at most every ``flu
 while samples are being written, when the invocation ends (also by an exception or Ctrl-C) and
 once more when it finishes: only a killed process (SIGKILL, power loss) loses up to
 ``flush_s`` of its record. :meth:`RunLog.summary` sums the entries for the manifest.
+
+One writer at a time: a RunLog holds its folder's write lock
+(:func:`tactip_sim.commands.outputs.hold`, the lock every command takes on its ``--out``)
+from its creation to :meth:`RunLog.finish` (or the end of the process), so a second process
+calibrating into the same folder is refused naming the first, through the API as through
+``tactip calibrate`` (two runs on one folder left ``runs.json`` claiming 0 samples for a run
+that computed 115).
 """
 
 from __future__ import annotations
@@ -35,7 +42,14 @@ class RunLog:
 
     def __init__(self, path: str | Path, frames: int, *, flush_s: float = 0.0,
                  **info: Any) -> None:
+        import contextlib
+
+        from tactip_sim.commands.outputs import hold
+
         self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = contextlib.ExitStack()
+        self._lock.enter_context(hold(self.path.parent, "calibrate"))
         self.previous = self._load()
         self.flush_s = float(flush_s)
         self._t0 = time.perf_counter()
@@ -74,6 +88,7 @@ class RunLog:
     def finish(self) -> None:
         self.entry["finished"] = True
         self._write()
+        self._lock.close()  # the folder's write lock (taken in __init__)
 
     @property
     def runs(self) -> list[dict[str, Any]]:

@@ -233,9 +233,17 @@ def _check_parent(path: Path, name: str) -> None:
                           "(permission denied): choose another place")
 
 
+def _same_file(a: Path, b: Path) -> bool:
+    """``a`` and ``b`` are one file (a hard link is another path to the same data)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
 def _relation(out: Path, inputs: list[tuple[str, Path]]) -> str | None:
     for name, p in inputs:
-        if out == p:
+        if out == p or _same_file(out, p):
             return f"is {name} {str(p)!r}, which the command reads"
         if p in out.parents and p.is_dir():
             return f"lies inside {name} {str(p)!r}, which the command reads"
