@@ -53,7 +53,7 @@ def main() -> None:
         rad = w.radiance(st, rng)
         w.truth(st)
         c = time.perf_counter()
-        imgs = w.renderer.camera.frames(rad, rng, args.frames)
+        imgs = w.renderer.imaging.frames(rad, rng, args.frames)
         d = time.perf_counter()
         w.perceive(imgs)
         e = time.perf_counter()

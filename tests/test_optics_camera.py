@@ -9,6 +9,7 @@ import pytest
 
 import tactip_sim as ts
 from tactip_sim.optics import Camera, Layers, Lens
+from tactip_sim.render import CameraModel
 
 
 @pytest.fixture(scope="module")
@@ -100,14 +101,62 @@ def test_one_camera_per_renderer(scene, pad, monkeypatch):
     r.ground_truth(pad.markers_mm + [0.0, 0.0, -0.2], refraction="none")
     r.sensor_dict("analytic", 1)
     assert len(calls) == 1
-    assert isinstance(r.optics, Camera)
-    np.testing.assert_array_equal(r.optics.centre_mm, Camera.from_scene(scene).centre_mm)
+    assert isinstance(r.camera, Camera)
+    np.testing.assert_array_equal(r.camera.centre_mm, Camera.from_scene(scene).centre_mm)
+    assert isinstance(r.imaging, CameraModel)  # the sensor's response, not the projection
+    assert not hasattr(r, "optics")
 
 
-def test_top_level_project_is_the_scene_camera(scene, pad, camera):
-    assert np.array_equal(ts.project(scene, pad.markers_mm), camera.project(pad.markers_mm))
-    assert np.array_equal(ts.project(scene, pad.markers_mm, refraction="none"),
-                          camera.project(pad.markers_mm, refraction="none"))
+def _mount(scene):
+    """The camera's centre and its axes in the sensor frame, written from the scene's definition
+    (camera.shift_mm, distance_mm below the window's outer face, tilt_deg back over the pad
+    about +y; image y = sensor +y, image x = y x axis), not from Camera."""
+    t = np.deg2rad(scene.camera.tilt_deg)
+    centre = np.array([scene.camera.shift_mm, 0.0,
+                       -scene.window.thickness_mm - scene.camera.distance_mm])
+    axis = np.array([-np.sin(t), 0.0, np.cos(t)])
+    x_img = np.array([np.cos(t), 0.0, np.sin(t)])
+    return centre, x_img, np.array([0.0, 1.0, 0.0]), axis
+
+
+def test_top_level_project_is_the_lens_definition(scene):
+    """Points in the air between the lens and the window (no refraction on the way) at known
+    angles off the axis land where the equidistant lens puts them, r = f theta."""
+    assert scene.lens.model == "equidistant"
+    centre, x_img, y_img, axis = _mount(scene)
+    f_px = scene.lens.focal_length_mm / (scene.camera.pixel_pitch_um * 1e-3)
+    cx = (scene.camera.resolution[0] - 1) / 2 + scene.camera.principal_offset_px[0]
+    cy = (scene.camera.resolution[1] - 1) / 2 + scene.camera.principal_offset_px[1]
+    a, b = np.deg2rad(30.0), np.deg2rad(45.0)
+    points = np.array([centre + 10.0 * (np.cos(a) * axis + np.sin(a) * x_img),   # 30 deg to +x
+                       centre + 8.0 * (np.cos(b) * axis - np.sin(b) * y_img),    # 45 deg to -y
+                       centre + 5.0 * axis])                                     # on the axis
+    assert (points[:, 2] < -scene.window.thickness_mm).all()  # below the window: in air
+    want = np.array([[cx + f_px * a, cy], [cx, cy - f_px * b], [cx, cy]])
+    np.testing.assert_allclose(ts.project(scene, points), want, atol=1e-9)
+    np.testing.assert_allclose(ts.project(scene, points, refraction="none"), want, atol=1e-9)
+
+
+def test_top_level_project_agrees_with_opencv_fisheye(scene):
+    """A second method: OpenCV's fisheye (Kannala-Brandt) model with k = 0 is the equidistant
+    lens; its projection of points in the air below the window, with the pose written from the
+    scene, is ts.project's."""
+    cv2 = pytest.importorskip("cv2")
+    centre, x_img, y_img, axis = _mount(scene)
+    r_cw = np.stack([x_img, y_img, axis])  # rows: camera axes in the sensor frame
+    rng = np.random.default_rng(7)
+    dirs = rng.normal(size=(40, 3)) * [0.5, 0.5, 0.0] + [0.0, 0.0, 1.0]  # within ~60 deg
+    cam_pts = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * rng.uniform(2, 9, (40, 1))
+    points = centre + cam_pts @ r_cw
+    assert (points[:, 2] < -scene.window.thickness_mm).all()
+    f_px = scene.lens.focal_length_mm / (scene.camera.pixel_pitch_um * 1e-3)
+    k = np.array([[f_px, 0.0, (scene.camera.resolution[0] - 1) / 2],
+                  [0.0, f_px, (scene.camera.resolution[1] - 1) / 2], [0.0, 0.0, 1.0]])
+    k[:2, 2] += scene.camera.principal_offset_px
+    rvec, _ = cv2.Rodrigues(r_cw)
+    want, _ = cv2.fisheye.projectPoints(points.reshape(-1, 1, 3), rvec, -r_cw @ centre, k,
+                                        np.zeros(4))
+    np.testing.assert_allclose(ts.project(scene, points), want.reshape(-1, 2), atol=1e-6)
 
 
 @pytest.mark.parametrize("refraction", ["analytic", "none"])

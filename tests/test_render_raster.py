@@ -70,7 +70,7 @@ def test_cap_on_the_axis_images_as_the_lens_formula_says(scene):
     s = ts.replace_in(scene, camera={"tilt_deg": 0.0, "shift_mm": 0.0},
                       imaging={"refraction": "none", "cap_layer": "raster"})
     r = Renderer(s)
-    cam = r.optics
+    cam = r.camera
     centre = cam.centre_mm + np.array([0.0, 0.0, 18.0])  # 18 mm above the lens: in the gel
     radius = s.pins.marker_diameter_mm / 2
     glow, cover = r.raster("none").draw(centre[None], np.array([[0.0, 0.0, -1.0]]),
@@ -162,8 +162,8 @@ def test_interpolated_rims_are_the_projected_rims(both):
     from tactip_sim.render.raster import N_EDGE
 
     raster, _, m, d = both
-    m, d = raster._markers(m, d)
-    layer = raster.raster(raster.optics.refraction_mode(None))
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)  # unit cap normals, as the renderer draws
+    layer = raster.raster(raster.camera.refraction_mode(None))
 
     def projected(mm, dd):
         ring = cap_outline(mm, dd, layer.radius_mm, N_EDGE)
@@ -186,9 +186,10 @@ def test_truth_of_a_drawn_frame_is_the_projected_caps(both):
     (Camera.cap_images) to the bit, and markers that were not drawn are projected."""
     raster, mitsuba, m, d = both
     raster.render_radiance(m, d)
-    mode = raster.optics.refraction_mode(None)
+    mode = raster.camera.refraction_mode(None)
     # the drawing is reused (for the markers and unit directions the renderer drew)
-    assert raster.raster(mode).last_outlines(*raster._markers(m, d)) is not None
+    unit = d / np.linalg.norm(d, axis=1, keepdims=True)
+    assert raster.raster(mode).last_outlines(m, unit) is not None
     got = raster.ground_truth(m, d)[2]
     want = mitsuba.ground_truth(m, d)[2]  # (Mitsuba draws no outlines: always projected)
     np.testing.assert_array_equal(got, want)
@@ -199,23 +200,34 @@ def test_truth_of_a_drawn_frame_is_the_projected_caps(both):
 
 def test_caps_over_the_background_are_the_layer_composited(both):
     """The one-pass composite (CapRaster.over) is draw()'s layer composited over the
-    background by Renderer._composite, to the bit."""
+    background, ``background (1 - cover) + layer`` over the crop in float32, to the bit (and is
+    what render_radiance returns)."""
     from tactip_sim.render.scene import cap_radiance
 
+    def composite(background, layer, cover):
+        x0, y0, cw, ch = raster.crop
+        out = background.copy()
+        win = out[y0:y0 + ch, x0:x0 + cw]
+        win *= np.float32(1.0) - cover
+        win += layer
+        return out
+
     raster, _, m, d = both
-    mode = raster.optics.refraction_mode(None)
+    mode = raster.camera.refraction_mode(None)
     background = raster.background(mode)
     assert background.dtype == np.float32
     glow = cap_radiance(raster.scene, raster.pad.leds_mm, m, d, raster.albedo.cap)
     layer, cover = raster.raster(mode).draw(m, d, glow)
-    want = raster._composite(background, layer, cover)
+    assert layer.dtype == np.float32 and cover.dtype == np.float32
+    assert cover.max() > 0.5 and layer.max() > 0  # caps were drawn: the check has content
+    want = composite(background, layer, cover)
     got = raster.raster(mode).over(background, m, d, glow)
     assert np.array_equal(got, want)
     assert np.array_equal(raster.render_radiance(m, d), want)
     colour = raster.raster(mode).over(np.stack([background, 2 * background], axis=-1), m, d,
                                       glow)
     assert np.array_equal(colour[..., 0], want)
-    assert np.array_equal(colour[..., 1], raster._composite(2 * background, layer, cover))
+    assert np.array_equal(colour[..., 1], composite(2 * background, layer, cover))
 
 # ----------------------------------------------------------------------------- the scene key
 def test_cap_layer_is_raster_by_default_and_mitsuba_one_key_away(scene):
@@ -266,10 +278,10 @@ def test_static_maps_from_the_disk_cache_are_the_computed_ones(both):
     fresh = Renderer(raster.scene, raster.pad)  # a new renderer: its maps come from the cache
     got = fresh.raster("analytic")
     box, radius = raster.pad.protrusion_box_mm, raster.scene.pins.marker_diameter_mm / 2
-    computed = CapRaster(fresh.optics, fresh._config("analytic", fresh.crop), box, radius)
+    computed = CapRaster(fresh.camera, got.config, box, radius)  # its maps computed afresh
     assert np.array_equal(got.weight, computed.weight)
     assert np.array_equal(got.visible, computed.visible)
     assert 0.0 < got.visible.mean() < 1.0  # some crop pixels see the cavity, some do not
     with pytest.raises(ValueError, match="maps"):
-        CapRaster(fresh.optics, fresh._config("analytic", fresh.crop), box, radius,
+        CapRaster(fresh.camera, got.config, box, radius,
                   maps=(got.weight[1:], got.visible))

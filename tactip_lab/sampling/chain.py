@@ -362,7 +362,7 @@ class Chain:
         rng = self.rng(*key)
         radiance = self.radiance(state, rng)
         px, visible, blobs = self.truth(state)
-        camera = self.renderer.camera
+        camera = self.renderer.imaging
         if gain != 1.0:
             camera = dataclasses.replace(camera, exposure=camera.exposure * gain)
         images = self.averaged(camera.frames(radiance, rng,

@@ -345,7 +345,7 @@ def rig_sample(spec: SweepSpec, chain: Chain, index: int, reached: Sequence[floa
     crng = chain.rng(spec.set_tag, index)
     radiance = motion_blur(chain.radiance(state, crng), rig.motion_blur_px, angle)
     px, visible, blobs = chain.truth(state)
-    camera = chain.renderer.camera
+    camera = chain.renderer.imaging
     if gain != 1.0:
         camera = dc_replace(camera, exposure=camera.exposure * gain)
     images = camera.frames(radiance, crng, chain.frames)

@@ -90,9 +90,10 @@ class Renderer:
 
     Attributes
     ----------
-    optics : the :class:`~tactip_sim.optics.Camera` (lens, mount, window layers), built once
+    camera : the :class:`~tactip_sim.optics.Camera` (lens, mount, window layers), built once
         from ``scene``: every ray the sensor traces and every ground-truth pixel comes from it
-    camera : the :class:`~tactip_sim.render.CameraModel` (exposure, blur, vignetting, noise)
+    imaging : the :class:`~tactip_sim.render.CameraModel` (blur, vignetting, exposure, noise:
+        rendered radiance to 8-bit frames), built from ``scene.imaging``
     crop : (x0, y0, width, height) of the image of the gel cavity, where caps can appear
 
     Raises
@@ -115,12 +116,12 @@ class Renderer:
             raise ValueError(f"pins.count={scene.pins.count}: the pad has no markers, so the "
                              "camera has nothing to see; rendering needs pins.count >= 1 "
                              "(pressing works without pins)")
-        self.optics = Camera.from_scene(scene)
-        self.camera = CameraModel.from_scene(scene)
+        self.camera = Camera.from_scene(scene)
+        self.imaging = CameraModel.from_scene(scene)
         self.pins = pins
         self.shading = shading
         self.albedo = Albedo() if albedo is None else albedo
-        check_view(self.optics, self.pad)
+        check_view(self.camera, self.pad)
         w, h = scene.camera.resolution
         self.crop = self._cavity_crop()
         self._loaded: dict[tuple[str, str, str], _Loaded] = {}
@@ -150,7 +151,7 @@ class Renderer:
         w, h = self.scene.camera.resolution
         surf = self.pad.interface if self.pad.interface is not None else self.pad.surface
         px = np.concatenate([  # with and without refraction: one crop serves both modes
-            self.optics.project(np.asarray(surf.vertices), refraction=mode)
+            self.camera.project(np.asarray(surf.vertices), refraction=mode)
             for mode in ("analytic", "none")])
         px = px[np.all(np.isfinite(px), axis=1)]
         if len(px) == 0:
@@ -160,7 +161,7 @@ class Renderer:
         return int(lo[0]), int(lo[1]), int(hi[0] - lo[0]), int(hi[1] - lo[1])
 
     def _config(self, refraction: str, crop: tuple[int, int, int, int]) -> _sensor.SensorConfig:
-        sc, pad, cam = self.scene, self.pad, self.optics
+        sc, pad, cam = self.scene, self.pad, self.camera
         foot = np.array([sc.pad.footprint_length_mm, sc.pad.footprint_width_mm]) / 2
         cavity = np.array([pad.inner.a, pad.inner.b]) if pad.inner is not None else foot
         return _sensor.SensorConfig(
@@ -300,7 +301,7 @@ class Renderer:
             path = cache.path_for("raster_maps", key, ".npz")
             got = cache.load_npz(path, ["weight", "visible"])
             maps = None if got is None else (got["weight"], got["visible"])
-            r = CapRaster(self.optics, self._config(refraction, self.crop),
+            r = CapRaster(self.camera, self._config(refraction, self.crop),
                           self.pad.protrusion_box_mm, self.scene.pins.marker_diameter_mm / 2,
                           maps=maps)
             if got is None:
@@ -312,7 +313,7 @@ class Renderer:
         """(h, w) sensor weight at the crop's pixel centres (converts layer coverage)."""
         if refraction not in self._weight:
             x0, y0, cw, ch = self.crop
-            cx, cy = self.optics.lens.principal_point_px
+            cx, cy = self.camera.lens.principal_point_px
             v, u = np.mgrid[y0:y0 + ch, x0:x0 + cw].astype(float)
             _, _, wt = _sensor.pixel_rays(self._config(refraction, self.crop), u - cx, v - cy)
             self._weight[refraction] = np.asarray(wt, dtype=np.float32)
@@ -350,7 +351,7 @@ class Renderer:
         -------
         (H, W) or (H, W, 3) float32
         """
-        mode = self.optics.refraction_mode(refraction)
+        mode = self.camera.refraction_mode(refraction)
         shade = self.shading if shading is None else shading
         if mode == "path":
             shade = "diffused"
@@ -396,7 +397,7 @@ class Renderer:
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Analytic marker centres (n, 2), visibility (n,) and blob centroids (n, 2) in OpenCV
         pixels (see :class:`Frame`)."""
-        cam = self.optics
+        cam = self.camera
         mode = cam.refraction_mode(refraction)
         m, d = self._markers(markers_mm, directions)
         lines = cam.sightlines(m, refraction=mode)
@@ -436,19 +437,19 @@ class Renderer:
         """
         gen = np.random.default_rng(rng)
         seed = int(gen.integers(0, 2**31 - 1))
-        mode = self.optics.refraction_mode(refraction)
+        mode = self.camera.refraction_mode(refraction)
         spp = self.scene.imaging.spp if spp is None else _check_spp(spp)
         m, d = self._markers(markers_mm, directions)
         t0 = time.perf_counter()
         radiance = self.render_radiance(m, d, seed=seed, spp=spp, refraction=mode)
         t1 = time.perf_counter()
-        image = self.camera.apply(radiance, gen if noise else None)  # cached vignette
+        image = self.imaging.apply(radiance, gen if noise else None)  # cached vignette
         t2 = time.perf_counter()
         px, vis, blobs = self.ground_truth(m, d, refraction=mode)
         meta = {
             "scene": self.scene.name, "scene_hash": self._hash, "refraction": mode,
             "shading": "diffused" if mode == "path" else self.shading, "spp": spp,
-            "sampler_seed": seed, "noise": bool(noise), "lens": self.optics.lens.model,
+            "sampler_seed": seed, "noise": bool(noise), "lens": self.camera.lens.model,
             "render_ms": round(1e3 * (t1 - t0), 2), "camera_ms": round(1e3 * (t2 - t1), 2),
         }
         return Frame(image, px, vis, blobs, meta)

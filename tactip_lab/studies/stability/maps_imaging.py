@@ -95,7 +95,7 @@ def map_noise_blur(st: _Study) -> MapResult:
         for i, b in enumerate(blur):
             row = []
             for j, s in enumerate(noise):
-                cam = dataclasses.replace(rig.renderer.camera, read_noise=s, blur_px=b)
+                cam = dataclasses.replace(rig.renderer.imaging, read_noise=s, blur_px=b)
                 row.append(_imaging_cell(rig, cam, rads, blobs, vis,
                                          _rng(st.seed, "noise_blur_cell", i, j)))
                 bar.update()
@@ -135,7 +135,7 @@ def map_lighting(st: _Study) -> MapResult:
             setups[name] = round(time.perf_counter() - t0, 2)
             row = []
             for j, e in enumerate(exposures):
-                cam = dataclasses.replace(renderer.camera, exposure=e)
+                cam = dataclasses.replace(renderer.imaging, exposure=e)
                 row.append(_imaging_cell(rig, cam, rads, blobs, vis,
                                          _rng(st.seed, "lighting_cell", i, j)))
                 bar.update()
@@ -208,7 +208,7 @@ def map_missing_markers(st: _Study) -> MapResult:
     model = st.models()[2]
     test = evaluation_sets(ts.replace_in(st.scene, protocol={
         "test_depth_offsets_mm": [0.0], "test_poses": g.missing_poses}))[0]
-    background = rig.renderer.background(rig.renderer.optics.refraction)
+    background = rig.renderer.background(rig.renderer.camera.refraction)
     states = [None] + [rig.press(p) for p in test.poses]
     rads, blobs, vis = _imaging_inputs(st, rig.renderer, states, "missing_markers")
     radius = 0.5 * rig.diameter_px + 2.0  # the cap's image plus blur
@@ -224,7 +224,7 @@ def map_missing_markers(st: _Study) -> MapResult:
             for j, k in enumerate(counts):
                 gone = order[:k]
                 rng = _rng(st.seed, "missing_cell", i, j)
-                cam = rig.renderer.camera
+                cam = rig.renderer.imaging
 
                 def frames(idx: int, count: int, gone=gone, rng=rng, cam=cam) -> list:
                     rad = _remove_markers(rads[idx], background, blobs[idx], gone, radius)
