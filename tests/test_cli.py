@@ -77,3 +77,14 @@ def test_ctrl_c_gives_a_message_and_exit_code_130(monkeypatch, capsys):
     assert main(["scene", str(SCENES / "shadow_fingertip.toml")]) == 130
     err = capsys.readouterr().err
     assert "interrupted" in err and "same command again" in err and "Traceback" not in err
+
+
+def test_render_with_pins_on_the_default_scene_uses_mitsubas_caps(tmp_path, capsys):
+    """The default raster cap layer draws caps only: ``--pins`` renders with Mitsuba's caps
+    (and says so) instead of refusing the default scene."""
+    out = tmp_path / "f.png"
+    assert main(["render", str(SCENES / "shadow_fingertip.toml"), "--depth", "0.5", "--spp",
+                 "1", "--no-noise", "-o", str(out), "--pins"]) == 0
+    assert "imaging.cap_layer = mitsuba" in capsys.readouterr().err
+    truth = json.loads(out.with_suffix(".json").read_text())
+    assert out.stat().st_size > 1000 and sum(truth["visible"]) > 80

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from pathlib import Path
 
 from .args import add_scene_argument, int_in, load_scene_args, png_path, scene_key_type
@@ -26,7 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="samples per pixel (scene default)")
     p.add_argument("--refraction", choices=["none", "analytic", "path"], default=None,
                    help="window/gel refraction (scene default)")
-    p.add_argument("--pins", action="store_true", help="also render the black pins")
+    p.add_argument("--pins", action="store_true",
+                   help="also render the black pins (with Mitsuba's caps: the raster cap layer "
+                   "draws caps only)")
     p.add_argument("--no-noise", action="store_true", help="no shot/read noise")
     p.set_defaults(func=_cmd_render)
     from .outputs import declare
@@ -53,6 +56,13 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from ..simulator import Simulator
 
     scene = load_scene_args(args)
+    if args.pins and scene.imaging.cap_layer == "raster":
+        # the pins are scene geometry only Mitsuba renders; its caps come with them
+        from ..scene import replace_in
+
+        scene = replace_in(scene, imaging={"cap_layer": "mitsuba"})
+        print("--pins: rendering with imaging.cap_layer = mitsuba (the raster layer draws "
+              "the caps alone)", file=sys.stderr)
     pose = Pose(args.roll, args.pitch, args.depth)
     sim = Simulator(scene)
     try:
