@@ -12,7 +12,13 @@ from dataclasses import dataclass
 
 from .errors import PerceptionError
 
-__all__ = ["DetectionParams", "TrackingParams", "ContactParams"]
+__all__ = ["COHERENT_TOLERANCE", "DetectionParams", "TrackingParams", "ContactParams"]
+
+#: With ``TrackingParams.coherent``: a match agrees with its rest neighbours when its
+#: displacement is within this fraction of the spacing of their median displacement (a
+#: smooth skin field changes by much less than a spacing between neighbours; a match to the
+#: neighbouring marker is off by a whole one).
+COHERENT_TOLERANCE = 0.35
 
 
 def _check_range(name: str, value: float, lo: float, hi: float, *, lo_open: bool = False) -> None:
@@ -144,6 +150,15 @@ class TrackingParams:
         centroid ± half the difference of their predicted positions): two markers a 128x128
         frame images as one blob stay tracked, each off by at most half the change of their
         separation. Default False (both flagged).
+    coherent : bool
+        Assign by the skin's coherence (for frames whose markers move by up to a spacing and
+        more against the reference, e.g. shear taps): matches whose displacement agrees with
+        their rest neighbours' (within :data:`COHERENT_TOLERANCE` of a spacing) seed the
+        frame; every other track is then predicted at its reference plus the median
+        displacement of its matched rest neighbours and matched within half a spacing of
+        that, wave after wave from the seeds; a match that still disagrees with its
+        neighbours' motion at the end is dropped (the track is lost, not given a wrong
+        marker). Default False (the plain gated assignment).
     """
 
     gate_fraction: float = 0.5
@@ -152,11 +167,14 @@ class TrackingParams:
     max_lost_fraction: float = 0.1
     merge_needs_lost_neighbour: bool = False
     merged_pairs_share: bool = False
+    coherent: bool = False
 
     def __post_init__(self) -> None:
         _check_range("gate_fraction", self.gate_fraction, 0, 2, lo_open=True)
         _check_range("merge_area_ratio", self.merge_area_ratio, 1, 100, lo_open=True)
         _check_range("max_lost_fraction", self.max_lost_fraction, 0, 1)
+        if not isinstance(self.coherent, bool):
+            raise PerceptionError(f"coherent={self.coherent!r} must be True or False")
         if self.merged_pairs_share and not self.merge_needs_lost_neighbour:
             raise PerceptionError("merged_pairs_share=True needs merge_needs_lost_neighbour="
                                   "True (the pair's other track is the lost neighbour)")

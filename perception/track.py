@@ -187,7 +187,8 @@ class MarkerTracker:
         merged_det = merged_det[keep]
 
         m = len(self.rest_points)
-        track, match = self._assign(det)
+        track, match = (self._assign_coherent(det) if self.params.coherent
+                        else self._assign(det))
         new_pos = np.full((m, 2), np.nan)
         status = np.full(m, LOST, dtype=np.int8)
         good = ~merged_det[match]
@@ -254,6 +255,103 @@ class MarkerTracker:
             new_pos[t], new_pos[u] = c + half, c - half
             status[t] = status[u] = TRACKED
             free = np.delete(free, j)
+
+    def _rest_neighbours(self) -> np.ndarray:
+        """(m, 6) int: each rest marker's lattice neighbours (within 1.5 spacings), -1 pad."""
+        if getattr(self, "_nbrs", None) is None:
+            from scipy.spatial import cKDTree
+
+            m = len(self.rest_points)
+            k = min(6, m - 1)
+            d, i = cKDTree(self.rest_points).query(self.rest_points, k=k + 1)
+            d, i = d[:, 1:].reshape(m, k), i[:, 1:].reshape(m, k)
+            self._nbrs = np.where(d <= 1.5 * self.spacing_px, i, -1)
+        return self._nbrs
+
+    def _neighbour_motion(self, pred: np.ndarray, pos: np.ndarray, matched: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+        """Median displacement from prediction of each track's matched rest neighbours, and
+        how many there are: ((m, 2), (m,))."""
+        nb = self._rest_neighbours()
+        valid = (nb >= 0) & matched[np.maximum(nb, 0)]
+        disp = np.where(valid[:, :, None], pos[np.maximum(nb, 0)] - pred[np.maximum(nb, 0)],
+                        np.nan)
+        count = valid.sum(axis=1)
+        with np.errstate(all="ignore"):
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                med = np.nanmedian(disp, axis=1)
+        return med, count
+
+    def _assign_coherent(self, det: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Assignment by the skin's coherence (``TrackingParams.coherent``): plain gated
+        matches that agree with their neighbours seed the frame, the rest is matched wave by
+        wave at the neighbours' motion, and disagreeing matches are dropped at the end."""
+        from .params import COHERENT_TOLERANCE
+
+        m = len(self.rest_points)
+        track, match = self._assign(det)
+        if len(det) == 0 or len(track) == 0:
+            return track, match
+        pred = self.predicted()
+        tol = COHERENT_TOLERANCE * self.spacing_px
+        step = 0.5 * self.spacing_px
+        pos = np.full((m, 2), np.nan)
+        of = np.full(m, -1, dtype=np.intp)
+        pos[track], of[track] = det[match], match
+        matched = of >= 0
+        # seeds: plain matches whose motion agrees with their matched neighbours'
+        med, count = self._neighbour_motion(pred, pos, matched)
+        agree = matched & (count >= 2) & (np.hypot(*(pos - pred - med).T) <= tol)
+        # ... and move little, unless nothing is still (the whole array moved)
+        still = agree & (np.hypot(*(pos - pred).T) <= tol)
+        # ... and are reached from the rim through still markers: a region moved by about a
+        # spacing can be matched one marker over, coherently and still-looking, but it is
+        # cut off from the clamped rim by the band where the motion is half a spacing
+        nb = self._rest_neighbours()
+        reached = still & ((nb >= 0).sum(axis=1) < 5)  # the outer ring
+        motion = pos - pred
+        # a step to a neighbour whose motion differs by less than the tolerance (the band
+        # where a region is matched one marker over is a jump of about a spacing)
+        step_ok = (nb >= 0) & (np.hypot(*(motion[:, None, :] - motion[np.maximum(nb, 0)])
+                                        .transpose(2, 0, 1)) <= tol)
+        while True:
+            grow = still & ~reached & (reached[np.maximum(nb, 0)] & step_ok).any(axis=1)
+            if not grow.any():
+                break
+            reached |= grow
+        if reached.sum() >= max(3, m // 20):
+            agree = reached
+        elif still.sum() >= max(3, m // 20):
+            agree = still
+        of[~agree] = -1
+        pos[~agree] = np.nan
+        matched = agree
+        free = np.ones(len(det), dtype=bool)
+        free[of[matched]] = False
+        for _ in range(4 * int(np.sqrt(m)) + 4):  # waves from the seeds outwards
+            med, count = self._neighbour_motion(pred, pos, matched)
+            need = 1 if not (~matched & (count >= 2)).any() else 2
+            cand = np.flatnonzero(~matched & (count >= need))
+            fd = np.flatnonzero(free)
+            if not len(cand) or not len(fd):
+                break
+            cost = cdist(pred[cand] + med[cand], det[fd])
+            ok = cost <= step
+            if not ok.any():
+                break
+            rows, cols = linear_sum_assignment(np.where(ok, cost, step * (len(cand) + 1.0)))
+            take = ok[rows, cols]
+            t, d_ = cand[rows[take]], fd[cols[take]]
+            of[t], pos[t], matched[t], free[d_] = d_, det[d_], True, False
+        # the last word: every match agrees with its neighbours' motion, or is dropped
+        med, count = self._neighbour_motion(pred, pos, matched)
+        off = matched & (count >= 2) & (np.hypot(*(pos - pred - med).T) > tol)
+        matched &= ~off
+        t = np.flatnonzero(matched)
+        return t, of[t]
 
     def _assign(self, det: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Gated optimal one-to-one assignment: (track indices, detection indices)."""

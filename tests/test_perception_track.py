@@ -265,3 +265,54 @@ def test_gated_counts_equal_the_cost_matrix_decisions():
         assert np.array_equal(row_n, feasible.sum(axis=1))
         assert np.array_equal(col_n, feasible.sum(axis=0))
         assert np.array_equal(first, feasible.argmax(axis=1))
+
+
+def _clamped_shear(amp_spacings: float, angle: float, spacing: float = 10.0):
+    """A 331-marker lattice sheared in one frame as a TacTip skin is: clamped at the rim,
+    the centre moved ``amp_spacings`` spacings along ``angle`` (a parabolic profile)."""
+    rest = pc.hex_lattice(331, spacing, (0.0, 0.0))
+    r = np.hypot(*rest.T)
+    profile = np.clip(1.0 - (r / r.max()) ** 2, 0.0, 1.0)[:, None]
+    return rest, rest + amp_spacings * spacing * profile * [np.cos(angle), np.sin(angle)]
+
+
+@pytest.mark.parametrize("amp", [1.2, 1.6])
+@pytest.mark.parametrize("angle", [0.3, 1.0])
+def test_coherent_tracking_follows_a_clamped_shear_of_more_than_a_spacing(amp, angle):
+    """One frame against the rest frame, the centre moved by more than a spacing: the plain
+    gated assignment (gate one spacing, as for labelled taps) gives a hundred and more
+    markers their neighbour's identity; the coherent one keeps every marker, each with its
+    own identity (identities known here)."""
+    rest, moved = _clamped_shear(amp, angle)
+    rng = np.random.default_rng(0)
+    perm = rng.permutation(len(moved))
+    det = (moved + rng.normal(0.0, 0.2, moved.shape))[perm]
+    wrong = {}
+    for coherent in (False, True):
+        tracker = pc.MarkerTracker(rest, params=pc.TrackingParams(
+            gate_fraction=1.0, use_velocity=False, coherent=coherent))
+        pos = tracker.update(det)
+        ok = np.isfinite(pos[:, 0])
+        wrong[coherent] = int((ok & (np.hypot(*(pos - moved).T) > 1.0)).sum())
+        if coherent:
+            assert ok.all()
+    assert wrong[False] > 100 and wrong[True] == 0
+
+
+def test_coherent_tracking_flags_rather_than_mismatches_a_marker_moved_alone():
+    """A marker displaced by half a spacing against a still skin, beside a missing one, has
+    no coherent match: it is lost (flagged), not given the displaced blob; the other markers
+    are unchanged."""
+    rest = pc.hex_lattice(91, 10.0, (0.0, 0.0))
+    det = rest.copy()
+    det[0] = rest[0] + (5.0, 0.0)  # the centre half a spacing over
+    det = np.delete(det, 1, axis=0)  # and its right-hand neighbour missing
+    plain = pc.MarkerTracker(rest, params=pc.TrackingParams(gate_fraction=1.0))
+    coherent = pc.MarkerTracker(rest, params=pc.TrackingParams(gate_fraction=1.0,
+                                                               coherent=True))
+    p_plain, p_coh = plain.update(det), coherent.update(det)
+    assert np.isfinite(p_plain[0, 0])  # the plain tracker takes the displaced blob
+    assert coherent.lost[0] and coherent.lost[1] and coherent.n_lost == 2
+    np.testing.assert_array_equal(p_coh[2:], rest[2:])
+    with pytest.raises(pc.PerceptionError, match="coherent"):
+        pc.TrackingParams(coherent=1)
