@@ -268,7 +268,54 @@ def detect_markers_detailed(
             alt = _detect_binary(two, shape, region, expected_count, expected_diameter_px, p)
             if alt.reliable:
                 return alt
+        if (min(shape) <= _UPSAMPLE_MAX_SIDE_PX
+                and not det.marker_diameter_px >= _UPSAMPLE_BELOW_DIAMETER_PX):
+            up = _upsampled_reading(grey, mask, expected_count, expected_diameter_px, p)
+            if up.reliable:
+                return up
     return det
+
+
+#: A small grey frame whose markers read under this diameter (or not at all) is read again
+#: enlarged :data:`_UPSAMPLE` times (bilinear, which keeps a spot's intensity centroid): the
+#: background, noise and half-maximum steps need markers of a few pixels; markers of 1-3 px
+#: (a 331-pin field shrunk to 96-128 px) are below what they resolve.
+_UPSAMPLE_BELOW_DIAMETER_PX = 3.0
+_UPSAMPLE = 3
+#: ... only frames up to this shorter side (px): the enlarged frame is read once, never again.
+_UPSAMPLE_MAX_SIDE_PX = 400
+
+
+def _upsampled_reading(grey: np.ndarray, mask, expected_count: int | None,
+                       expected_diameter_px: float | None, p: DetectionParams
+                       ) -> MarkerDetection:
+    """The detection of ``grey`` enlarged :data:`_UPSAMPLE` times, mapped back to its pixels
+    (pixel centres: x -> (x + 0.5) / k - 0.5; areas / k²)."""
+    k = _UPSAMPLE
+    h, w = grey.shape
+    big = cv2.resize(grey, (w * k, h * k), interpolation=cv2.INTER_LINEAR)
+    big_mask = None
+    if mask is not None:
+        import shapely.affinity
+
+        poly = _region(mask, (h, w))
+        big_mask = shapely.affinity.affine_transform(poly, [k, 0, 0, k, 0.5 * (k - 1),
+                                                            0.5 * (k - 1)])
+    det = detect_markers_detailed(
+        big, mask=big_mask, expected_count=expected_count,
+        expected_diameter_px=None if expected_diameter_px is None else k * expected_diameter_px,
+        params=p)
+
+    def back(xy: np.ndarray) -> np.ndarray:
+        return (xy + 0.5) / k - 0.5
+
+    return MarkerDetection(
+        points=back(det.points), areas_px=det.areas_px / k**2, peaks=det.peaks,
+        marker_diameter_px=det.marker_diameter_px / k, image_shape=(h, w),
+        reliable=det.reliable, reason=f"read enlarged {k}x (markers of a few pixels): "
+                                      f"{det.reason}",
+        rejected_points=back(det.rejected_points), rejected_reasons=det.rejected_reasons,
+        noise_sigma=det.noise_sigma)
 
 
 def _detect_grey(grey: np.ndarray, shape: tuple[int, int], scale: float, region,

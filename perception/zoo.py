@@ -20,8 +20,8 @@ The transforms are the ones the field records: a crop of the circular field, res
 96-1280 px (area when shrinking, linear when enlarging, nearest for whole-number enlargements
 of binarised frames), padding, binarisation (the lab's adaptive mean
 threshold of ``tactile_image_processing`` - block 11, C -30, and its default block 61, C 5 -,
-Otsu, a fixed half level), inverted polarity, bright debris and glare arcs along the rim,
-Gaussian blur, JPEG artefacts, uneven illumination and sensor noise.
+and Otsu's; on simulated frames also a fixed half level), inverted polarity, bright debris
+and glare arcs along the rim, Gaussian blur, JPEG artefacts, uneven illumination and sensor noise.
 
 ``python -m perception.zoo --help`` runs the whole zoo and prints the table of rates.
 """
@@ -388,9 +388,9 @@ def _real_variants(src: ZooSource, rng: np.random.Generator, full: bool
                        shrink(deb))
                 yield (f"{tag} lab-binarised inverted", f"{v} {name} inverted{tail}",
                        invert(shrink(deb)))
+            # (a fixed global cut at half level is not a format here: under the raw frames'
+            # uneven light it erases the dim outer markers - 179-300 of 331 survive)
             yield f"{tag} otsu-binarised", f"{v} otsu", (otsu(fr)[0], None)
-            if full:
-                yield f"{tag} otsu-binarised", f"{v} half", (half_level(fr)[0], None)
             yield f"{tag} rim debris", f"{v} debris", rim_debris(fr, c, r, sp, d, rng)
         else:
             yield f"{tag} rim debris", f"{v} debris", rim_debris(fr, c, r, sp, d, rng)
@@ -421,6 +421,8 @@ def _sim_variants(rng: np.random.Generator, full: bool, seed: int
             yield "sim clean", v, src, base
             yield "sim inverted", v, src, invert(base)
             yield "sim binarised", v + " otsu", src, otsu(base)
+            if full:
+                yield "sim binarised", v + " half", src, half_level(base)
             if d >= 3:
                 blk = int(2 * round(1.2 * d) + 1)
                 yield ("sim binarised", v + f" lab[{blk},-30]", src,
@@ -655,7 +657,9 @@ def _pictures(frames: list[ZooFrame], rows: list[dict], out: Path) -> None:
 
     out.mkdir(parents=True, exist_ok=True)
     done = set()
-    for fr in frames:
+    # one variant per family, of a middle size (300-700 px) where the family has one
+    mid = [f for f in frames if 300 <= max(f.image.shape) <= 700]
+    for fr in mid + frames:
         if fr.family in done:
             continue
         done.add(fr.family)
