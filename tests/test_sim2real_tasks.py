@@ -291,3 +291,29 @@ def test_lab_ranges_and_shear_path():
     assert last.offset_mm == (0.0, 0.0) and last.yaw_deg == 0.0
     assert first.offset_mm == pytest.approx((1.5, -0.75))  # 3/4 of the move still to make
     assert (last.roll_deg, last.pitch_deg) == (-5.0, 4.0)  # the -x-y axes
+
+
+def test_turned_frames_move_the_press_and_the_label():
+    """A frame turned by 90 deg (image angle, y down) shows its press at the turned place; the
+    augmentation moves a turning label by the turn and leaves the others."""
+    from tactip_lab.fitting.field_model import augment, rotate
+
+    rest = _lattice()
+    c = rest.mean(axis=0)
+    s = np.sqrt(np.mean(np.sum((rest - c) ** 2, axis=1)))
+    at = np.array([40.0, 64.0])  # left of centre: image angle 180
+    pts = _bump(rest, at, width=12.0)
+    nodes = grid_nodes()
+    k = len(nodes)
+    f = field_features(rest, pts, nodes=nodes, rotation_deg=90.0)
+    mag = np.hypot(f[:k], f[k:2 * k])
+    peak = nodes[np.argsort(mag)[-12:]].mean(axis=0) * s + c  # the ring round the press
+    turned = c + rotate((at - c)[None], 90.0)[0]
+    np.testing.assert_allclose(turned, c + [0.0, -24.0], atol=1e-9)  # 180 + 90 = 270: above
+    assert np.hypot(*(peak - turned)) < 4.0
+    y = np.array([[1.5, 170.0]])
+    xs, ys = augment(rest, pts[None], y, ["pose_2", "pose_6"], {"pose_6": -1.0}, steps=4)
+    assert xs.shape[0] == 4
+    np.testing.assert_allclose(ys[:, 0], 1.5)
+    np.testing.assert_allclose(ys[:, 1], [170.0, 80.0, -10.0, -100.0])
+    np.testing.assert_allclose(xs[1], f, atol=1e-12)

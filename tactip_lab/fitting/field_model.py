@@ -63,10 +63,20 @@ def grid_nodes(n: int = GRID, extent: float = GRID_EXTENT) -> np.ndarray:
     return g[np.hypot(g[:, 0], g[:, 1]) <= extent + 1e-9]
 
 
+def rotate(v: np.ndarray, degrees: float) -> np.ndarray:
+    """(n, 2) image vectors turned by ``degrees`` in the image's own angle (``atan2(y, x)``,
+    y down: clockwise on screen)."""
+    a = np.deg2rad(degrees)
+    c, s = np.cos(a), np.sin(a)
+    return v @ np.array([[c, s], [-s, c]])
+
+
 def field_features(rest: np.ndarray, points: np.ndarray, *, nodes: np.ndarray | None = None,
-                   bandwidth: float = BANDWIDTH) -> np.ndarray:
+                   bandwidth: float = BANDWIDTH, rotation_deg: float = 0.0) -> np.ndarray:
     """The feature vector of one frame: ``points`` (m, 2) tracked in the order of ``rest``
-    (m, 2) (NaN rows lost), px.
+    (m, 2) (NaN rows lost), px. ``rotation_deg`` turns the whole frame about the field's
+    centre first (:func:`rotate`; the training augmentation of a task whose pose turns with
+    the sensor, :func:`augment`).
 
     Returns (2k + 1,): the smoothed displacement field on the grid (x components, then y),
     divided by its RMS, and log10 of that RMS (in field radii). NaN everywhere when fewer than
@@ -76,6 +86,9 @@ def field_features(rest: np.ndarray, points: np.ndarray, *, nodes: np.ndarray | 
     points = np.asarray(points, dtype=float)
     nodes = grid_nodes() if nodes is None else nodes
     c = rest.mean(axis=0)
+    if rotation_deg:
+        rest = c + rotate(rest - c, rotation_deg)
+        points = c + rotate(points - c, rotation_deg)
     s = float(np.sqrt(np.mean(np.sum((rest - c) ** 2, axis=1))))
     ok = np.all(np.isfinite(points), axis=1)
     out = np.full(2 * len(nodes) + 1, np.nan)
@@ -306,22 +319,20 @@ def task_targets(task: str) -> list[str]:
     raise ValueError(f"task {task!r} is not known: surface or edge (optionally +shear)")
 
 
-def folder_fields(folder: Any, *, expected_count: int | None = None, progress: bool = False
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """(features (n, 2k+1), reliable (n,)) of every frame of a :class:`~tactip_lab.fitting.
-    bristol.BristolFolder`, each tracked from the folder's reference as a tap
-    (:func:`~tactip_lab.fitting.bristol.tap_pipeline`). Frames perception flags keep their
-    features when at least half the markers are tracked (``reliable`` says which)."""
+def folder_points(folder: Any, *, expected_count: int | None = None, progress: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rest (m, 2), tracked points (n, m, 2), reliable (n,)) of every frame of a
+    :class:`~tactip_lab.fitting.bristol.BristolFolder`, each tracked from the folder's
+    reference as a tap (:func:`~tactip_lab.fitting.bristol.tap_pipeline`); a frame perception
+    cannot read is all NaN."""
     from tqdm import tqdm
 
     import perception as pc
-
-    from .bristol import tap_pipeline
+    from tactip_lab.fitting.bristol import tap_pipeline
 
     pipe = tap_pipeline(folder.reference, expected_count)
     rest = np.asarray(pipe.rest_points, dtype=float)
-    nodes = grid_nodes()
-    x = np.full((len(folder), 2 * len(nodes) + 1), np.nan)
+    pts = np.full((len(folder), len(rest), 2), np.nan)
     reliable = np.zeros(len(folder), dtype=bool)
     for i, path in enumerate(tqdm(folder.images, disable=not progress, unit="frame",
                                   desc=folder.root.name, dynamic_ncols=True)):
@@ -330,11 +341,55 @@ def folder_fields(folder: Any, *, expected_count: int | None = None, progress: b
             f = pipe.process(str(path))
         except pc.PerceptionError:
             continue
-        x[i] = field_features(rest, f.points, nodes=nodes)
+        pts[i] = f.points
         reliable[i] = bool(f.reliable)
-    return x, reliable
+    return rest, pts, reliable
 
 
-__all__ = ["BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "TARGETS", "FieldModel", "decode",
-           "encode", "field_features", "folder_fields", "grid_nodes", "is_field_model",
-           "load_field_model", "target_scores", "task_targets"]
+def fields_of(rest: np.ndarray, pts: np.ndarray, rotation_deg: float = 0.0) -> np.ndarray:
+    """(n, 2k+1) :func:`field_features` of every frame's tracked points (n, m, 2)."""
+    nodes = grid_nodes()
+    return np.stack([field_features(rest, p, nodes=nodes, rotation_deg=rotation_deg)
+                     for p in pts]) if len(pts) else np.zeros((0, 2 * len(nodes) + 1))
+
+
+def folder_fields(folder: Any, *, expected_count: int | None = None, progress: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(features (n, 2k+1), reliable (n,)) of every frame of a folder (:func:`folder_points`).
+    Frames perception flags keep their features when at least half the markers are tracked
+    (``reliable`` says which)."""
+    rest, pts, reliable = folder_points(folder, expected_count=expected_count,
+                                        progress=progress)
+    return fields_of(rest, pts), reliable
+
+
+AUGMENT_STEPS = 12
+"""Turns of the training augmentation (every 360 / AUGMENT_STEPS degrees)."""
+
+
+def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str],
+            label_turn: dict[str, float], steps: int = AUGMENT_STEPS
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Training rows for a task whose pose turns with the sensor (the edge's angle): every
+    frame turned about the field's centre by ``k * 360 / steps`` degrees, k = 0..steps-1, a
+    wrapping target ``t`` of ``label_turn`` moved by ``label_turn[t]`` times the turn (its
+    degrees per image degree: +-1), the others kept. The sensor is nearly axisymmetric (its
+    camera tilt and the pin layout's six-fold symmetry are what break it), so a simulated
+    tap turned in the image is a tap at a turned edge: 400 taps cover the circle as densely
+    as 4 800 would."""
+    xs, ys = [], []
+    for k in range(steps):
+        d = 360.0 * k / steps
+        xs.append(fields_of(rest, pts, rotation_deg=d))
+        yk = np.array(y, dtype=float, copy=True)
+        for j, t in enumerate(targets):
+            if t in label_turn:
+                yk[:, j] = (yk[:, j] + label_turn[t] * d + 180.0) % 360.0 - 180.0
+        ys.append(yk)
+    return np.concatenate(xs), np.concatenate(ys)
+
+
+__all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "TARGETS",
+           "FieldModel", "augment", "decode", "encode", "field_features", "fields_of",
+           "folder_fields", "folder_points", "grid_nodes", "is_field_model", "load_field_model",
+           "rotate", "target_scores", "task_targets"]

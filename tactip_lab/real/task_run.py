@@ -30,13 +30,15 @@ import tactip_sim as ts
 from tactip_lab.fitting.field_model import (
     TARGETS,
     FieldModel,
-    folder_fields,
+    augment,
+    fields_of,
+    folder_points,
     target_scores,
     task_targets,
 )
 from tactip_lab.sampling.dataset import atomic_write_text
 
-from .tasks import EDGE_CONVENTION, convert_128, simulate_task
+from .tasks import EDGE_CONVENTION, convert_128, label_turn, simulate_task
 
 FOLDS = 5
 NAIVE_COMPONENTS = 50
@@ -101,10 +103,10 @@ def check_task_columns(path: Path, cols: dict[str, np.ndarray], targets: list[st
             f" — a folder of the {other} task? Use a model of that task")
 
 
-def cached_fields(folder: Path, cache: Path, *, key: str = "", expected_count: int = 331,
-                  progress: bool = False) -> np.ndarray:
-    """:func:`folder_fields` of a Bristol folder, cached as npz (valid for the same frame
-    count, reference choice and ``key``)."""
+def cached_points(folder: Path, cache: Path, *, key: str = "", expected_count: int = 331,
+                  progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(rest, tracked points) of a Bristol folder (:func:`folder_points`), cached as npz
+    (valid for the same frame count, reference choice and ``key``)."""
     from tactip_lab.fitting.bristol import BristolFolder
 
     f = BristolFolder.open(folder)
@@ -112,12 +114,23 @@ def cached_fields(folder: Path, cache: Path, *, key: str = "", expected_count: i
     if cache.is_file():
         z = np.load(cache, allow_pickle=False)
         if str(z["tag"]) == tag:
-            return z["x"]
-    x, _ = folder_fields(f, expected_count=expected_count, progress=progress)
+            return z["rest"], z["pts"]
+    rest, pts, _ = folder_points(f, expected_count=expected_count, progress=progress)
     tmp = cache.with_name(cache.stem + ".tmp.npz")
-    np.savez(tmp, x=x, tag=tag)
+    np.savez(tmp, rest=rest, pts=pts, tag=tag)
     tmp.replace(cache)
-    return x
+    return rest, pts
+
+
+def fit_model(task: str, targets: list[str], size, rest, pts, y, fitted_on=None) -> FieldModel:
+    """A :class:`FieldModel` on simulated taps, augmented by turns for the edge
+    (:func:`~tactip_lab.fitting.field_model.augment`)."""
+    turn = label_turn(task)
+    if turn:
+        x, y = augment(rest, pts, y, targets, turn)
+    else:
+        x = fields_of(rest, pts)
+    return FieldModel(task, targets, tuple(size), fitted_on=fitted_on or {}).fit(x, y)
 
 
 def few_shot(pred: np.ndarray, y: np.ndarray, targets: list[str], k: int, seed: int
@@ -141,14 +154,20 @@ def few_shot(pred: np.ndarray, y: np.ndarray, targets: list[str], k: int, seed: 
     return rest, out, corr
 
 
-def cv_predict(x: np.ndarray, y: np.ndarray, targets: list[str], image_size, *, seed: int = 0
-               ) -> np.ndarray:
-    """5-fold cross-validated predictions of a :class:`FieldModel` (folds shuffled, seeded)."""
+def cv_predict(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str],
+               image_size, *, task: str = "", seed: int = 0) -> np.ndarray:
+    """5-fold cross-validated predictions of the task's model (folds shuffled, seeded; with
+    ``task`` the training folds are augmented as :func:`fit_model` does, the held-out fold
+    never)."""
     from sklearn.model_selection import KFold
 
+    x = fields_of(rest, pts)
     pred = np.full(y.shape, np.nan)
     for tr, te in KFold(FOLDS, shuffle=True, random_state=seed).split(x):
-        m = FieldModel("cv", targets, tuple(image_size)).fit(x[tr], y[tr])
+        if task:
+            m = fit_model(task, targets, image_size, rest, pts[tr], y[tr])
+        else:
+            m = FieldModel("cv", targets, tuple(image_size)).fit(x[tr], y[tr])
         pred[te] = m.predict(x[te])
     return pred
 
@@ -214,10 +233,10 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
     sim128 = convert_128(sim, out / "sim128", count)
     cols = folder_columns(sim)
     y_sim = np.stack([cols[t] for t in targets], axis=1)
-    x128 = cached_fields(sim128, out / "sim128_fields.npz",
+    p128 = cached_points(sim128, out / "sim128_points.npz",
                          key=(sim128 / "crop.json").read_text(), expected_count=count,
                          progress=progress)
-    xraw = cached_fields(sim, out / "sim_raw_fields.npz", expected_count=count,
+    praw = cached_points(sim, out / "sim_raw_points.npz", expected_count=count,
                          progress=progress)
     timing = json.loads((sim / "timing.json").read_text())
     summary: dict[str, Any] = {
@@ -228,18 +247,20 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
                                                 "failed": timing.get("failed", [])},
         "formats": {}, "real": {}}
     models = {}
-    for fmt, x, size, name in (("128x128", x128, (128, 128), "model.json"),
-                               ("raw", xraw, tuple(scene.camera.resolution), "model_raw.json")):
-        m = FieldModel(cfg.task, targets, size, fitted_on={
+    for fmt, (rest, pts), size, name in (
+            ("128x128", p128, (128, 128), "model.json"),
+            ("raw", praw, tuple(scene.camera.resolution), "model_raw.json")):
+        m = fit_model(cfg.task, targets, size, rest, pts, y_sim, fitted_on={
             "simulated": str(sim), "format": fmt, "scene": scene_source,
             "scene_hash": scene_hash(scene), "n_sim": int(len(y_sim)),
-            "edge_convention": EDGE_CONVENTION.__dict__}).fit(x, y_sim)
+            "edge_convention": EDGE_CONVENTION.__dict__, "augmented_turns": label_turn(
+                cfg.task)})
         m.save(out / name)
         models[fmt] = m
-        pred = cv_predict(x, y_sim, targets, size, seed=cfg.seed)
+        pred = cv_predict(rest, pts, y_sim, targets, size, task=cfg.task, seed=cfg.seed)
         summary["formats"][fmt] = {"model": str(out / name), "frames_usable": int(
-            np.all(np.isfinite(x), axis=1).sum()), "predicted_by_simulation": _short(
-            target_scores(y_sim, pred, targets))}
+            np.all(np.isfinite(fields_of(rest, pts)), axis=1).sum()),
+            "predicted_by_simulation": _short(target_scores(y_sim, pred, targets))}
     for fmt, folders in (("128x128", real), ("raw", real_raw)):
         for d in folders:
             summary["real"][str(d)] = score_real(models[fmt], Path(d), out, cfg, fmt,
@@ -257,11 +278,12 @@ def score_real(model: FieldModel, folder: Path, out: Path, cfg: TaskConfig, fmt:
     cols = folder_columns(folder)
     y = np.stack([cols[t] for t in targets], axis=1)
     name = folder.name
-    x = cached_fields(folder, out / f"real_{name}_fields.npz", progress=progress,
-                      expected_count=331)
+    rest, pts = cached_points(folder, out / f"real_{name}_points.npz", progress=progress,
+                              expected_count=331)
+    x = fields_of(rest, pts)
     zero = model.predict(x)
     rows, few, corr = few_shot(zero, y, targets, cfg.k, cfg.seed)
-    real_cv = cv_predict(x, y, targets, model.image_size, seed=cfg.seed)
+    real_cv = cv_predict(rest, pts, y, targets, model.image_size, seed=cfg.seed)
     naive = naive_cv(naive_pixels(folder), y, targets, seed=cfg.seed)
     np.savez(out / f"real_{name}.npz", truth=y, zero_shot=zero, few_shot_rows=rows,
              few_shot=few, real_cv=real_cv, naive_cv=naive, targets=np.array(targets))

@@ -26,12 +26,15 @@ origin of ``pose_6``) are :data:`EDGE_CONVENTION`, each checked as docs/sim2real
 **Depth.** The lab's edge script puts its work frame 2 mm above the edge's top face
 (``work_frame`` z 54 mm, its comment "edge height = 52.0mm"; the same ``work_frame`` is in the
 edge sets' ``meta.json``), with the tool centre point at the sensor's tip (``robot_tcp`` 101 mm).
-So the tip is pushed :data:`EDGE_DEPTH_OFFSET_MM` less than ``pose_3`` past the top face
-(1-3 mm for the 3-5 mm labels). With the sensor's centre beside the block the first contact
-is lower on the dome, so the simulated indentation beyond first contact is that minus the
-drop (:func:`edge_contact_depth`). The surface sets' depth is taken as labelled, as the
-surface taps always were (their table height is not published; the surface script repeats
-the edge's comment).
+So the tip is pushed about 2 mm less than ``pose_3`` past the top face. On the real edge taps
+the marker field's size grows linearly with ``pose_3`` and extrapolates to zero at 2.85 mm
+(taps with the centre over the block, docs/sim2real.md), so the offset is randomised per
+simulated tap, uniform in :data:`EDGE_DEPTH_OFFSET_MM` (the cited 2 mm to the measured onset,
+rounded up). With the sensor's centre beside the block the first contact is lower on the
+dome, so the simulated indentation beyond first contact is the tip's depth minus that drop
+(:func:`edge_contact_depth`). The surface sets' depth is taken as labelled, as the surface
+taps always were (their table height is not published; the surface script repeats the edge's
+comment).
 """
 
 from __future__ import annotations
@@ -81,15 +84,48 @@ class EdgeConvention:
         return (self.angle_sign * np.asarray(pose_6) + self.angle_origin_deg + 180) % 360 - 180
 
 
-EDGE_CONVENTION = EdgeConvention()
-"""The conventions in use (docs/sim2real.md, "Edge conventions", says how each was checked)."""
+EDGE_CONVENTION = EdgeConvention(lateral_sign=1.0, angle_sign=-1.0, angle_origin_deg=174.5)
+"""The conventions in use (docs/sim2real.md, "Edge conventions", says how each was checked):
+
+- ``lateral_sign`` +1: ``pose_2 > 0`` puts the sensor's centre over the block. Real taps at
+  ``pose_2`` near +6 show a field radial over the whole array (a flat tap), near -6 a field
+  confined to one side; the offset of the field's magnitude-weighted centroid from the centre
+  falls with ``pose_2`` on the real taps (correlation -0.57) as with the simulated ``inside``
+  (-0.86).
+- ``angle_sign`` -1: the lab turns the *sensor* by ``pose_6`` about its axis; the block's yaw
+  in the sensor frame is the opposite turn (as the surface's ``-x-y`` axes). Checked on the
+  real frames: the side of the array the contact is on turns at -0.86 deg per degree of
+  ``pose_6`` on the real taps beside the edge, at +1 per degree of the simulated yaw
+  (:data:`IMAGE_YAW_SIGN`).
+- ``angle_origin_deg`` 174.5: the lab sets ``pose_6 = 0`` with the camera aligned to its
+  work axes (``sensor_offset_ang = -48``, "align camera with axis"), a multiple of 90 deg
+  (180 here) up to how well that was aligned by hand. The value is *read from the shared real
+  edge taps*: the contact side's image angle is ``84.4 - pose_6`` on the 127 real taps more
+  than 3 mm beside the edge (circular mean, resultant 0.96), and ``yaw - 90.1`` on the
+  simulated ones, so ``yaw = 174.5 - pose_6``. It uses their labels once, for this convention
+  (a geometric descriptor, not a model's score); with 180 (the lab's statement alone) the
+  zero-shot angle error would carry the 5.5 deg difference."""
+IMAGE_YAW_SIGN = 1.0
+"""How the contact side turns in the image per degree of the block's yaw (simulation: +1,
+resultant 0.93 on the simulated taps beside the edge): the label turn of the training
+augmentation (:func:`~tactip_lab.fitting.field_model.augment`)."""
+
+
+def label_turn(task: str, convention: EdgeConvention = EDGE_CONVENTION) -> dict[str, float]:
+    """Degrees of each turning target per degree the frame is turned in the image: the edge's
+    ``pose_6``; nothing for the surface (its roll and pitch would turn as a vector)."""
+    if task.startswith("edge"):
+        return {"pose_6": IMAGE_YAW_SIGN / convention.angle_sign}
+    return {}
 
 BLOCK_MM = (80.0, 40.0, 20.0)
 """The block (x along the edge, y across, z height), mm: wider than the pad (40 mm) both ways so
 that only its one edge meets it."""
-EDGE_DEPTH_OFFSET_MM = 2.0
-"""The edge sets' ``pose_3`` less the tip's depth past the block's top face (the lab's
-``work_frame`` z 54 mm against its stated edge height 52 mm: read from its code, not fitted)."""
+EDGE_DEPTH_OFFSET_MM = (2.0, 3.0)
+"""Range (uniform, per simulated tap) of the edge sets' ``pose_3`` less the tip's depth past
+the block's top face: from the lab's ``work_frame`` z 54 mm against its stated edge height
+52 mm (read from its code) to the real taps' measured onset of contact, 2.85 mm, rounded up.
+Randomised, not fitted: no value inside it was chosen by a score."""
 EDGE_TAP_NOTE = """Edge taps are pressed with friction (:data:`FRICTION_ASSUMED`, ``tap_steps``
 load steps), not frictionless: at the block's corner the contact pushes the skin away from the
 block, and without friction on the top face the whole skin slides sideways. Measured on the
@@ -150,7 +186,8 @@ def draw_poses(task: str, n: int, seed: int) -> np.ndarray:
 
 
 def sim_pose(task: str, row: np.ndarray, *, sim: Any = None, indenter: Any = None,
-             convention: EdgeConvention = EDGE_CONVENTION, axes: str = "-x-y") -> ts.Pose:
+             convention: EdgeConvention = EDGE_CONVENTION, axes: str = "-x-y",
+             depth_offset_mm: float = EDGE_DEPTH_OFFSET_MM[0]) -> ts.Pose:
     """The simulator's pose for a label row (``pose_1..6`` of the lab; the move not applied).
 
     Surface: the data set's (pose_4, pose_5) are the sensor's rotation against the surface;
@@ -166,13 +203,13 @@ def sim_pose(task: str, row: np.ndarray, *, sim: Any = None, indenter: Any = Non
         return ts.Pose(roll_deg=float(roll), pitch_deg=float(pitch), depth_mm=float(p["pose_3"]))
     inside = convention.lateral_sign * p["pose_2"]
     yaw = float(convention.yaw(p["pose_6"]))
-    depth = edge_contact_depth(sim, indenter, inside, yaw, p["pose_3"] - EDGE_DEPTH_OFFSET_MM)
+    depth = edge_contact_depth(sim, indenter, inside, yaw, p["pose_3"] - depth_offset_mm)
     return edge_pose(inside, yaw, depth)
 
 
 def shear_path(task: str, row: np.ndarray, steps: int, *, sim: Any, indenter: Any,
-               convention: EdgeConvention = EDGE_CONVENTION, axes: str = "-x-y"
-               ) -> list[ts.Pose]:
+               convention: EdgeConvention = EDGE_CONVENTION, axes: str = "-x-y",
+               depth_offset_mm: float = EDGE_DEPTH_OFFSET_MM[0]) -> list[ts.Pose]:
     """The lab's shear move as simulator poses: from ``pose - move`` to ``pose`` in ``steps``
     equal steps of the labels (each step's depth found again for the edge).
 
@@ -203,7 +240,7 @@ def shear_path(task: str, row: np.ndarray, steps: int, *, sim: Any, indenter: An
             inside = convention.lateral_sign * r2[1]
             yaw = float(convention.yaw(r2[5]))
             depth = edge_contact_depth(sim, indenter, inside, yaw,
-                                       r2[2] - EDGE_DEPTH_OFFSET_MM)
+                                       r2[2] - depth_offset_mm)
             # the sensor at work x = pose_1 - (1 - t) move_1; the block's axes are the work
             # frame's, turned by 180 deg about z when lateral_sign = +1 (its y runs against
             # the work frame's): the block's origin sits at minus the sensor's position
@@ -238,6 +275,7 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
     out = Path(out)
     (out / "images").mkdir(parents=True, exist_ok=True)
     rows = draw_poses(task, n, seed)
+    offsets = np.random.default_rng([seed, 53, 2]).uniform(*EDGE_DEPTH_OFFSET_MM, n)
     chain = Chain(scene, frames=1)
     if not (out / "images" / "rest.png").is_file():
         cv2.imwrite(str(out / "images" / "rest.png"), chain.rest_image)
@@ -254,13 +292,14 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
         try:
             if shear:  # a vertical tap to pose - move, then the move in contact
                 poses = shear_path(task, rows[i], shear_steps, sim=chain.sim, indenter=indenter,
-                                   convention=convention, axes=axes)
+                                   convention=convention, axes=axes,
+                                   depth_offset_mm=offsets[i])
                 states, _ = chain.sim.continue_path(tap_poses(poses[0], tap_steps) + poses[1:],
                                                     friction=friction, indenter=indenter)
                 state = states[-1]
             elif task == "edge":  # a tap with friction (EDGE_TAP_NOTE)
                 pose = sim_pose(task, rows[i], sim=chain.sim, indenter=indenter,
-                                convention=convention, axes=axes)
+                                convention=convention, axes=axes, depth_offset_mm=offsets[i])
                 states, _ = chain.sim.continue_path(tap_poses(pose, tap_steps),
                                                     friction=friction, indenter=indenter)
                 state = states[-1]
@@ -283,6 +322,8 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
             lines.append(",".join([name] + [repr(float(v)) for v in rows[i]]))
     atomic_write_text(out / "targets.csv", "\n".join(lines) + "\n")
     info = {"task": task, "n": n, "seed": seed, "convention": convention.__dict__,
+            "edge_depth_offset_mm": list(EDGE_DEPTH_OFFSET_MM) if task.startswith("edge")
+            else None,
             "axes": axes, "friction": friction if task != "surface" else 0.0,
             "shear_steps": shear_steps if shear else 0,
             "tap_steps": tap_steps if task != "surface" else 0,
@@ -336,5 +377,5 @@ def convert_128(sim: Path, dest: Path, expected_count: int, field_128: dict | No
 
 __all__ = ["BLOCK_MM", "COLUMNS", "EDGE_CONVENTION", "EDGE_DEPTH_OFFSET_MM", "FRICTION_ASSUMED",
            "PROTOCOLS", "SHEAR_MOVES", "EdgeConvention", "block_indenter", "convert_128",
-           "draw_poses", "edge_contact_depth", "edge_pose", "shear_path", "sim_pose",
-           "simulate_task", "tap_poses"]
+           "draw_poses", "edge_contact_depth", "edge_pose", "label_turn", "shear_path",
+           "sim_pose", "simulate_task", "tap_poses", "IMAGE_YAW_SIGN"]

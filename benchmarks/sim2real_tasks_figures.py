@@ -1,0 +1,115 @@
+"""Figures of docs/sim2real.md, "The lab's other tasks": for each ``tactip sim2real --task``
+run folder, a simulated and a real frame side by side at about the same labels (the 128x128
+frames and their marker displacement fields), and the run's predicted-vs-true charts.
+
+    python benchmarks/sim2real_tasks_figures.py OUT_DIR RUN_DIR=REAL_DIR [RUN_DIR=REAL_DIR ...]
+
+Each RUN_DIR is a ``tactip sim2real --task ... --out RUN_DIR --real REAL_DIR`` folder. Prints
+what it writes.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def _nearest(y_sim: np.ndarray, y: np.ndarray, wraps: list[bool], scale: list[float]) -> int:
+    d = np.zeros(len(y_sim))
+    for j, (w, s) in enumerate(zip(wraps, scale, strict=True)):
+        e = y_sim[:, j] - y[j]
+        if w:
+            e = (e + 180) % 360 - 180
+        d += (e / s) ** 2
+    return int(np.argmin(d))
+
+
+def side_by_side(run: Path, real: Path, out: Path) -> Path:
+    import cv2
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tactip_lab.fitting.field_model import TARGETS, grid_nodes
+    from tactip_lab.real.task_run import folder_columns
+
+    summary = __import__("json").loads((run / "summary.json").read_text())
+    targets = summary["targets"]
+    shown = [t for t in ("pose_2", "pose_3", "pose_4", "pose_5", "pose_6", "move_1", "move_2")
+             if t in targets or t == "pose_3"]
+    cs, cr = folder_columns(run / "sim128"), folder_columns(real)
+    ys = np.stack([cs[t] for t in shown], axis=1)
+    yr = np.stack([cr[t] for t in shown], axis=1)
+    wraps = [TARGETS[t]["wraps"] for t in shown]
+    scale = [30.0 if TARGETS[t]["unit"] == "deg" else 1.0 for t in shown]
+    names_s = [ln.split(",")[0] for ln in (run / "sim128" / "targets.csv").read_text()
+               .splitlines()[1:]]
+    names_r = [ln.split(",")[1] for ln in (real / "targets.csv").read_text().splitlines()[1:]]
+    zs = np.load(run / "sim128_points.npz")
+    zr = np.load(run / f"real_{real.name}_points.npz")
+    rng = np.random.default_rng(0)
+    picks = rng.choice(len(yr), 3, replace=False)
+    fig, axs = plt.subplots(3, 4, figsize=(13, 10))
+    nodes = grid_nodes()
+    for row, i in enumerate(picks):
+        j = _nearest(ys, yr[i], wraps, scale)
+        for col, (img, rest, pts, lab, who) in enumerate((
+                (real / "images" / names_r[i], zr["rest"], zr["pts"][i], yr[i], "real"),
+                (run / "sim128" / "images" / names_s[j], zs["rest"], zs["pts"][j], ys[j],
+                 "simulated"))):
+            g = cv2.imread(str(img), cv2.IMREAD_GRAYSCALE)
+            ax = axs[row, 2 * col]
+            ax.imshow(g, cmap="gray")
+            ax.set_title(f"{who}: " + ", ".join(f"{t} {v:.1f}" for t, v in
+                                                zip(shown, lab, strict=True)), fontsize=7)
+            ax.axis("off")
+            ax = axs[row, 2 * col + 1]
+            d = pts - rest
+            ok = np.all(np.isfinite(d), axis=1)
+            ax.quiver(rest[ok, 0], rest[ok, 1], d[ok, 0], -d[ok, 1], angles="xy",
+                      scale_units="xy", scale=0.25, width=0.004)
+            ax.set_xlim(0, 128)
+            ax.set_ylim(128, 0)
+            ax.set_aspect("equal")
+            ax.set_title(f"{who}: marker displacement x4", fontsize=7)
+            ax.set_xticks([])
+            ax.set_yticks([])
+    del nodes
+    fig.suptitle(f"{summary['task']}: real taps and the simulated tap nearest in label "
+                 "(128x128 frames)", fontsize=10)
+    fig.tight_layout()
+    path = out / f"frames_{summary['task'].replace('+', '_')}.png"
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) < 2:
+        print(__doc__)
+        return 2
+    out = Path(argv[0])
+    out.mkdir(parents=True, exist_ok=True)
+    for spec in argv[1:]:
+        run, real = (Path(p) for p in spec.split("=", 1))
+        print("wrote", side_by_side(run, real, out))
+        task = __import__("json").loads((run / "summary.json").read_text())["task"]
+        chart = run / f"real_{real.name}.png"
+        if chart.is_file():
+            dest = out / f"predicted_{task.replace('+', '_')}_{real.name}.png"
+            shutil.copyfile(chart, dest)
+            print("wrote", dest)
+        table = run / "table.md"
+        if table.is_file():
+            dest = out / f"table_{task.replace('+', '_')}.md"
+            shutil.copyfile(table, dest)
+            print("wrote", dest)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
