@@ -331,7 +331,20 @@ class MarkerTracker:
         matched = agree
         free = np.ones(len(det), dtype=bool)
         free[of[matched]] = False
-        for _ in range(4 * int(np.sqrt(m)) + 4):  # waves from the seeds outwards
+        for _ in range(2):  # waves, the last word, and once more for the dropped tracks
+            of, pos, matched, free = self._waves(det, pred, of, pos, matched, free, step,
+                                                 4 * int(np.sqrt(m)) + 4)
+            med, count = self._neighbour_motion(pred, pos, matched)
+            off = matched & (count >= 2) & (np.hypot(*(pos - pred - med).T) > tol)
+            matched &= ~off
+            free[of[off]] = True
+            of[off], pos[off] = -1, np.nan
+        t = np.flatnonzero(matched)
+        return t, of[t]
+
+    def _waves(self, det, pred, of, pos, matched, free, step, n_waves):
+        """Match the unmatched tracks wave by wave at their matched neighbours' motion."""
+        for _ in range(n_waves):
             med, count = self._neighbour_motion(pred, pos, matched)
             need = 1 if not (~matched & (count >= 2)).any() else 2
             cand = np.flatnonzero(~matched & (count >= need))
@@ -346,12 +359,7 @@ class MarkerTracker:
             take = ok[rows, cols]
             t, d_ = cand[rows[take]], fd[cols[take]]
             of[t], pos[t], matched[t], free[d_] = d_, det[d_], True, False
-        # the last word: every match agrees with its neighbours' motion, or is dropped
-        med, count = self._neighbour_motion(pred, pos, matched)
-        off = matched & (count >= 2) & (np.hypot(*(pos - pred - med).T) > tol)
-        matched &= ~off
-        t = np.flatnonzero(matched)
-        return t, of[t]
+        return of, pos, matched, free
 
     def _assign(self, det: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Gated optimal one-to-one assignment: (track indices, detection indices)."""

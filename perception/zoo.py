@@ -618,7 +618,8 @@ def main(argv: list[str] | None = None) -> int:
                          "(reference positions of real sources from the current detector)")
     ap.add_argument("--csv", type=Path, default=None, help="write every row to this CSV file")
     ap.add_argument("--pictures", type=Path, default=None,
-                    help="write one PNG per family (first variant, detections drawn) here")
+                    help="write one PNG per source kind (a tile per family, detections "
+                         "drawn) into this folder")
     args = ap.parse_args(argv)
     if not 1 <= args.per_set <= 1000:
         ap.error(f"--per-set {args.per_set} is outside the allowed range [1, 1000]")
@@ -650,40 +651,57 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _tile(fr: ZooFrame, det, side: int = 280) -> np.ndarray:
+    """One variant drawn at ``side`` px with its detections (green: accepted, red: rejected
+    candidates) and a caption."""
+    img = fr.image
+    scale = side / max(img.shape)
+    interp = cv2.INTER_NEAREST if scale >= 1 else cv2.INTER_AREA
+    vis = cv2.cvtColor(cv2.resize(img, (max(1, round(img.shape[1] * scale)),
+                                        max(1, round(img.shape[0] * scale))),
+                                  interpolation=interp), cv2.COLOR_GRAY2BGR)
+    vis = (0.55 * vis).astype(np.uint8)
+
+    def at(x: float, y: float) -> tuple[int, int]:
+        return int(round((x + 0.5) * scale - 0.5)), int(round((y + 0.5) * scale - 0.5))
+
+    for x, y in det.rejected_points:
+        cv2.circle(vis, at(x, y), 3, (0, 0, 255), 1, cv2.LINE_AA)
+    for x, y in det.points:
+        cv2.circle(vis, at(x, y), 1, (0, 255, 0), -1, cv2.LINE_AA)
+    tile = np.zeros((side + 34, side, 3), np.uint8)
+    tile[34:34 + vis.shape[0], :vis.shape[1]] = vis
+    verdict = "reliable" if det.reliable else "UNRELIABLE"
+    cv2.putText(tile, fr.family, (3, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1,
+                cv2.LINE_AA)
+    cv2.putText(tile, f"{fr.variant}: {det.count}/{fr.count} {verdict}", (3, 28),
+                cv2.FONT_HERSHEY_SIMPLEX, 0.33, (0, 255, 255), 1, cv2.LINE_AA)
+    return tile
+
+
 def _pictures(frames: list[ZooFrame], rows: list[dict], out: Path) -> None:
-    """One PNG per family: its first variant with the detections (green: accepted, red:
-    rejected candidates)."""
+    """One PNG per source kind (``perception_zoo_<kind>.png``), a tile per family: a variant
+    of a middle size (300-700 px) where the family has one, with its detections."""
     from . import DetectionParams, detect_markers_detailed
 
     out.mkdir(parents=True, exist_ok=True)
-    done = set()
-    # one variant per family, of a middle size (300-700 px) where the family has one
     mid = [f for f in frames if 300 <= max(f.image.shape) <= 700]
+    picked: dict[str, ZooFrame] = {}
     for fr in mid + frames:
-        if fr.family in done:
-            continue
-        done.add(fr.family)
+        picked.setdefault(fr.family, fr)
+    kinds: dict[str, list[np.ndarray]] = {}
+    for fam in sorted(picked):
+        fr = picked[fam]
         det = detect_markers_detailed(fr.image, expected_count=fr.count,
                                       params=DetectionParams(count_tolerance=COUNT_FRACTION))
-        img = fr.image
-        scale = max(1, int(np.ceil(360 / max(img.shape))))
-        vis = cv2.cvtColor(cv2.resize(img, None, fx=scale, fy=scale,
-                                      interpolation=cv2.INTER_NEAREST), cv2.COLOR_GRAY2BGR)
-        vis = (0.6 * vis).astype(np.uint8)
-        rad = max(2, int(round(0.25 * det.marker_diameter_px * scale))) \
-            if np.isfinite(det.marker_diameter_px) else 2
-        for x, y in det.rejected_points:
-            cv2.circle(vis, (int(round((x + 0.5) * scale - 0.5)), int(round((y + 0.5) * scale
-                       - 0.5))), rad + 2, (0, 0, 255), 1, cv2.LINE_AA)
-        for x, y in det.points:
-            cv2.circle(vis, (int(round((x + 0.5) * scale - 0.5)), int(round((y + 0.5) * scale
-                       - 0.5))), rad, (0, 255, 0), -1, cv2.LINE_AA)
-        verdict = "reliable" if det.reliable else "unreliable"
-        txt = f"{fr.variant}: {det.count}/{fr.count} {verdict}"
-        cv2.putText(vis, txt, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 0), 1,
-                    cv2.LINE_AA)
-        name = "perception_zoo_" + "".join(ch if ch.isalnum() else "_" for ch in fr.family)
-        cv2.imwrite(str(out / f"{name}.png"), vis)
+        kinds.setdefault(fam.split()[0], []).append(_tile(fr, det))
+    for kind, tiles in kinds.items():
+        cols = 3
+        blank = np.zeros_like(tiles[0])
+        tiles = tiles + [blank] * (-len(tiles) % cols)
+        grid = np.vstack([np.hstack(tiles[i:i + cols]) for i in range(0, len(tiles), cols)])
+        cv2.imwrite(str(out / f"perception_zoo_{kind}.png"), grid,
+                    [cv2.IMWRITE_PNG_COMPRESSION, 9])
 
 
 if __name__ == "__main__":
