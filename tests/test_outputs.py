@@ -109,6 +109,22 @@ def test_detect_refuses_its_csv_onto_an_input_image(tmp_path, monkeypatch):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("link", ["symlink", "hardlink"])
+def test_an_output_that_is_a_link_to_an_input_is_refused(tmp_path, link):
+    """Another path to the same data: detect writes its CSV in place, so a hard link to the
+    image would have been truncated through the link."""
+    import cv2
+
+    keep = tmp_path / "keep.png"
+    cv2.imwrite(str(keep), np.full((20, 30), 40, np.uint8))
+    data = keep.read_bytes()
+    alias = tmp_path / "alias.csv"
+    (os.symlink if link == "symlink" else os.link)(keep, alias)
+    rc, err = tactip("detect", keep, "--csv", alias, "--out", tmp_path / "o")
+    assert rc != 0 and "--csv" in err and "reads" in err, err
+    assert keep.read_bytes() == data
+
+
 def test_perception_standalone_detect_also_refuses_it(tmp_path):
     import cv2
 

@@ -391,8 +391,9 @@ def test_recognise_refuses_bad_input(recognised, tmp_path):
     assert res.returncode != 0 and "object='teapot' is not in the library" in res.stderr
     res = _run(*[a if i != args.index("--k") + 1 else "500" for i, a in enumerate(args)])
     assert res.returncode != 0 and "k=500 is larger than the" in res.stderr
+    (tmp_path / "lib").mkdir()  # (beside --out: an output inside an input is refused)
     res = _run("recognise", str(ROOT / "scenes" / "shadow_fingertip.toml"), "--objects",
-               str(tmp_path), "--out", str(tmp_path / "o"))
+               str(tmp_path / "lib"), "--out", str(tmp_path / "o"))
     assert res.returncode != 0 and "no library.toml" in res.stderr
 
 

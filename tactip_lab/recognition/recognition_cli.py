@@ -144,7 +144,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_recognise)
     declare(p, "recognise", inputs={"scene": "toml", "objects": "folder"}, folders=["out"],
-            legacy=lambda d: manifest_kind(d) == "tactip-sim recognition study")
+            legacy=lambda d: manifest_kind(d) == "tactip-sim recognition study"
+            or manifest_kind(d / "contacts") == "tactip-sim contacts")  # its contacts alone
 
     p = sub.add_parser(
         "select-markers", help="choose the informative markers by ID3 (Table II layout)",
