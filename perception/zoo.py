@@ -173,6 +173,15 @@ def _real_source(name: str, path: Path, count: int, detector) -> ZooSource:
                      diameter=float(det.marker_diameter_px), kind=kind)
 
 
+#: The real sets: (folder, pins, image pattern).
+_REAL_SETS = (("tactip331_tap_raw", 331, "images/*.png"), ("tactip331_tap", 331, "*.png"),
+              ("tactip331_raw", 331, "*.png"), ("tactip331_tap128", 331, "images/*.png"),
+              ("tactip331_edge128", 331, "images/*.png"),
+              ("tactip331_shear128", 331, "images/*.png"),
+              ("tactip331_edgeshear128", 331, "images/*.png"),
+              ("tactip127_bw", 127, "*.png"))
+
+
 def real_sources(real_dir: Path = REAL_DIR, *, per_set: int = 4, detector=None
                  ) -> list[ZooSource]:
     """Real source frames: ``per_set`` frames of each set in ``real_dir`` (evenly spread over
@@ -184,13 +193,7 @@ def real_sources(real_dir: Path = REAL_DIR, *, per_set: int = 4, detector=None
     out = []
     if not real_dir.is_dir():
         return out
-    sets = [("tactip331_tap_raw", 331, "images/*.png"), ("tactip331_tap", 331, "*.png"),
-            ("tactip331_raw", 331, "*.png"), ("tactip331_tap128", 331, "images/*.png"),
-            ("tactip331_edge128", 331, "images/*.png"),
-            ("tactip331_shear128", 331, "images/*.png"),
-            ("tactip331_edgeshear128", 331, "images/*.png"),
-            ("tactip127_bw", 127, "*.png")]
-    for folder, count, pattern in sets:
+    for folder, count, pattern in _REAL_SETS:
         files = sorted((real_dir / folder).glob(pattern),
                        key=lambda p: (len(p.stem), p.stem))
         if not files:
@@ -578,6 +581,21 @@ def run(frames: list[ZooFrame], detect, params=None) -> list[dict]:
     return rows
 
 
+def real_set_rows(real_dir: Path, detect, params=None) -> list[dict]:
+    """Every frame of every real set as recorded (no variant): one row per frame, the
+    family being the set's name; positions are not known."""
+    rows = []
+    for folder, count, pattern in _REAL_SETS:
+        for path in sorted((real_dir / folder).glob(pattern)):
+            det = detect(_read_grey(path), expected_count=count, params=params)
+            ok = abs(det.count - count) <= COUNT_FRACTION * count
+            rows.append(dict(family=f"real set {folder}", variant=path.name, source=folder,
+                             true_count=count, count=det.count, count_ok=bool(ok),
+                             rms_px=float("nan"), correct=bool(ok),
+                             reliable=bool(det.reliable), reason=det.reason))
+    return rows
+
+
 def _load_revision(rev: str):
     """``perception`` as it was at git revision ``rev``, imported as ``perception_ref``."""
     import importlib
@@ -616,6 +634,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--baseline", metavar="REV", default=None,
                     help="also run the detector of git revision REV on the same frames "
                          "(reference positions of real sources from the current detector)")
+    ap.add_argument("--real-sets", action="store_true",
+                    help="instead of the zoo, every frame of every real set as recorded")
     ap.add_argument("--csv", type=Path, default=None, help="write every row to this CSV file")
     ap.add_argument("--pictures", type=Path, default=None,
                     help="write one PNG per source kind (a tile per family, detections "
@@ -625,6 +645,16 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--per-set {args.per_set} is outside the allowed range [1, 1000]")
     from . import DetectionParams, detect_markers_detailed
 
+    strict = DetectionParams(count_tolerance=COUNT_FRACTION)
+    if args.real_sets:
+        rows = real_set_rows(args.real, detect_markers_detailed, strict)
+        old = None
+        if args.baseline:
+            ref = _load_revision(args.baseline)
+            old = rates(real_set_rows(args.real, ref.detect_markers_detailed,
+                                      ref.DetectionParams(count_tolerance=COUNT_FRACTION)))
+        _say(markdown_table(rates(rows), old))
+        return 0
     t0 = time.perf_counter()
     frames = list(zoo_frames(full=not args.quick, real_dir=args.real, per_set=args.per_set,
                              seed=args.seed))
