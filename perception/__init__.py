@@ -114,7 +114,7 @@ __all__ = [
     "voronoi_cells",
 ]
 
-_LAZY_SUBMODULES = ("plots", "synthetic", "cli", "docs_figures")
+_LAZY_SUBMODULES = ("plots", "synthetic", "cli", "docs_figures", "zoo")
 
 
 def __getattr__(name: str):

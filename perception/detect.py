@@ -23,8 +23,16 @@ The method, with no per-image tuning (every threshold is a ratio to something me
    rim and exterior), and the caller's sensor region. A blob rejected for its shape or size
    that holds about two marker areas and narrows to a waist (two markers joined by a smear,
    as on real skins) is cut across its major axis; both halves are kept if each is a marker.
-7. **Reliability**: the count against ``expected_count``, or without it the minimum count and
-   the regularity of sizes and spacings (a marker array is regular, noise is not).
+7. **The array**: the field is read from the frame's own marker array, not from a list of
+   formats. Its core (candidates with four lattice neighbours or more) spans a convex hull;
+   candidates outside it join the array ring by ring only where joined markers lie within
+   1.5 local spacings (two of them, or one for a candidate of marker size). Rim debris and
+   glare of marker size and shape, which no per-blob test tells from a marker, lie across
+   the dark rim band and are rejected (``"rim"``). A regular outline (every hull vertex with
+   two neighbours within 1.5 spacings) skips the test.
+8. **Reliability**: the count against ``expected_count``, or without it the minimum count and
+   the regularity of sizes and spacings (a marker array is regular, noise is not); and in
+   both cases, a frame whose marker-like blobs lie mostly off the array is not an array.
 
 **Binarised frames** (two grey levels, e.g. the Bristol data sets' 128x128 processed frames with
 markers of 4-9 px, or thresholded full-resolution frames) carry no intensity to weigh or noise
@@ -32,8 +40,13 @@ to measure: :func:`_detect_binary` takes the connected components of the bright 
 pixel centroids, the reference area from their median, the same area and shape filters, and
 rejects components close to much larger bright structures (the rim ring and its fragments).
 A binarised frame whose dark level alone gives a reliable array has dark markers. A grey frame
-whose grey-level detection is unreliable is read a second time, cut at its Otsu level, and that
-reading is kept if it is reliable (a binarised frame saved as JPEG, blurred or resampled),
+whose grey-level detection is unreliable is read again as its negative (dark markers on a
+bright skin: the polarity read from the frame), then cut at its Otsu level, and the first
+reliable reading is kept; a small frame (shorter side <= 400 px) whose markers read under
+3 px is then read enlarged three times (bilinear) and mapped back. A grey reading of markers
+under 4 px that is reliable but more than 1 % short of ``expected_count`` (a binarised frame
+saved as JPEG) gives way to the Otsu reading if that one is reliable and nearer the count.
+The Otsu reading is kept if it is reliable (a binarised frame saved as JPEG, blurred or resampled),
 unless the caller gave a noise sigma above 0: then the frame's noise is known, and so is the
 floor no marker rose above (a :class:`~perception.FeaturePipeline` whose rest frame was read
 as grey passes its sigma; one read as binarised passes 0).
@@ -725,6 +738,17 @@ def _regular_outline(p: np.ndarray) -> bool:
     return bool((near >= _ARRAY_JOIN_NEIGHBOURS).all())
 
 
+def _in_hull_of(points: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Whether each of ``p`` lies in (or on) the convex hull of ``points`` (at least three,
+    not all on one line; otherwise on that segment or point)."""
+    idx = cv2.convexHull(points.astype(np.float32), returnPoints=False)[:, 0]
+    hull = points[np.sort(idx)] if len(idx) < 3 else points[idx]
+    if len(hull) < 3:
+        return shapely.intersects_xy(shapely.convex_hull(shapely.multipoints(points)),
+                                     p[:, 0], p[:, 1])
+    return _in_convex(hull, p)
+
+
 def _in_convex(hull: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Whether each point lies in (or on) the convex polygon ``hull`` ((h, 2) vertices in
     order, either orientation): on one side of every edge."""
@@ -942,9 +966,9 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
     # specks of a few pixels outside the array of full-size markers (rim debris)
     full = (code == 0) & (area >= _BINARY_SPECK_RATIO * ref)
     if full.sum() >= 3:
-        hull = shapely.convex_hull(shapely.multipoints(pts[full]))
         speck = np.flatnonzero((code == 0) & ~full)
-        code[speck[~shapely.intersects_xy(hull, pts[speck, 0], pts[speck, 1])]] = _SMALL
+        if len(speck):
+            code[speck[~_in_hull_of(pts[full], pts[speck])]] = _SMALL
     off = _reject_outside_array(pts, area, code)
     if region is not None:
         ok = np.flatnonzero(code == 0)
