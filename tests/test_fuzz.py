@@ -986,6 +986,31 @@ def test_the_oracles_catch_what_they_should(sandbox):
         (sandbox / "fuzz" / "fine.txt").write_text("x")
     assert res.tally == Counter({"traceback": 1, "silent": 1, "escaped write": 1})
     assert res.verdicts["x"]["fine"] == 1
+    _guard(res, "x", "lost", lambda: "LOST an input changed")
+    _guard(res, "x", "vague", lambda: "UNCLEAR says nothing")
+    _guard(res, "x", "late", lambda: (_ for _ in ()).throw(_WorkStarted("calibrate")))
+    assert res.tally == Counter({"traceback": 1, "silent": 2, "escaped write": 1,
+                                 "data loss": 1, "unclear": 1})
+
+
+def test_the_two_writers_category_fails_without_the_rule(sandbox, monkeypatch):
+    """With the output rule switched off, every second writer starts its work (or fails
+    without naming the holder): the category counts each case. Stand-in inputs only: the
+    work is replaced, so the cases need paths, not data."""
+    from tactip_sim.commands import outputs
+
+    tmp = sandbox / "fuzz"
+    good = tmp / "good"
+    (good / "images").mkdir(parents=True)
+    (good / "images" / "image_1.png").write_bytes(b"not read")
+    model = tmp / "model.json"
+    model.write_text("{}")
+    f = _fixtures54(tmp, good, model)
+    monkeypatch.setattr(outputs, "claim", lambda args: contextlib.nullcontext())
+    res = Result()
+    fuzz_two_writers(res, np.random.default_rng(0), 4, tmp, f)
+    assert res.tally["silent"] + res.tally["unclear"] == 4, res.failures
+    assert res.tally["traceback"] == 0
 
 
 if __name__ == "__main__":  # python tests/test_fuzz.py N [SEED]: the docs' summary table
