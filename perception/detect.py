@@ -719,6 +719,24 @@ def _reject_outside_array(pts: np.ndarray, areas: np.ndarray, code: np.ndarray) 
     return len(pending)
 
 
+def _rejoin_lattice(pts: np.ndarray, areas: np.ndarray, code: np.ndarray,
+                    cand: np.ndarray) -> None:
+    """Accept again (code 0) the candidates ``cand`` that have at least
+    :data:`_ARRAY_JOIN_NEIGHBOURS` accepted markers within :data:`_ARRAY_JOIN_SPACINGS`
+    spacings and an area within a factor :data:`_ARRAY_JOIN_AREA_RATIO` of theirs."""
+    ok = np.flatnonzero(code == 0)
+    if len(ok) < _ARRAY_MIN_MARKERS:
+        return
+    tree = cKDTree(pts[ok])
+    nn = tree.query(pts[ok], k=2)[0][:, 1]
+    spacing = median(nn)
+    ratio = areas[cand] / median(areas[ok])
+    sized = (ratio >= 1.0 / _ARRAY_JOIN_AREA_RATIO) & (ratio <= _ARRAY_JOIN_AREA_RATIO)
+    n_near = tree.query_ball_point(pts[cand], _ARRAY_JOIN_SPACINGS * spacing,
+                                   return_length=True)
+    code[cand[sized & (n_near >= _ARRAY_JOIN_NEIGHBOURS)]] = 0
+
+
 def _regular_outline(p: np.ndarray) -> bool:
     """Whether every vertex of the candidates' convex hull has two others within
     :data:`_ARRAY_JOIN_SPACINGS` spacings, the spacing estimated from the hull's area (a
@@ -962,7 +980,10 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
         dist = cv2.distanceTransform((~structures).astype(np.uint8), cv2.DIST_L2, 3)
         ix = np.clip(np.rint(pts[:, 0]).astype(np.intp), 0, shape[1] - 1)
         iy = np.clip(np.rint(pts[:, 1]).astype(np.intp), 0, shape[0] - 1)
-        code[(code == 0) & (dist[iy, ix] < _BINARY_RIM_DIAMETERS * d_ref)] = _RIM
+        near_ring = (code == 0) & (dist[iy, ix] < _BINARY_RIM_DIAMETERS * d_ref)
+        code[near_ring] = _RIM
+    else:
+        near_ring = np.zeros(m, dtype=bool)
     # specks of a few pixels outside the array of full-size markers (rim debris)
     full = (code == 0) & (area >= _BINARY_SPECK_RATIO * ref)
     if full.sum() >= 3:
@@ -970,6 +991,11 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
         if len(speck):
             code[speck[~_in_hull_of(pts[full], pts[speck])]] = _SMALL
     off = _reject_outside_array(pts, area, code)
+    if near_ring.any():
+        # a component beside the rim ring is a marker when it sits in the array's lattice:
+        # markers a shear pushes against the rim (the lab's shear taps) have two of the
+        # array's markers within 1.5 spacings and a marker's size; ring fragments do not
+        _rejoin_lattice(pts, area, code, np.flatnonzero(near_ring))
     if region is not None:
         ok = np.flatnonzero(code == 0)
         code[ok[~shapely.intersects_xy(region, pts[ok, 0], pts[ok, 1])]] = _OUTSIDE
