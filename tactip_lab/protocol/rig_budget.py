@@ -273,12 +273,10 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from tactip_lab.protocol.calibrate import QUICK
+    from tactip_lab.sampling.sampling_cli import check_scale
     from tactip_sim.commands import load_scene_args
 
-    if args.workers < 1:
-        raise ValueError(f"--workers={args.workers} must be at least 1")
-    if args.frames is not None and args.frames < 1:
-        raise ValueError(f"--frames={args.frames} must be at least 1")
+    check_scale(args)
     sources = (list(SOURCES) if args.sources is None
                else [s.strip() for s in args.sources.split(",") if s.strip()])
     check_sources(sources)
