@@ -727,14 +727,18 @@ def _rejoin_lattice(pts: np.ndarray, areas: np.ndarray, code: np.ndarray,
     ok = np.flatnonzero(code == 0)
     if len(ok) < _ARRAY_MIN_MARKERS:
         return
-    tree = cKDTree(pts[ok])
-    nn = tree.query(pts[ok], k=2)[0][:, 1]
-    spacing = median(nn)
+    spacing = median(cKDTree(pts[ok]).query(pts[ok], k=2)[0][:, 1])
     ratio = areas[cand] / median(areas[ok])
     sized = (ratio >= 1.0 / _ARRAY_JOIN_AREA_RATIO) & (ratio <= _ARRAY_JOIN_AREA_RATIO)
-    n_near = tree.query_ball_point(pts[cand], _ARRAY_JOIN_SPACINGS * spacing,
-                                   return_length=True)
-    code[cand[sized & (n_near >= _ARRAY_JOIN_NEIGHBOURS)]] = 0
+    cand = cand[sized]
+    while len(cand):  # ring by ring: a candidate may join through one that joined before
+        n_near = cKDTree(pts[code == 0]).query_ball_point(
+            pts[cand], _ARRAY_JOIN_SPACINGS * spacing, return_length=True)
+        joins = n_near >= _ARRAY_JOIN_NEIGHBOURS
+        if not joins.any():
+            break
+        code[cand[joins]] = 0
+        cand = cand[~joins]
 
 
 def _regular_outline(p: np.ndarray) -> bool:

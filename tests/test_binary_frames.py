@@ -164,3 +164,20 @@ def test_detect_command_keeps_same_named_images_apart_and_writes_one_table(tmp_p
     first = np.loadtxt(out / "frame_markers.csv", delimiter=",", skiprows=1)
     second = np.loadtxt(out / "frame_2_markers.csv", delimiter=",", skiprows=1)
     assert np.allclose(np.sort(second[:, 0]) - np.sort(first[:, 0]), 1.0, atol=0.35)
+
+
+def test_markers_pushed_against_the_rim_ring_are_kept():
+    """A shear pushes the array against the rim ring: its outer markers come within a marker
+    diameter and a half of the ring, where components were all taken for ring fragments.
+    They sit in the array's lattice (two markers within 1.5 spacings, a marker's size) and are
+    kept, each at its centre."""
+    centres = pc.hex_lattice(331, 5.0, (66.0, 64.0))  # array radius ~48 px, 2 px right
+    image = _binarised(centres, ring=False)
+    cv2.circle(image, (64, 64), 55, 255, 3)  # the ring's inner edge ~53.5 px: outer markers
+    # on the right come to ~3.5 px (< 1.5 diameters, 4.8 px) of it
+    assert cv2.connectedComponents(image, connectivity=8)[0] == 1 + 331 + 1  # none merged
+    near_ring = np.hypot(*(centres - 64.0).T) > 53.5 - 1.5 * 3.2
+    assert near_ring.sum() >= 6  # the case is exercised
+    det = pc.detect_markers_detailed(image, expected_count=331)
+    d, _ = cKDTree(det.points).query(centres)
+    assert det.count == 331 and d.max() < 0.6, det.reason
