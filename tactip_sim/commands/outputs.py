@@ -426,7 +426,7 @@ def hold(folder: str | os.PathLike[str], command: str) -> Iterator[None]:
     fd = os.open(key, os.O_RDONLY | os.O_DIRECTORY)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    except BlockingIOError:
         os.close(fd)
         w = (marker_of(key) or {}).get("writer")
         who = (f"tactip {w.get('command')}, process {w.get('pid')} on {w.get('host')}, "
@@ -434,6 +434,8 @@ def hold(folder: str | os.PathLike[str], command: str) -> Iterator[None]:
         raise BusyError(f"{str(folder)!r} is being written by another run ({who}): two writers "
                         "would mix their files; wait for it to end, or choose another "
                         "folder") from None
+    except OSError:  # a file system without locks (ENOLCK, EOPNOTSUPP): write unlocked
+        pass
     _HELD[key] = [fd, 1]
     try:
         m = marker_of(key)
