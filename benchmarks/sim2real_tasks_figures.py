@@ -88,6 +88,46 @@ def side_by_side(run: Path, real: Path, out: Path) -> Path:
     return path
 
 
+def contact_side(run: Path, real: Path, out: Path) -> Path:
+    """The edge conventions' check: the image angle of the side of the array the contact is
+    on (the displacement-magnitude-weighted centroid of the smoothed field) against
+    ``pose_6``, simulated (labels in the lab's convention) and real, for taps more than 3 mm
+    beside the edge."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tactip_lab.fitting.field_model import fields_of, grid_nodes
+    from tactip_lab.real.task_run import folder_columns
+
+    g = grid_nodes()
+    k = len(g)
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for who, pts_file, folder, colour in (
+            ("simulated", run / "sim128_points.npz", run / "sim128", "C1"),
+            ("real", run / f"real_{real.name}_points.npz", real, "C0")):
+        z = np.load(pts_file)
+        x = fields_of(z["rest"], z["pts"])
+        cols = folder_columns(folder)
+        m = np.hypot(x[:, :k], x[:, k:2 * k])
+        c = (m @ g) / m.sum(axis=1)[:, None]
+        phi = np.rad2deg(np.arctan2(c[:, 1], c[:, 0]))
+        sel = cols["pose_2"] < -3
+        ax.scatter(cols["pose_6"][sel], phi[sel], s=6, color=colour, label=f"{who} "
+                   f"(pose_2 < -3 mm, n = {int(sel.sum())})", alpha=0.6)
+    a = np.linspace(-180, 180, 361)
+    ax.plot(a, (84.4 - a + 180) % 360 - 180, "k.", ms=1, label="84.4 - pose_6 (wrapped)")
+    ax.set_xlabel("pose_6 (deg)")
+    ax.set_ylabel("image angle of the contact side (deg)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = out / "edge_contact_side.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
 def main(argv: list[str]) -> int:
     if len(argv) < 2:
         print(__doc__)
@@ -98,6 +138,8 @@ def main(argv: list[str]) -> int:
         run, real = (Path(p) for p in spec.split("=", 1))
         print("wrote", side_by_side(run, real, out))
         task = __import__("json").loads((run / "summary.json").read_text())["task"]
+        if task == "edge":
+            print("wrote", contact_side(run, real, out))
         chart = run / f"real_{real.name}.png"
         if chart.is_file():
             dest = out / f"predicted_{task.replace('+', '_')}_{real.name}.png"
