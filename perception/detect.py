@@ -727,18 +727,26 @@ def _rejoin_lattice(pts: np.ndarray, areas: np.ndarray, code: np.ndarray,
     ok = np.flatnonzero(code == 0)
     if len(ok) < _ARRAY_MIN_MARKERS:
         return
-    spacing = median(cKDTree(pts[ok]).query(pts[ok], k=2)[0][:, 1])
     ratio = areas[cand] / median(areas[ok])
     sized = (ratio >= 1.0 / _ARRAY_JOIN_AREA_RATIO) & (ratio <= _ARRAY_JOIN_AREA_RATIO)
     cand = cand[sized]
-    while len(cand):  # ring by ring: a candidate may join through one that joined before
-        n_near = cKDTree(pts[code == 0]).query_ball_point(
-            pts[cand], _ARRAY_JOIN_SPACINGS * spacing, return_length=True)
-        joins = n_near >= _ARRAY_JOIN_NEIGHBOURS
+    if not len(cand):
+        return
+    tree = cKDTree(pts[ok])
+    radius = _ARRAY_JOIN_SPACINGS * median(tree.query(pts[ok], k=2)[0][:, 1])
+    # joined markers near each candidate: the accepted ones (counted once), plus the
+    # candidates that joined before it (ring by ring), from the candidates' own distances
+    n_acc = tree.query_ball_point(pts[cand], radius, return_length=True)
+    close = cdist(pts[cand], pts[cand]) <= radius
+    np.fill_diagonal(close, False)
+    joined = np.zeros(len(cand), dtype=bool)
+    while True:
+        joins = ~joined & (n_acc + (close & joined[None, :]).sum(axis=1)
+                           >= _ARRAY_JOIN_NEIGHBOURS)
         if not joins.any():
             break
-        code[cand[joins]] = 0
-        cand = cand[~joins]
+        joined |= joins
+    code[cand[joined]] = 0
 
 
 def _regular_outline(p: np.ndarray) -> bool:
@@ -755,8 +763,12 @@ def _regular_outline(p: np.ndarray) -> bool:
     spacing = np.sqrt(area / (len(p) * np.sqrt(3.0) / 2.0))
     if not spacing > 0:
         return False
-    d2 = cdist(p[hull_idx], p, "sqeuclidean")
-    near = (d2 <= (_ARRAY_JOIN_SPACINGS * spacing) ** 2).sum(axis=1) - 1  # (itself)
+    reach = _ARRAY_JOIN_SPACINGS * spacing
+    # only points that can be that close to a hull vertex: those no nearer the centroid than
+    # the nearest vertex less the reach (the outer rings)
+    r = np.hypot(*(p - p.mean(axis=0)).T)
+    band = p[r >= r[hull_idx].min() - reach]
+    near = (cdist(p[hull_idx], band, "sqeuclidean") <= reach**2).sum(axis=1) - 1  # (itself)
     return bool((near >= _ARRAY_JOIN_NEIGHBOURS).all())
 
 
