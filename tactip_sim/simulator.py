@@ -290,7 +290,7 @@ class Simulator:
         else:
             if not self.lean_full:
                 full = FullOperator(self.body)
-            else:  # refined meshes: keep the columns from press to press (fem.refine)
+            else:  # refined meshes: keep the columns from press to press (fem.refinement)
                 if self._lean_op is None:
                     self._lean_op = FullOperator(self.body, lean=True)
                 full = self._lean_op

@@ -36,8 +36,14 @@ def block_sim(edge_mm: float, nu: float = 0.45) -> ts.Simulator:
     return ts.Simulator(scene, solver="reduced")
 
 
+def rest_candidates(sim: ts.Simulator) -> np.ndarray:
+    """(s, 3) rest positions of the contact candidates (what ``place`` and the solvers take)."""
+    space = sim.body.space
+    return space.nodes[space.candidates]
+
+
 def centre(sim: ts.Simulator) -> tuple[float, float]:
-    rest = sim._cand_rest
+    rest = rest_candidates(sim)
     top = rest[np.abs(rest[:, 2] - sim.scene.pad.height_mm) < 1e-9]
     c = top[np.argmin(np.hypot(top[:, 0], top[:, 1]))]
     return float(c[0]), float(c[1])
@@ -54,7 +60,7 @@ def mindlin(sim: ts.Simulator, radius: float, depth: float, mu: float, shifts):
     almost no normal force (node-to-surface P2 forces oscillate between vertices and edge
     midpoints), so they have no friction capacity and register as slipping; that makes the
     area estimate small (docs/fem.md, Friction)."""
-    rest, op = sim._cand_rest, sim.reduced
+    rest, op = rest_candidates(sim), sim.reduced
     off = centre(sim)
     ind = ts.Sphere(radius)
 
@@ -228,7 +234,7 @@ def check_the_laws(sim: ts.Simulator, before: FrictionHistory, after: FrictionHi
     not slip relative to the plate carries at most ``mu p``, one that slips exactly ``mu p``
     against its slip; no end point is below the window, the held ones are on it, and the
     marker values are those the forces make. ``both``: some nodes stick and some slip."""
-    op, markers, rest = sim.reduced, sim.body.markers, sim._cand_rest
+    op, markers, rest = sim.reduced, sim.body.markers, rest_candidates(sim)
     p, n = markers.count, markers.end_offsets.shape[1]
     held = np.zeros((p, n))
     held.ravel()[after.window_points] = after.window_forces
@@ -301,9 +307,10 @@ def test_a_step_whose_solve_fails_is_split(fingertip, monkeypatch):
     assert split.force_N == pytest.approx(fine[-1].force_N, rel=1e-9)
     assert after.pose == end
 
-    placer = lambda p: place(ind, p, fingertip._cand_rest,  # noqa: E731
+    rest = rest_candidates(fingertip)
+    placer = lambda p: place(ind, p, rest,  # noqa: E731
                              skin_thickness_mm=fingertip.body.skin_thickness_mm)
-    sols = lp.run_path([end], placer, fingertip._cand_rest, fingertip.reduced, mu=0.5,
+    sols = lp.run_path([end], placer, rest, fingertip.reduced, mu=0.5,
                        history=at_start)
     assert sols[0].load_steps == 4
     def failing(*args, label="", **kw):
@@ -312,10 +319,10 @@ def test_a_step_whose_solve_fails_is_split(fingertip, monkeypatch):
     monkeypatch.setattr(lp, "solve_friction", failing)
     few = dataclasses.replace(fingertip.tol, max_load_steps=3)
     with pytest.raises(ContactError, match=r"roll=4.*not split further: 3 step splits"):
-        lp.run_path([end], placer, fingertip._cand_rest, fingertip.reduced, mu=0.5,
+        lp.run_path([end], placer, rest, fingertip.reduced, mu=0.5,
                     history=at_start, tol=few)
     with pytest.raises(ContactError, match="start pose is unknown"):
-        lp.run_path([end], placer, fingertip._cand_rest, fingertip.reduced, mu=0.5,
+        lp.run_path([end], placer, rest, fingertip.reduced, mu=0.5,
                     history=dataclasses.replace(at_start, pose=None))
 
 

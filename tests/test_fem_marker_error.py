@@ -1,4 +1,4 @@
-"""The per-marker discretisation error estimate (fem.marker_error) and the refinement around
+"""The per-marker discretisation error estimate (fem.markers.error) and the refinement around
 the pins it drives (fidelity.pin_refinement = "auto")."""
 
 from __future__ import annotations

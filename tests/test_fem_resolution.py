@@ -132,7 +132,8 @@ def test_shipped_hertz_scene_flags_the_under_resolved_contact_before_refining(he
 
     sim = hertz_plan_sim
     assert sim.scene.fidelity.contact_refinement == "auto"
-    pl = place(Sphere(4.0), ts.Pose(0, 0, 0.09), sim._cand_rest)
+    rest = sim.body.space.nodes[sim.body.space.candidates]  # the contact candidates
+    pl = place(Sphere(4.0), ts.Pose(0, 0, 0.09), rest)
     p = plan(sim.body.space, sim.body.order, pl, sim.scene, sim.scene.fidelity.contact_tolerance)
     apex = 20.0 - pl.origin_mm[2]  # deeper than 0.09: the nearest node is off the axis
     assert p.predicted.contact_radius_mm == pytest.approx(np.sqrt(4.0 * apex), rel=0.01)
@@ -140,7 +141,7 @@ def test_shipped_hertz_scene_flags_the_under_resolved_contact_before_refining(he
     assert 0 < p.edge_mm < p.predicted.contact_radius_mm
     assert p.radius_mm > p.predicted.contact_radius_mm
     # a plate on the same mesh needs no refinement
-    q = plan(sim.body.space, sim.body.order, place(Plate(), ts.Pose(0, 0, 0.2), sim._cand_rest),
+    q = plan(sim.body.space, sim.body.order, place(Plate(), ts.Pose(0, 0, 0.2), rest),
              sim.scene, 0.03)
     assert q.edge_mm == 0.0
 
@@ -158,8 +159,13 @@ def test_shipped_hertz_scene_matches_hertz_at_random_spheres(hertz_plan_sim):
         pose = ts.Pose(0, 0, a * a / radius, offset_mm=(float(x), float(y)))
         st = sim.press(pose, Sphere(radius))
         assert st.refined_edge_mm > 0
-        child = next(reversed(sim._refiner._children.values()))
-        apex = 20.0 - place(Sphere(radius), pose, child._cand_rest).origin_mm[2]
+        # the sphere's lowest point on the refined mesh, from the press: the nodes in contact
+        # lie on the sphere, whose axis is the pose's offset (x, y)
+        pts = st.contact_points_mm
+        lowest = pts[:, 2] + np.sqrt(radius**2 - np.sum((pts[:, :2] - (x, y)) ** 2, axis=1)) \
+            - radius
+        assert np.ptp(lowest) < 1e-9  # one sphere
+        apex = 20.0 - float(np.median(lowest))
         k = layer_factor(0.3, radius, apex)
         expect = hertz_force_mN(100.0, 0.3, radius, apex) * k
         if a / radius > 0.4:  # Hertz's paraboloid is off by > 2 %: the exact sphere's answer

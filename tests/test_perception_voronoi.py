@@ -330,23 +330,24 @@ def test_compiled_delaunay_is_qhulls_on_random_seeds_and_valid_on_lattices():
 
 
 def test_areas_do_not_depend_on_which_triangulation_was_taken():
-    """Clipped cell areas with the compiled triangulation equal those with Qhull's (to
-    rounding) on random seeds and on the 97-marker lattice, and sum to the region's area."""
+    """Clipped cell areas on the convex path, with its compiled triangulation, equal the GEOS
+    reference's (Qhull's Voronoi diagram clipped by GEOS; to rounding) on random seeds and on the
+    97-marker lattice, and sum to the region's area."""
     from perception.region import convex_ring
-    from perception.voronoi_convex import ConvexVoronoi, _circumcentres, _delaunay, _triangulate
+    from perception.voronoi import voronoi_areas
+    from perception.voronoi_convex import ConvexVoronoi, _delaunay
 
-    ring = convex_ring(Point(64.0, 64.0).buffer(60.0, 64))
+    region = Point(64.0, 64.0).buffer(60.0, 64)
+    ring = convex_ring(region)
     rng = np.random.default_rng(7)
     for seeds in (rng.uniform(10, 118, (97, 2)),
                   pc.hex_lattice(97, 11.0, np.array([64.0, 64.0]))):
         cv = ConvexVoronoi(ring, reuse=False)
-        lo = np.minimum(seeds.min(axis=0), cv._lo)
-        hi = np.maximum(seeds.max(axis=0), cv._hi)
-        compiled, qhull = _triangulate(seeds, lo, hi), _triangulate(seeds, lo, hi, qhull=True)
-        assert _delaunay(seeds, lo, hi)[-1]  # the compiled triangulation was taken
-        pts = np.concatenate([seeds[:, 0] + 1j * seeds[:, 1] - compiled.centre,
-                              compiled.ghosts])
-        a1 = cv._clip(compiled, pts, _circumcentres(pts, compiled.simplices)[0])
-        a2 = cv._clip(qhull, pts, _circumcentres(pts, qhull.simplices)[0])
+        lo = np.minimum(seeds.min(axis=0), ring.min(axis=0))
+        hi = np.maximum(seeds.max(axis=0), ring.max(axis=0))
+        assert _delaunay(seeds, lo, hi)[-1]  # the compiled triangulation is the one taken
+        a1 = cv.areas(seeds)
+        a2 = voronoi_areas(seeds, region, method="geos")
+        assert cv.n_triangulations == 1
         assert np.allclose(a1, a2, rtol=0, atol=1e-9 * cv.area)
         assert a1.sum() == pytest.approx(cv.area, rel=1e-12)

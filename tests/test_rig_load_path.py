@@ -68,7 +68,8 @@ def test_a_pivot_keeps_the_plates_point_under_it_and_the_contact(chain):
     from tactip_sim.fem.linear.loadpath import about_pivot
 
     sim = chain.sim
-    rest, pivot = sim._cand_rest, np.array([0.4, -0.3, 7.0])
+    rest = sim.body.space.nodes[sim.body.space.candidates]  # the contact candidates
+    pivot = np.array([0.4, -0.3, 7.0])
     a, b = (place(sim.indenter, ts.Pose(r, p, 1.0), rest) for r, p in ((-9.0, 2.0), (7.0, -6.0)))
     pa, pb = about_pivot(a, pivot), about_pivot(b, pivot)
     for plain, moved in ((a, pa), (b, pb)):
