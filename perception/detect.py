@@ -29,7 +29,8 @@ The method, with no per-image tuning (every threshold is a ratio to something me
    1.5 local spacings (two of them, or one for a candidate of marker size). Rim debris and
    glare of marker size and shape, which no per-blob test tells from a marker, lie across
    the dark rim band and are rejected (``"rim"``). A regular outline (every hull vertex with
-   two neighbours within 1.5 spacings) skips the test.
+   two neighbours within 1.5 spacings) skips the test, and so does a caller's ``mask`` (the
+   field is then given: a pipeline's region fitted to its rest markers).
 8. **Reliability**: the count against ``expected_count``, or without it the minimum count and
    the regularity of sizes and spacings (a marker array is regular, noise is not); and in
    both cases, a frame whose marker-like blobs lie mostly off the array is not an array.
@@ -445,7 +446,9 @@ def _detect_grey(grey: np.ndarray, shape: tuple[int, int], scale: float, region,
     near = near_bright(bg, skin + p.skin_contrast_fraction * peak_med * scale,
                         max(int(round(d_ref)), 1), ix[ok], iy[ok])
     code[np.flatnonzero(ok)[near]] = _RIM
-    off = _reject_outside_array(pts, mom.area, code)
+    # the field: the caller's region when given (a pipeline's, fitted to its rest markers),
+    # else read from the frame's own array
+    off = _reject_outside_array(pts, mom.area, code) if region is None else 0
     if region is not None:  # (the points still accepted are finite)
         ok = np.flatnonzero(code == 0)
         code[ok[~shapely.intersects_xy(region, pts[ok, 0], pts[ok, 1])]] = _OUTSIDE
@@ -1006,7 +1009,7 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
         speck = np.flatnonzero((code == 0) & ~full)
         if len(speck):
             code[speck[~_in_hull_of(pts[full], pts[speck])]] = _SMALL
-    off = _reject_outside_array(pts, area, code)
+    off = _reject_outside_array(pts, area, code) if region is None else 0
     if near_ring.any():
         # a component beside the rim ring is a marker when it sits in the array's lattice:
         # markers a shear pushes against the rim (the lab's shear taps) have two of the
