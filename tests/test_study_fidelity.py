@@ -25,6 +25,8 @@ from tactip_lab.studies.fidelity import (
 from tactip_sim.scene import apply_preset
 from tactip_sim.scene.schema import SECTIONS
 
+from .conftest import ROOT
+
 SMALL = {"camera": {"resolution": [320, 240], "pixel_pitch_um": 16.8}}
 STAND_IN = Level("reference (stand-in)", "preset",
                  {"imaging": {"spp": 16, "shading": "lambert"}}, base="balanced")
@@ -157,3 +159,19 @@ def test_sweep_with_fidelity_auto_uses_and_records_the_choice(study, scene_path,
     bad = argv[:argv.index("--set")] + ["--set", "imaging.spp=5"]
     assert main(bad) == 1
     assert "measured on a different scene" in capsys.readouterr().err
+
+
+def test_a_study_knows_its_scene_at_its_base_level_whatever_the_defaults(scene):
+    """The bundled study (measured when the defaults were the paper level) is the default
+    scene's study today: both are compared at the study's base level, where the fidelity
+    keys every level sets are set; a design change still makes it another scene."""
+    from tactip_lab.sampling.fidelity_auto import study_hash
+
+    bundled = json.loads((ROOT / "docs" / "fidelity" / "summary.json").read_text())
+    assert study_hash(scene) == bundled["scene_hash"]
+    paper = ts.replace_in(scene, imaging={"cap_layer": "mitsuba"},
+                          protocol={"frame_average": "features"})
+    assert study_hash(paper) == study_hash(scene)
+    assert study_hash(ts.replace_in(scene, imaging={"spp": 9})) == study_hash(scene)
+    assert study_hash(ts.replace_in(scene, gel={"youngs_modulus_kpa": 31.0})) != \
+        study_hash(scene)

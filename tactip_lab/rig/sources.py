@@ -112,7 +112,7 @@ SOURCES: dict[str, tuple[str, ...]] = {
 NOT_MODELLED: dict[str, str] = {}
 """Sources named in the docs but not modelled (none left; ``--sources`` refuses these)."""
 _OFF: dict[str, Any] = {k: 0.0 for k in (*_RANGES, *_MORE)} | {k: False for k in _SWITCHES}
-PRESETS_DIR = Path(__file__).resolve().parents[1] / "rigs"
+PRESETS_DIR = Path(__file__).resolve().parents[2] / "rigs"
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ from typing import Any
 
 import tactip_sim as ts
 from tactip_sim.commands.args import float_in
-from tactip_sim.scene import replace_in, scene_hash
+from tactip_sim.scene import apply_preset, replace_in, scene_hash
 
 TOLERANCE_METRICS = {
     "max_marker_error_px": ("marker_px_p95", "le"),
@@ -88,6 +88,18 @@ def add_tolerance_arguments(p: argparse.ArgumentParser) -> None:
                    help="least downstream roll/pitch R²")
 
 
+STUDY_BASE = "balanced"
+"""The preset every level of a fidelity study is set on top of (``paper``'s older name)."""
+
+
+def study_hash(scene) -> str:
+    """The hash by which a fidelity study knows its scene: the scene's at the study's base
+    level. Every level of the study is a preset, or the base preset and a knob, and the base
+    sets no key that another preset leaves alone; so two scenes equal at the base level give
+    the same scene at every level, whatever their own fidelity keys (the defaults included)."""
+    return scene_hash(apply_preset(scene, STUDY_BASE))
+
+
 def resolve_auto(scene: ts.Scene, args: argparse.Namespace) -> tuple[ts.Scene, dict[str, Any]]:
     """``--fidelity auto``: the scene at the cheapest level of ``--study`` meeting the given
     tolerances, and a record of the choice for the manifest."""
@@ -104,9 +116,10 @@ def resolve_auto(scene: ts.Scene, args: argparse.Namespace) -> tuple[ts.Scene, d
     except (ValueError, UnicodeDecodeError) as exc:
         raise ValueError(f"--study {args.study!r}: {path} is unreadable ({exc}); rerun "
                          "`tactip study fidelity SCENE --out DIR`") from None
-    if summary.get("scene_hash") != scene_hash(scene):
+    if summary.get("scene_hash") != study_hash(scene):
         raise ValueError(f"--study {args.study!r} was measured on a different scene (hash "
-                         f"{summary.get('scene_hash')} vs {scene_hash(scene)}); rerun the study")
+                         f"{summary.get('scene_hash')} vs {study_hash(scene)} at the study's "
+                         "base level); rerun the study")
     tol = {k: getattr(args, k, None) for k in TOLERANCE_METRICS}
     level = choose_level(summary, **tol)
     ref = summary["levels"][0]

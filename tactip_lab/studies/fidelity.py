@@ -41,11 +41,12 @@ import tactip_sim as ts
 from tactip_lab.fitting.plots import wrap_to_figure
 from tactip_lab.sampling.chain import Chain, set_tag
 from tactip_lab.sampling.dataset import atomic_write_text, plain
+from tactip_lab.sampling.fidelity_auto import STUDY_BASE, study_hash
 from tactip_lab.sampling.poses import random_poses
-from tactip_sim.scene import apply_preset, replace_in, scene_hash
+from tactip_sim.scene import apply_preset, replace_in
 
 REFERENCE = "reference"
-BASE = "balanced"
+BASE = STUDY_BASE
 
 @dataclass(frozen=True)
 class Level:
@@ -382,7 +383,7 @@ def run_fidelity_study(scene: ts.Scene, out: str | Path, *, quick: bool = False,
     ref_time = results[0].sample_s
     summary = {
         "scene": scene.name,
-        "scene_hash": scene_hash(scene),
+        "scene_hash": study_hash(scene),  # at the base level (fidelity_auto.study_hash)
         "reference": ref_level.name,
         "reference_settings": ref_level.overrides(scene),
         "quick": quick,
