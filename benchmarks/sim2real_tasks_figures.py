@@ -83,7 +83,7 @@ def side_by_side(run: Path, real: Path, out: Path) -> Path:
                  "(128x128 frames)", fontsize=10)
     fig.tight_layout()
     path = out / f"frames_{summary['task'].replace('+', '_')}.png"
-    fig.savefig(path, dpi=80)
+    fig.savefig(path, dpi=60)
     plt.close(fig)
     return path
 
