@@ -317,3 +317,44 @@ def test_turned_frames_move_the_press_and_the_label():
     np.testing.assert_allclose(ys[:, 0], 1.5)
     np.testing.assert_allclose(ys[:, 1], [170.0, 80.0, -10.0, -100.0])
     np.testing.assert_allclose(xs[1], f, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_sim2real_edge_command_end_to_end(tmp_path):
+    """``tactip sim2real --task edge`` on 20 simulated taps, scored on 40 real edge taps:
+    the files of the contract, the table's rows, and ``tactip evaluate``'s ``targets`` giving
+    the run's own zero-shot figures (a second computation through the command)."""
+    import shutil
+
+    from tactip_sim.commands import main
+
+    from .conftest import ROOT
+
+    real = ROOT.parent / "shared" / "real" / "tactip331_edge128"
+    if not real.is_dir():
+        pytest.skip("../shared/real is absent")
+    sub = tmp_path / "real"
+    (sub / "images").mkdir(parents=True)
+    lines = (real / "targets.csv").read_text().splitlines()
+    keep = [lines[0]] + lines[1:401:10]
+    for ln in keep[1:]:
+        name = ln.split(",")[1]
+        shutil.copyfile(real / "images" / name, sub / "images" / name)
+    (sub / "targets.csv").write_text("\n".join(keep) + "\n")
+    out = tmp_path / "run"
+    scene = ROOT / "scenes" / "tactip_331_identified.toml"
+    assert main(["sim2real", str(scene), "--task", "edge", "--n", "20", "--out", str(out),
+                 "--real", str(sub), "--no-progress"]) == 0
+    for name in ("model.json", "model_raw.json", "summary.json", "table.md",
+                 "real_real.png", "real_real.npz"):
+        assert (out / name).is_file(), name
+    s = json.loads((out / "summary.json").read_text())
+    z = s["real"][str(sub)]["zero_shot"]
+    assert set(z) == {"pose_2", "pose_6"} and z["pose_2"]["unit"] == "mm"
+    ev = tmp_path / "ev.json"
+    assert main(["evaluate", str(out / "model.json"), str(sub), "--json", str(ev),
+                 "--no-progress"]) == 0
+    t = json.loads(ev.read_text())["targets"]
+    assert t["pose_6"]["unit"] == "deg" and t["pose_6"]["wrapped"]
+    assert t["pose_2"]["mae"] == pytest.approx(z["pose_2"]["mae"], rel=1e-9)
+    assert t["pose_6"]["mae"] == pytest.approx(z["pose_6"]["mae"], rel=1e-9)
