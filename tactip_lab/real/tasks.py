@@ -91,24 +91,24 @@ EDGE_CONVENTION = EdgeConvention(lateral_sign=1.0, angle_sign=-1.0, angle_origin
   ``pose_2`` near +6 show a field radial over the whole array (a flat tap), near -6 a field
   confined to one side; the offset of the field's magnitude-weighted centroid from the centre
   falls with ``pose_2`` on the real taps (correlation -0.57) as with the simulated ``inside``
-  (-0.86).
+  (-0.82).
 - ``angle_sign`` -1: the lab turns the *sensor* by ``pose_6`` about its axis; the block's yaw
   in the sensor frame is the opposite turn (as the surface's ``-x-y`` axes). Checked on the
-  real frames: the side of the array the contact is on turns at -0.86 deg per degree of
-  ``pose_6`` on the real taps beside the edge, at +1 per degree of the simulated yaw
-  (:data:`IMAGE_YAW_SIGN`).
+  real frames: the side of the array the contact is on turns at -0.74 deg per degree of
+  ``pose_6`` on the real taps beside the edge (linear fit over their 70 deg), at +0.93 per
+  degree of the simulated yaw (:data:`IMAGE_YAW_SIGN`).
 - ``angle_origin_deg`` 174.5: the lab sets ``pose_6 = 0`` with the camera aligned to its
   work axes (``sensor_offset_ang = -48``, "align camera with axis"), a multiple of 90 deg
   (180 here) up to how well that was aligned by hand. The value is *read from the shared real
   edge taps*: the contact side's image angle is ``84.4 - pose_6`` on the 127 real taps more
   than 3 mm beside the edge (circular mean, resultant 0.96), and ``yaw - 90.1`` on the
-  simulated ones, so ``yaw = 174.5 - pose_6``. It uses their labels once, for this convention
-  (a geometric descriptor, not a model's score); with 180 (the lab's statement alone) the
-  zero-shot angle error would carry the 5.5 deg difference."""
+  first simulated set (``yaw - 93.7`` on the final one, an origin of 178.1: the descriptor is
+  good to ~4 deg), so ``yaw = 174.5 - pose_6``. It uses their labels once, for this
+  convention (a geometric descriptor, not a model's score)."""
 IMAGE_YAW_SIGN = 1.0
 """How the contact side turns in the image per degree of the block's yaw (simulation: +1,
-resultant 0.93 on the simulated taps beside the edge): the label turn of the training
-augmentation (:func:`~tactip_lab.fitting.field_model.augment`)."""
+resultant 0.93 on the first simulated taps beside the edge; slope +0.93 on the final ones):
+the label turn of the training augmentation (:func:`~tactip_lab.fitting.field_model.augment`)."""
 
 
 def label_turn(task: str, convention: EdgeConvention = EDGE_CONVENTION) -> dict[str, float]:
