@@ -27,7 +27,7 @@ origin of ``pose_6``) are :data:`EDGE_CONVENTION`, each checked as docs/sim2real
 (``work_frame`` z 54 mm, its comment "edge height = 52.0mm"; the same ``work_frame`` is in the
 edge sets' ``meta.json``), with the tool centre point at the sensor's tip (``robot_tcp`` 101 mm).
 So the tip is pushed about 2 mm less than ``pose_3`` past the top face. On the real edge taps
-the marker field's size grows linearly with ``pose_3`` and extrapolates to zero at 2.85 mm
+the marker field's size grows linearly with ``pose_3`` and extrapolates to zero at 2.86 mm
 (taps with the centre over the block, docs/sim2real.md), so the offset is randomised per
 simulated tap, uniform in :data:`EDGE_DEPTH_OFFSET_MM` (the cited 2 mm to the measured onset,
 rounded up). With the sensor's centre beside the block the first contact is lower on the
@@ -124,7 +124,7 @@ that only its one edge meets it."""
 EDGE_DEPTH_OFFSET_MM = (2.0, 3.0)
 """Range (uniform, per simulated tap) of the edge sets' ``pose_3`` less the tip's depth past
 the block's top face: from the lab's ``work_frame`` z 54 mm against its stated edge height
-52 mm (read from its code) to the real taps' measured onset of contact, 2.85 mm, rounded up.
+52 mm (read from its code) to the real taps' measured onset of contact, 2.86 mm, rounded up.
 Randomised, not fitted: no value inside it was chosen by a score."""
 EDGE_TAP_NOTE = """Edge taps are pressed with friction (:data:`FRICTION_ASSUMED`, ``tap_steps``
 load steps), not frictionless: at the block's corner the contact pushes the skin away from the
