@@ -184,18 +184,30 @@ def test_a_small_lift_stays_in_contact(fingertip):
     assert lifted.in_contact and 0.99 * tap.force_N < lifted.force_N < tap.force_N
 
 
-def test_pins_stop_at_the_window_along_a_path(fingertip):
+WINDOW_START = ts.Pose(8, -7, 2.1)  # the window holds pins 2, 9 and 19 here
+
+
+@pytest.fixture(scope="module")
+def frictionless_tap(fingertip):
+    """One frictionless step from rest to WINDOW_START (states, history): the tap both window
+    tests below need, solved once."""
+    return fingertip.continue_path(path_poses(WINDOW_START, steps=1), friction=0.0)
+
+
+def test_pins_stop_at_the_window_along_a_path(fingertip, frictionless_tap):
     """A deep re-orientation whose pins reach the window: without friction it ends where the
     press (which stops them, fem/linear/window.py) does, whatever the path; with friction no tip
     ends below the window's inner face (z = 0) and the window holds some of them."""
-    pose, start = ts.Pose(16, -11, 2.1), ts.Pose(8, -7, 2.1)
+    pose, start = ts.Pose(16, -11, 2.1), WINDOW_START
     pressed = fingertip.press(pose)
     assert pressed.pins_on_window > 0  # the pose is deep enough to test the window
-    free = fingertip.press_path(pose, start=start, steps=1, tap_steps=1, friction=0.0)[-1]
+    # the path of press_path(pose, start=start, steps=1, tap_steps=1): the tap, then one turn
+    poses = path_poses(pose, start=start, steps=1, tap_steps=1)
+    assert poses[:-1] == path_poses(start, steps=1)
+    (free,), _ = fingertip.continue_path(poses[-1:], frictionless_tap[1], friction=0.0)
     assert np.abs(free.markers_mm - pressed.markers_mm).max() < 1e-3
     assert free.pins_on_window == pressed.pins_on_window
     assert free.force_N == pytest.approx(pressed.force_N, rel=1e-4)
-    poses = path_poses(pose, start=start, steps=1, tap_steps=1)  # a tap, then one turn
     _, before = fingertip.continue_path(poses[:-1], friction=0.5)
     (rough,), after = fingertip.continue_path(poses[-1:], before, friction=0.5)
     assert rough.markers_mm[:, 2].min() > -1e-6 and rough.tips_below_window == 0
@@ -205,16 +217,16 @@ def test_pins_stop_at_the_window_along_a_path(fingertip):
     check_the_laws(fingertip, after, deeper, mu=0.5, both=True)  # the centre sticks
 
 
-def test_a_frictionless_tap_onto_the_window_ends_on_the_press_branch(fingertip):
+def test_a_frictionless_tap_onto_the_window_ends_on_the_press_branch(fingertip,
+                                                                     frictionless_tap):
     """The rods' turn makes the pin-window problem non-convex. A tap (one frictionless step
     from rest) to a pose where the window holds pins 2, 9 and 19 must end where the press
     ends and the neo-Hookean solve agrees (pin 9 turned from its rest direction, not lying
     flat on the window): before the entering pins were linearised where they met the window,
     the tap linearised them where the plate alone had pushed them through it and pin 9 ended
     flat (its direction's z -1.0 against the press's -0.81)."""
-    pose = ts.Pose(8, -7, 2.1)
-    pressed = fingertip.press(pose)
-    tap = fingertip.press_path(pose, steps=1, friction=0.0)[-1]
+    pressed = fingertip.press(WINDOW_START)
+    tap = frictionless_tap[0][-1]  # press_path(WINDOW_START, steps=1, friction=0.0)
     assert set(np.flatnonzero(tap.window_forces_N > 0)) \
         == set(np.flatnonzero(pressed.window_forces_N > 0)) and pressed.pins_on_window
     turned = np.degrees(np.arccos(np.clip(np.einsum(

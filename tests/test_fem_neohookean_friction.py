@@ -162,9 +162,14 @@ def test_pins_stop_at_the_window_along_a_path_with_friction(sim):
     body = sim.body
     placer = placer_of(sim, ts.Plate())
     poses = path_poses(ts.Pose(0, 0, 3.6), steps=9)
-    free = neo_hookean_path(body, poses, placer, mu=0.5)
+    # the first eight steps (to 3.2 mm) hold no pin on the window: with or without it in the
+    # solve they are the same path, walked once; the last step is taken both ways from there
+    before = neo_hookean_path(body, poses[:-1], placer, mu=0.5, markers=body.markers)
+    assert not any(r.window_forces.any() for r in before)
+    free = neo_hookean_path(body, poses[-1:], placer, mu=0.5, history=before[-1].history)
     assert body.markers.from_field(free[-1].u, finite=True)[0][:, 2].min() < -0.02
-    res = neo_hookean_path(body, poses, placer, mu=0.5, markers=body.markers)
+    res = neo_hookean_path(body, poses[-1:], placer, mu=0.5, markers=body.markers,
+                           history=before[-1].history)
     m = body.markers
     tips, dirs = m.from_field(res[-1].u, finite=True)
     q = res[-1].window_forces
