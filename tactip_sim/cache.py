@@ -40,7 +40,7 @@ DRJIT = "drjit"
 ``~/.drjit``: see :func:`drjit_cache_dir`."""
 _DRJIT_ENTRY = re.compile(r"^([0-9a-f]+\.(llvm|cuda)\.v\d+\.bin(\.\w+)?|sweep\.stamp)$")
 """Names Dr.Jit 1.x gives its kernel cache files (``<hash>.llvm.v6.bin``, ``sweep.stamp``)."""
-FILES = ("llvm.json",)
+FILES = ("llvm.json", "outputs.json")  # outputs.json: the commands' register of their files
 """Files the tool writes at the top of the cache folder."""
 TAG = "CACHEDIR.TAG"
 TAG_TEXT = ("Signature: 8a477f597d28d172789f06886806bc55\n"
