@@ -10,14 +10,14 @@ the one rule that says which rest-frame marker is which pin (:func:`identify_mar
 >>> chain = Chain.for_tip(scene, "A", nominal=True, frames=2)
 >>> s = chain.sample((4.0, -2.0, 1.0), set_tag("doc"), 0)   # roll°, pitch°, depth mm; seed key
 >>> len(s.rendered.images), s.perceived.cop_growth.shape, bool(s.state.in_contact)
-(2, (2,), True)
+(1, (2,), True)
 
 Frames per sample: the rig averages ~60 frames over 3 s of a static contact; only sensor noise
 changes between them. So a sample is rendered once (the expensive part, noise-free) and its
 ``frames`` noisy frames are synthesised from that radiance with the scene's seeded camera noise
-model; perception runs on every noisy frame and the features are averaged, as in the paper
-(``protocol.frame_average = "features"``). The fidelity level ``"image"`` averages the frames
-pixel by pixel instead and perceives the mean image once (docs/speed.md).
+model. By default (``protocol.frame_average = "image"``) they are averaged pixel by pixel and
+the mean image, the one image above, is perceived once (docs/speed.md); the paper's level
+(``"features"``, ``--fidelity paper``) perceives every noisy frame and averages the features.
 
 Seeds: a chain's randomness comes from ``SeedSequence([protocol.seed, tip index, *key])``;
 the rest frame's key is ``(REST_KEY,)`` and a sample's key is given by the caller (a sweep
