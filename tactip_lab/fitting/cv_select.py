@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from tactip_lab.fitting.fit import FeatureTable, make_model
 from tactip_lab.fitting.bristol import FrameTable, cross_validate
+from tactip_lab.fitting.fit import FeatureTable, make_model
 
 __all__ = ["Candidate", "nested_cv", "select_by_cv"]
 
