@@ -5,7 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tactip_lab.sampling.sampling_cli import check_scale, scale_arguments, scene_and_fidelity
+from tactip_lab.sampling.sampling_cli import (
+    add_study,
+    check_scale,
+    scale_arguments,
+    scene_and_fidelity,
+)
 from tactip_sim.commands import add_scene_argument
 from tactip_sim.commands.outputs import declare, manifest_kind
 
@@ -84,12 +89,9 @@ def register_study(studies: argparse._SubParsersAction) -> None:
     """``tactip study rig``: added to the ``study`` group that :mod:`tactip_lab.cli` makes."""
     from tactip_lab.protocol import rig_budget
 
-    s = studies.add_parser(
-        "rig", help="the rig's error budget: R² with each rig source alone, all, ideal",
-        description=rig_budget.__doc__.splitlines()[0])
-    rig_budget.configure_parser(s)
-    s.set_defaults(func=rig_budget.main)
-    declare(s, "study rig", inputs={"scene": "toml", "rig": "file-or-name"}, folders=["out"],
-            legacy=lambda d: (d / "summary.json").is_file() or any(
-                manifest_kind(c) == "tactip-sim calibration" for c in d.iterdir()
-                if c.is_dir()))
+    add_study(studies, "rig", rig_budget,
+              help="the rig's error budget: R² with each rig source alone, all, ideal",
+              inputs={"scene": "toml", "rig": "file-or-name"}, folders=["out"],
+              legacy=lambda d: (d / "summary.json").is_file() or any(
+                  manifest_kind(c) == "tactip-sim calibration" for c in d.iterdir()
+                  if c.is_dir()))

@@ -22,6 +22,18 @@ def scale_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def add_study(studies: argparse._SubParsersAction, name: str, module, *, help: str,
+              **outputs) -> argparse.ArgumentParser:
+    """``tactip study NAME``: a study module's own parser (``configure_parser``) and entry
+    point (``main``), described by its docstring's first line, with its inputs and outputs
+    declared (``outputs``: :func:`tactip_sim.commands.outputs.declare`'s keywords)."""
+    s = studies.add_parser(name, help=help, description=module.__doc__.splitlines()[0])
+    module.configure_parser(s)
+    s.set_defaults(func=module.main)
+    declare(s, f"study {name}", **outputs)
+    return s
+
+
 def check_scale(args: argparse.Namespace) -> None:
     if args.workers < 1:
         raise ValueError(f"--workers={args.workers} must be at least 1")

@@ -15,21 +15,8 @@ from typing import Any
 
 import tactip_sim as ts
 from tactip_lab.sampling.chain import MATCH_FRACTION
-from tactip_lab.studies.stability.config import (
-    ANGLE_FAIL_DEG,
-    FULL,
-    JACOBIAN_FAIL,
-    LINEAR_VS_NH_FAIL_PX,
-    LOST_FAIL_FRACTION,
-    MAPS,
-    MESH_FAIL_PX,
-    NH_MAX_LOAD_STEPS,
-    POSITION_FAIL_PX,
-    QUICK,
-    R2_FAIL,
-    RECALL_FAIL,
-    WINDOW_Z_MM,
-)
+from tactip_lab.studies.stability import config as cfg
+from tactip_lab.studies.stability.config import FULL, MAPS, QUICK
 from tactip_lab.studies.stability.maps import MAP_FUNCS
 from tactip_lab.studies.stability.nominal_rig import _Study
 from tactip_lab.studies.stability.report import _describe, plot_map, write_report
@@ -90,12 +77,12 @@ def run_stability(scene: ts.Scene, out: str | Path, *, quick: bool = False,
         "quick": quick, "seed": scene.protocol.seed, "frames_per_sample": grids.frames,
         "tip": "nominal (bundled mesh, no manufacturing perturbations)",
         "thresholds": {
-            "lost_fraction": LOST_FAIL_FRACTION, "match_fraction_of_spacing": MATCH_FRACTION,
-            "position_p95_px": POSITION_FAIL_PX, "recall": RECALL_FAIL,
-            "angle_error_deg": ANGLE_FAIL_DEG, "r2": R2_FAIL, "mesh_rms_px": MESH_FAIL_PX,
-            "min_volume_ratio": JACOBIAN_FAIL, "window_z_mm": WINDOW_Z_MM,
-            "neo_hookean_max_load_steps": NH_MAX_LOAD_STEPS,
-            "linear_vs_neo_hookean_px": LINEAR_VS_NH_FAIL_PX},
+            "lost_fraction": cfg.LOST_FAIL_FRACTION, "match_fraction_of_spacing": MATCH_FRACTION,
+            "position_p95_px": cfg.POSITION_FAIL_PX, "recall": cfg.RECALL_FAIL,
+            "angle_error_deg": cfg.ANGLE_FAIL_DEG, "r2": cfg.R2_FAIL,
+            "mesh_rms_px": cfg.MESH_FAIL_PX, "min_volume_ratio": cfg.JACOBIAN_FAIL,
+            "window_z_mm": cfg.WINDOW_Z_MM, "neo_hookean_max_load_steps": cfg.NH_MAX_LOAD_STEPS,
+            "linear_vs_neo_hookean_px": cfg.LINEAR_VS_NH_FAIL_PX},
         "grids": _plain(dataclasses.asdict(grids)),
         "training": _plain(study.training_info),
         "maps": {r.name: r.summary() for r in results},
