@@ -220,20 +220,17 @@ class Sim2RealConfig:
 def simulate(scene: ts.Scene, out: Path, cfg: Sim2RealConfig, *, workers: int = 1,
              progress: bool = True) -> Path:
     """The simulated taps (raw format) in ``out/sim``: resumable."""
-    from tactip_lab.sampling.poses import PoseSet
+    from tactip_lab.sampling.poses import PoseSet, random_poses
     from tactip_lab.sampling.sweep import SweepSpec, run_sweep
 
-    p = scene.protocol
     rng = np.random.default_rng([cfg.seed, 331])
-    poses = np.stack([rng.uniform(*p.roll_range_deg, cfg.n), rng.uniform(*p.pitch_range_deg,
-                                                                          cfg.n),
-                      rng.uniform(*cfg.depth_range_mm, cfg.n)], axis=1)
+    poses = random_poses(scene, cfg.n, rng, tuple(cfg.depth_range_mm))
     # the reference tap for reference="shallow" (last row): shallowest depth, square on
     poses = np.vstack([poses, [0.0, 0.0, cfg.depth_range_mm[0]]])
     if cfg.tap_depth == "tip":  # the data set's depth is the tip's: press deeper when tilted
         poses[:, 2] += tip_depth_offset(ts.build_pad(scene), poses[:, 0], poses[:, 1])
     name = f"sim2real{cfg.n}" + ("" if cfg.tap_depth == "contact" else "tip")
-    spec = SweepSpec(scene, p.tips[0], PoseSet(name, poses),
+    spec = SweepSpec(scene, scene.protocol.tips[0], PoseSet(name, poses),
                      frames=1, nominal=True)
     run_sweep(spec, out / "sim", workers=workers, progress=progress)
     return out / "sim"
