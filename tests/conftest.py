@@ -89,22 +89,3 @@ def virtual_work_error(body, u, contact, end_forces, seed=5, end_tangential=None
     if end_tangential is not None:
         window += np.sum(end_tangential * dx[..., :2])
     return abs((f_int - ext.ravel()) @ v - window) / abs(window)
-
-
-# The modules that take longest (the default run's durations, BENCHMARKS.md "Test suite"),
-# longest first. pytest-xdist hands each module to a worker in collection order, so starting
-# these first leaves the short ones to fill the end instead of a long one running alone.
-LONGEST_FIRST = (
-    "test_study_stability.py", "test_fem_friction.py", "test_fem_neohookean_friction.py",
-    "test_fem_window.py", "test_fem_warm_start.py", "test_calibration_sweep.py",
-    "test_fem_markers.py", "test_fem_window_friction.py", "test_servo.py",
-    "test_depth_invariant.py", "test_rig_load_path.py", "test_identify.py",
-    "test_fem_marker_error.py", "test_marker_selection.py", "test_recognition.py",
-    "test_study_fidelity.py", "test_outputs.py",
-)
-
-
-def pytest_collection_modifyitems(session, config, items):
-    rank = {name: k for k, name in enumerate(LONGEST_FIRST)}
-    order = {id(item): k for k, item in enumerate(items)}
-    items.sort(key=lambda item: (rank.get(item.path.name, len(rank)), order[id(item)]))
