@@ -161,35 +161,47 @@ FEM_LAYERS = {"tolerances": 0, "discretisation": 1, "contact": 1, "markers": 2, 
 """Layer of each part of ``tactip_sim.fem`` (docs/architecture.md); ``tactip_sim.fem`` itself
 (its ``__init__``, the public API) sits above them all."""
 
+LAB_LAYERS = {"rig": 0, "sampling": 1, "fitting": 2, "protocol": 3, "real": 3,
+              "recognition": 3, "servo": 3, "studies": 3, "cli": 4}
+"""Layer of each part of ``tactip_lab``; the parts on layer 3 are its products."""
 
-def _fem_part(mod: str) -> str | None:
+
+def _part(mod: str, package: str, layers: dict[str, int]) -> str | None:
+    """The part (first folder or module below ``package``) that ``mod`` belongs to."""
+    prefix = package.split(".")
     parts = mod.split(".")
-    if parts[:2] != ["tactip_sim", "fem"] or len(parts) == 2:
+    if parts[:len(prefix)] != prefix or len(parts) == len(prefix):
         return None
-    if parts[2] not in FEM_LAYERS:
-        raise AssertionError(f"{mod}: tactip_sim.fem.{parts[2]} has no layer in "
+    if parts[len(prefix)] not in layers:
+        raise AssertionError(f"{mod}: {package}.{parts[len(prefix)]} has no layer in "
                              "tests/test_layers.py (add it, and to docs/architecture.md)")
-    return parts[2]
+    return parts[len(prefix)]
 
 
-def _fem_violations(graph: dict[str, set[str]]) -> list[str]:
+def _part_violations(graph: dict[str, set[str]], package: str, layers: dict[str, int],
+                     facade_from: tuple[str, ...] = ()) -> list[str]:
+    """Imports of ``package``'s parts that break its layers: a part imports only parts of
+    lower layers (two parts of one layer never import each other) and never the package's
+    facade (except from ``facade_from``)."""
     bad = []
     for mod, deps in graph.items():
-        here = _fem_part(mod)
+        here = _part(mod, package, layers)
         if here is None:
             continue
         for dep in deps:
-            there = _fem_part(dep)
-            if dep == "tactip_sim.fem":
-                bad.append(f"{mod} -> tactip_sim.fem (the facade: import the module itself)")
-            elif there is not None and there != here and FEM_LAYERS[there] >= FEM_LAYERS[here]:
-                bad.append(f"{mod} ({here}, layer {FEM_LAYERS[here]}) -> {dep} "
-                           f"({there}, layer {FEM_LAYERS[there]})")
+            there = _part(dep, package, layers)
+            if dep == package and here not in facade_from:
+                bad.append(f"{mod} -> {package} (the facade: import the module itself)")
+            elif there is not None and there != here and layers[there] >= layers[here]:
+                side = " (one layer's parts never import each other)" if (
+                    layers[there] == layers[here]) else ""
+                bad.append(f"{mod} ({here}, layer {layers[here]}) -> {dep} "
+                           f"({there}, layer {layers[there]}){side}")
     return sorted(bad)
 
 
 def test_fem_parts_import_only_lower_layers(graph):
-    bad = _fem_violations(graph)
+    bad = _part_violations(graph, "tactip_sim.fem", FEM_LAYERS)
     assert not bad, "tactip_sim.fem's layering broken:\n" + "\n".join(bad)
 
 
@@ -199,7 +211,7 @@ def test_the_fem_checker_sees_an_upward_and_a_sideways_import():
          "tactip_sim.fem.contact.lcp": {"tactip_sim.fem.discretisation.space",
                                         "tactip_sim.fem.tolerances"},
          "tactip_sim.fem.linear.window": {"tactip_sim.fem.linear.friction", "tactip_sim.fem"}}
-    bad = _fem_violations(g)
+    bad = _part_violations(g, "tactip_sim.fem", FEM_LAYERS)
     assert len(bad) == 3
     assert any("markers.kinematics (markers, layer 2) -> tactip_sim.fem.linear.model" in b
                for b in bad)
@@ -208,44 +220,8 @@ def test_the_fem_checker_sees_an_upward_and_a_sideways_import():
     assert any("the facade" in b for b in bad)
 
 
-LAB_LAYERS = {"rig": 0, "sampling": 1, "fitting": 2, "protocol": 3, "real": 3,
-              "recognition": 3, "servo": 3, "studies": 3, "cli": 4}
-"""Layer of each part of ``tactip_lab``; the parts on layer 3 are its products."""
-
-PRODUCTS = {k for k, v in LAB_LAYERS.items() if v == 3}
-
-
-def _lab_part(mod: str) -> str | None:
-    parts = mod.split(".")
-    if parts[0] != "tactip_lab" or len(parts) == 1:
-        return None
-    if parts[1] not in LAB_LAYERS:
-        raise AssertionError(f"{mod}: tactip_lab.{parts[1]} has no layer in tests/test_layers.py "
-                             "(add it, and to docs/architecture.md)")
-    return parts[1]
-
-
-def _lab_violations(graph: dict[str, set[str]]) -> list[str]:
-    bad = []
-    for mod, deps in graph.items():
-        here = _lab_part(mod)
-        if here is None:
-            continue
-        for dep in deps:
-            there = _lab_part(dep)
-            if dep == "tactip_lab" and here != "cli":
-                bad.append(f"{mod} -> tactip_lab (the facade: import the module itself)")
-            elif there is None or there == here:
-                continue
-            elif here in PRODUCTS and there in PRODUCTS:
-                bad.append(f"{mod} -> {dep}: products never import each other")
-            elif LAB_LAYERS[there] > LAB_LAYERS[here]:
-                bad.append(f"{mod} (layer {LAB_LAYERS[here]}) -> {dep} (layer {LAB_LAYERS[there]})")
-    return sorted(bad)
-
-
 def test_lab_products_never_import_each_other_and_nothing_runs_up(graph):
-    bad = _lab_violations(graph)
+    bad = _part_violations(graph, "tactip_lab", LAB_LAYERS, facade_from=("cli",))
     assert not bad, "tactip_lab's layering broken:\n" + "\n".join(bad)
 
 
@@ -253,10 +229,11 @@ def test_the_lab_checker_sees_a_product_importing_another():
     g = {"tactip_lab.servo.loop": {"tactip_lab.recognition.store", "tactip_lab.sampling.chain"},
          "tactip_lab.sampling.sweep": {"tactip_lab.fitting.fit"},
          "tactip_lab.fitting.fit": {"tactip_lab.sampling.dataset"}}
-    bad = _lab_violations(g)
+    bad = _part_violations(g, "tactip_lab", LAB_LAYERS, facade_from=("cli",))
     assert len(bad) == 2
-    assert "products never import each other" in bad[1] or "products never" in bad[0]
-    assert any("tactip_lab.sampling.sweep (layer 1)" in b for b in bad)
+    assert any(b.startswith("tactip_lab.servo.loop (servo, layer 3) -> tactip_lab.recognition")
+               and "never import each other" in b for b in bad)
+    assert any(b.startswith("tactip_lab.sampling.sweep (sampling, layer 1)") for b in bad)
 
 
 def test_the_checker_sees_a_cycle_and_an_upward_import(tmp_path, monkeypatch):
