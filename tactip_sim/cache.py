@@ -15,6 +15,10 @@ Guarantees:
   as its own there.
 * **Every entry is written atomically** (temporary file + rename): an interrupted run never
   leaves a torn entry.
+* **An entry is built once when processes race for it** (the test suite's workers, two
+  commands): :func:`build_lock` holds an advisory lock (``flock``, on a ``KEY.npz.lock``
+  file beside the entry, removed when the build is done) while a process looks the entry up
+  and builds it; the others wait, then load what it wrote.
 * **Nothing loaded is trusted blindly.** Each ``.npz`` entry carries the SHA-256 of its arrays;
   :func:`load_npz` checks it, the keys and that the floats are finite. A truncated, edited or
   corrupt entry is reported (:class:`CacheWarning`), removed, and rebuilt by the caller.
@@ -28,7 +32,8 @@ import re
 import tempfile
 import warnings
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -47,8 +52,10 @@ TAG_TEXT = ("Signature: 8a477f597d28d172789f06886806bc55\n"
             "# This file is a cache directory tag created by tactip-sim.\n"
             "# For information about cache directory tags see https://bford.info/cachedir/\n")
 DIGEST_KEY = "_sha256"
-_ENTRY = re.compile(r"^[\w.+-]+\.npz(\w+\.tmp)?$")
-"""Names the tool gives entries: ``KEY.npz`` and, while one is written, ``KEY.npzXXXX.tmp``."""
+LOCK_SUFFIX = ".lock"
+_ENTRY = re.compile(r"^[\w.+-]+\.npz(\w+\.tmp|\.lock)?$")
+"""Names the tool gives entries: ``KEY.npz``; while one is written ``KEY.npzXXXX.tmp``, and
+while one is built ``KEY.npz.lock`` (:func:`build_lock`)."""
 
 
 class CacheWarning(UserWarning):
@@ -151,6 +158,39 @@ def load_npz(path: Path, keys: Sequence[str]) -> dict[str, np.ndarray] | None:
         path.unlink(missing_ok=True)
         return None
     return {k: arrays[k] for k in keys}
+
+
+@contextmanager
+def build_lock(path: Path) -> Iterator[None]:
+    """Hold the build lock of cache entry ``path`` (``path_for(...)``): look the entry up and,
+    if it is missing, build and save it inside ``with build_lock(path):``. A second process
+    entering for the same entry waits until the first leaves, then finds the entry written.
+    The lock is advisory (``fcntl.flock`` on ``KEY.npz.lock``, released when the process
+    ends, even killed) and only saves work: entries are written atomically, so where there is
+    no ``flock`` (not POSIX) or the folder is read-only, this does nothing and a race costs a
+    second build, never a wrong entry. The lock file is removed on leaving."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    lock = path.with_name(path.name + LOCK_SUFFIX)
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o600)
+    except OSError:
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        try:  # remove the file unless a later process already replaced it with its own
+            if os.path.samestat(os.fstat(fd), os.stat(lock)):
+                lock.unlink()
+        except OSError:
+            pass
+        os.close(fd)  # releases the lock
 
 
 def _ours(folder: Path) -> list[Path]:

@@ -85,3 +85,72 @@ def test_a_corrupt_compliance_is_rebuilt_to_the_same_answer(own_cache):
         again = ts.Simulator(scene, element_order=1).press(pose)
     np.testing.assert_array_equal(again.markers_mm, first.markers_mm)
     assert again.force_N == first.force_N > 0
+
+
+# A builder racing another process for one entry: each writes different numbers (seeded by
+# its index), so the two agree only if one built and the other loaded what it wrote.
+_RACER = """
+import sys, time
+from pathlib import Path
+
+import numpy as np
+
+from tactip_sim import cache
+
+go, index = Path(sys.argv[1]), int(sys.argv[2])
+path = cache.path_for("compliance", "race", ".npz")
+Path(f"{go}.ready{index}").touch()
+while not go.exists():
+    time.sleep(0.002)
+with cache.build_lock(path):
+    got = cache.load_npz(path, ["compliance"])
+    if got is None:
+        time.sleep(0.5)  # a build far longer than the two starts' skew
+        got = {"compliance": np.random.default_rng(index).random((4, 4))}
+        cache.save_npz(path, **got)
+        print("built", end=" ")
+print(repr(float(got["compliance"].sum())))
+"""
+
+
+def test_two_processes_racing_for_an_entry_build_it_once(own_cache, tmp_path):
+    """Two processes released at once to look up and build the same missing entry: one
+    builds it, the other waits and loads it (without the lock both find it missing and
+    both build, each its own numbers); the lock file is gone afterwards."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    go = tmp_path / "go"
+    env = {**os.environ, "TACTIP_CACHE_DIR": str(own_cache)}
+    procs = [subprocess.Popen([sys.executable, "-c", _RACER, str(go), str(i)], env=env,
+                              stdout=subprocess.PIPE, text=True) for i in (1, 2)]
+    deadline = time.monotonic() + 60
+    while not all((tmp_path / f"go.ready{i}").exists() for i in (1, 2)):
+        assert time.monotonic() < deadline and all(p.poll() is None for p in procs)
+        time.sleep(0.005)
+    go.touch()
+    outs = [p.communicate(timeout=60)[0].split() for p in procs]
+    assert all(p.returncode == 0 for p in procs)
+    assert sorted(len(o) for o in outs) == [1, 2]  # one "built <sum>", one "<sum>"
+    assert outs[0][-1] == outs[1][-1]
+    assert sorted(p.name for p in cache.entries()) == ["CACHEDIR.TAG", "race.npz"]
+
+
+def test_a_compliance_wanted_twice_at_once_is_built_once(own_cache):
+    """Two reduced models of one body made at the same time (threads: the lock is per open
+    file, so it holds between them as between processes): one builds the compliance, the
+    other waits and loads it, and both hold the same numbers."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from tactip_sim.fem.linear.reduced import ReducedModel
+
+    body = ts.Simulator(ts.load_scene(SCENES / "shadow_fingertip.toml"), element_order=1).body
+    body.markers  # noqa: B018 - built before the race (the models share the body)
+    with ThreadPoolExecutor(2) as pool:
+        models = list(pool.map(lambda _: ReducedModel(body), range(2)))
+    assert sorted(m.from_cache for m in models) == [False, True]
+    np.testing.assert_array_equal(models[0].compliance, models[1].compliance)
+    np.testing.assert_array_equal(models[0].marker_response_t, models[1].marker_response_t)
+    assert not list(own_cache.rglob("*.lock"))

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import logging
 import time
+from contextlib import nullcontext
 
 import numpy as np
 
@@ -83,34 +84,37 @@ class ReducedModel:
         t0 = time.perf_counter()
         c_path = cache.path_for("compliance", body.key, ".npz")
         r_path = cache.path_for("marker_response", body.markers_key, ".npz")
-        comp = resp = mcomp = None
-        if use_cache:
-            comp = (cache.load_npz(c_path, ["compliance"]) or {}).get("compliance")
-            loaded = cache.load_npz(r_path, ["response", "marker_compliance"]) or {}
-            resp, mcomp = loaded.get("response"), loaded.get("marker_compliance")
-            if comp is not None and comp.shape != (len(body.candidate_dofs),) * 2:
-                comp = None  # another discretisation under this key: rebuild
-            if resp is not None and resp.shape[1:] != (len(body.candidate_dofs),):
-                resp = None
-        self.from_cache = comp is not None and resp is not None
-        if comp is None:
-            with clock("precomputing the contact compliance (once per mesh, then cached)"):
-                comp, resp, mcomp = self._compute_all()
+        # one build when processes race for this entry (the suite's workers): the others
+        # wait for it and load what it wrote
+        with cache.build_lock(c_path) if use_cache else nullcontext():
+            comp = resp = mcomp = None
             if use_cache:
-                cache.save_npz(c_path, compliance=comp)
-                cache.save_npz(r_path, response=resp, marker_compliance=mcomp)
-        elif resp is None:
-            resp, mcomp = self._compute_markers()
-            if use_cache:
-                cache.save_npz(r_path, response=resp, marker_compliance=mcomp)
-        self.marker_compliance = mcomp
-        space = body.space
-        # "-v2": the normal (one-sided) bound was added to the file
-        bounds_path = cache.path_for("compliance", body.key + "-bounds-v2", ".npz")
-        self._setup(comp, resp, space.nodes[space.candidates],
-                    int(np.sum(space.candidates < space.n_vertices)),
-                    max(2.0, float(np.sqrt(space.areas.sum() / 128.0))),
-                    bounds_path if use_cache else None)
+                comp = (cache.load_npz(c_path, ["compliance"]) or {}).get("compliance")
+                loaded = cache.load_npz(r_path, ["response", "marker_compliance"]) or {}
+                resp, mcomp = loaded.get("response"), loaded.get("marker_compliance")
+                if comp is not None and comp.shape != (len(body.candidate_dofs),) * 2:
+                    comp = None  # another discretisation under this key: rebuild
+                if resp is not None and resp.shape[1:] != (len(body.candidate_dofs),):
+                    resp = None
+            self.from_cache = comp is not None and resp is not None
+            if comp is None:
+                with clock("precomputing the contact compliance (once per mesh, then cached)"):
+                    comp, resp, mcomp = self._compute_all()
+                if use_cache:
+                    cache.save_npz(c_path, compliance=comp)
+                    cache.save_npz(r_path, response=resp, marker_compliance=mcomp)
+            elif resp is None:
+                resp, mcomp = self._compute_markers()
+                if use_cache:
+                    cache.save_npz(r_path, response=resp, marker_compliance=mcomp)
+            self.marker_compliance = mcomp
+            space = body.space
+            # "-v2": the normal (one-sided) bound was added to the file
+            bounds_path = cache.path_for("compliance", body.key + "-bounds-v2", ".npz")
+            self._setup(comp, resp, space.nodes[space.candidates],
+                        int(np.sum(space.candidates < space.n_vertices)),
+                        max(2.0, float(np.sqrt(space.areas.sum() / 128.0))),
+                        bounds_path if use_cache else None)
         self.seconds = time.perf_counter() - t0
 
     @classmethod
