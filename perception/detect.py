@@ -249,6 +249,14 @@ def detect_markers_detailed(
     PerceptionError
         ``expected_count``, ``expected_diameter_px`` or ``noise_sigma`` out of range.
     """
+    return _detect_frame(image, mask, expected_count, expected_diameter_px, noise_sigma, params)
+
+
+def _detect_frame(image, mask, expected_count: int | None, expected_diameter_px: float | None,
+                  noise_sigma: float | None, params: DetectionParams | None,
+                  enlarged: int = 1) -> MarkerDetection:
+    """:func:`detect_markers_detailed` of a frame ``enlarged`` times the recorded one (the
+    markers' recorded size is what the merged-pair verdict needs)."""
     p = params if params is not None else DetectionParams()
     grey = as_grey(image)
     shape = (grey.shape[0], grey.shape[1])
@@ -258,7 +266,7 @@ def detect_markers_detailed(
     if _is_binary(grey):
         return _detect_binary(grey, shape, region, expected_count, expected_diameter_px, p)
     det = _detect_grey(grey, shape, scale, region, expected_count, expected_diameter_px,
-                       noise_sigma, p)
+                       noise_sigma, p, enlarged)
     if det.reliable and not noise_sigma and _short_of_count(det, expected_count):
         # markers of a few pixels read as grey short of the count (a binarised frame saved
         # as JPEG): its two-level reading is kept if reliable and nearer the count
@@ -273,7 +281,7 @@ def detect_markers_detailed(
         # the frame's noise (a pipeline's grey rest frame); 0 is a binarised rest frame's
         # polarity: dark markers on a bright skin are the bright markers of the negative
         neg = _detect_grey(_negative(grey, scale), shape, scale, region, expected_count,
-                           expected_diameter_px, noise_sigma, p)
+                           expected_diameter_px, noise_sigma, p, enlarged)
         if neg.reliable:
             return replace(neg, reason=f"dark markers (polarity read from the frame): "
                                        f"{neg.reason}")
@@ -282,8 +290,11 @@ def detect_markers_detailed(
             alt = _detect_binary(two, shape, region, expected_count, expected_diameter_px, p)
             if alt.reliable:
                 return alt
-        if (min(shape) <= _UPSAMPLE_MAX_SIDE_PX
-                and not det.marker_diameter_px >= _UPSAMPLE_BELOW_DIAMETER_PX):
+        if min(shape) <= _UPSAMPLE_MAX_SIDE_PX and not (
+                det.marker_diameter_px >= _UPSAMPLE_BELOW_DIAMETER_PX
+                and neg.marker_diameter_px >= _UPSAMPLE_BELOW_DIAMETER_PX):
+            # markers of a few pixels in either polarity (the other one's blobs are the
+            # skin between them)
             up = _upsampled_reading(grey, mask, expected_count, expected_diameter_px, p)
             if up.reliable:
                 return up
@@ -315,10 +326,9 @@ def _upsampled_reading(grey: np.ndarray, mask, expected_count: int | None,
         poly = _region(mask, (h, w))
         big_mask = shapely.affinity.affine_transform(poly, [k, 0, 0, k, 0.5 * (k - 1),
                                                             0.5 * (k - 1)])
-    det = detect_markers_detailed(
-        big, mask=big_mask, expected_count=expected_count,
-        expected_diameter_px=None if expected_diameter_px is None else k * expected_diameter_px,
-        params=p)
+    det = _detect_frame(
+        big, big_mask, expected_count,
+        None if expected_diameter_px is None else k * expected_diameter_px, None, p, k)
 
     def back(xy: np.ndarray) -> np.ndarray:
         return (xy + 0.5) / k - 0.5
@@ -334,8 +344,10 @@ def _upsampled_reading(grey: np.ndarray, mask, expected_count: int | None,
 
 def _detect_grey(grey: np.ndarray, shape: tuple[int, int], scale: float, region,
                  expected_count: int | None, expected_diameter_px: float | None,
-                 noise_sigma: float | None, p: DetectionParams) -> MarkerDetection:
-    """Markers of a grey-level frame: steps 1-7 of the module docstring."""
+                 noise_sigma: float | None, p: DetectionParams, enlarged: int = 1
+                 ) -> MarkerDetection:
+    """Markers of a grey-level frame: steps 1-7 of the module docstring (``enlarged``:
+    the frame is the recorded one enlarged that many times)."""
     # 1-2. background, noise floor ---------------------------------------------------------
     d_known = float(expected_diameter_px) if expected_diameter_px is not None else None
     k_bg = odd(2.0 * d_known + 1.0) if d_known else odd(min(shape) * _DEFAULT_BG_FRACTION)
@@ -459,8 +471,13 @@ def _detect_grey(grey: np.ndarray, shape: tuple[int, int], scale: float, region,
     # 7. reliability -------------------------------------------------------------------------
     acc_area = mom.area[ok]
     d_final = 2.0 * np.sqrt(float(median(acc_area)) / np.pi)
-    reliable, why = _off_array(off, int(ok.sum()), *_reliability(pts[ok], acc_area, d_final,
-                                                                 expected_count, p))
+    reliable, why = _off_array(off, int(ok.sum()), *_reliability(
+        pts[ok], acc_area, d_final, expected_count, p,
+        sizes_resolved=d_final >= _UPSAMPLE_BELOW_DIAMETER_PX * enlarged))
+    if region is None and d_final >= _PAIR_MIN_DIAMETER_PX * enlarged:
+        # a frame read alone (a pipeline's frames: the tracker's merged pairs), its markers
+        # recorded large enough for their area and shape to say two markers
+        reliable, why = _merged_pairs(acc_area, mom.elongation[ok], reliable, why)
     rej = ~ok & finite
     return MarkerDetection(
         points=pts[ok], areas_px=acc_area, peaks=peaks[ok], marker_diameter_px=d_final,
@@ -752,6 +769,41 @@ def _rejoin_lattice(pts: np.ndarray, areas: np.ndarray, code: np.ndarray,
     code[cand[joined]] = 0
 
 
+#: A speck at least this many local spacings from every accepted marker fills a vacant site
+#: of the lattice: on a hexagonal lattice of spacing s no point is farther than s / sqrt(3)
+#: (0.58 s) from a site, so a speck between markers is nearer than this to one of them.
+_VACANCY_SPACINGS = 0.75
+
+
+def _fill_vacancies(pts: np.ndarray, areas: np.ndarray, code: np.ndarray,
+                    cand: np.ndarray) -> None:
+    """Accept again (code 0) the candidates ``cand`` (specks too small for a marker) that
+    lie inside the convex hull of the accepted markers, at least :data:`_VACANCY_SPACINGS`
+    local spacings from each of them, with :data:`_ARRAY_JOIN_NEIGHBOURS` of them within
+    :data:`_ARRAY_JOIN_SPACINGS` local spacings: the vacant sites of the lattice, one
+    speck each (the largest)."""
+    ok = np.flatnonzero(code == 0)
+    if len(ok) < _ARRAY_MIN_MARKERS:
+        return
+    cand = cand[_in_hull_of(pts[ok], pts[cand])]
+    if not len(cand):
+        return
+    tree = cKDTree(pts[ok])
+    nn = tree.query(pts[ok], k=2)[0][:, 1]
+    k = min(_ARRAY_LOCAL_MARKERS, len(ok))
+    d, i = tree.query(pts[cand], k=k)
+    local = np.median(nn[i], axis=1)  # the spacing of the markers around the site
+    vacant = ((d[:, 0] >= _VACANCY_SPACINGS * local)
+              & ((d <= _ARRAY_JOIN_SPACINGS * local[:, None]).sum(axis=1)
+                 >= _ARRAY_JOIN_NEIGHBOURS))
+    taken: list[int] = []
+    for j in np.flatnonzero(vacant)[np.argsort(-areas[cand[vacant]], kind="stable")]:
+        if all(np.hypot(*(pts[cand[j]] - pts[cand[t]])) >= _VACANCY_SPACINGS * local[j]
+               for t in taken):
+            taken.append(int(j))
+    code[cand[taken]] = 0
+
+
 def _regular_outline(p: np.ndarray) -> bool:
     """Whether every vertex of the candidates' convex hull has two others within
     :data:`_ARRAY_JOIN_SPACINGS` spacings, the spacing estimated from the hull's area (a
@@ -805,6 +857,31 @@ def _off_array(off: int, kept: int, reliable: bool, why: str) -> tuple[bool, str
     return reliable, why
 
 
+#: Markers recorded narrower than this (px) are a few pixels each: their blob's area and
+#: elongation depend on where the pixel grid cuts them more than on their shape (the limit
+#: under which small frames are read enlarged, :data:`_UPSAMPLE_BELOW_DIAMETER_PX`), so they
+#: are not examined for two markers read as one.
+_PAIR_MIN_DIAMETER_PX = 3.0
+
+
+def _merged_pairs(areas: np.ndarray, elongation: np.ndarray, reliable: bool, why: str
+                  ) -> tuple[bool, str]:
+    """The verdict once accepted blobs that hold two markers are counted: a blob of
+    :data:`_BINARY_PAIR_RATIO` median areas elongated beyond :data:`_BINARY_PAIR_ELONGATION`
+    (two equal discs side by side) that no waist split is two markers read as one, its
+    centroid half a spacing from either (a deep tap's pin pairs imaged as one blob). The
+    count may still pass its tolerance; the positions do not."""
+    if not reliable or len(areas) < 3:
+        return reliable, why
+    ratio = areas / float(median(areas))
+    pairs = int(np.count_nonzero((ratio > _BINARY_PAIR_RATIO[0]) & (ratio < _BINARY_PAIR_RATIO[1])
+                                 & (elongation > _BINARY_PAIR_ELONGATION)))
+    if pairs:
+        return False, (f"{pairs} blob(s) of about two marker areas, elongated: two markers "
+                       f"read as one, their position half a spacing off ({why})")
+    return reliable, why
+
+
 def _reject_all(shape: tuple[int, int], pts: np.ndarray, finite: np.ndarray, code: np.ndarray,
                 why: str, noise_sigma: float) -> MarkerDetection:
     return _empty(shape, why, noise_sigma, pts[finite],
@@ -812,7 +889,14 @@ def _reject_all(shape: tuple[int, int], pts: np.ndarray, finite: np.ndarray, cod
 
 
 def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
-                 expected_count: int | None, p: DetectionParams) -> tuple[bool, str]:
+                 expected_count: int | None, p: DetectionParams, sizes_resolved: bool = True
+                 ) -> tuple[bool, str]:
+    """The verdict: diameter floor, minimum count, regular sizes, the count against
+    ``expected_count`` (or without it regular spacings). ``sizes_resolved`` False: the
+    markers were recorded under :data:`_UPSAMPLE_BELOW_DIAMETER_PX` across, where a blob's
+    area measures how the pixel grid cuts the marker more than the marker (a 1.5 px disc
+    covers 1-4 pixels by its sub-pixel position), so the array's regularity is read from
+    its spacings alone, with or without ``expected_count``."""
     n = len(points)
     if diameter < p.min_diameter_px:
         return False, (f"markers of {diameter:.2f} px are below min_diameter_px="
@@ -820,7 +904,7 @@ def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
     if n < p.min_markers:
         return False, f"only {n} markers found (min_markers={p.min_markers})"
     med, sd = robust_spread(areas)
-    irregular = sd / med > p.max_size_dispersion
+    irregular = sizes_resolved and sd / med > p.max_size_dispersion
     sizes = (f"blob sizes are irregular (robust CV {sd / med:.2f} > "
              f"max_size_dispersion={p.max_size_dispersion}): not a marker array")
     if expected_count is not None:
@@ -831,7 +915,8 @@ def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
             return False, f"found {n} markers, expected {expected_count} ± {tol}"
         if irregular:
             return False, sizes
-        return True, f"found {n} markers, expected {expected_count} ± {tol}"
+        if sizes_resolved:
+            return True, f"found {n} markers, expected {expected_count} ± {tol}"
     if irregular:
         return False, sizes
     if n >= 3:
@@ -841,6 +926,10 @@ def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
         if cv > p.max_spacing_dispersion:
             return False, (f"marker spacing is irregular (robust CV {cv:.2f} > "
                            f"max_spacing_dispersion={p.max_spacing_dispersion})")
+    if expected_count is not None:
+        return True, (f"found {n} markers, expected {expected_count} ± {tol} (markers under "
+                      f"{_UPSAMPLE_BELOW_DIAMETER_PX:g} px: regular spacings, sizes not "
+                      "resolved)")
     return True, f"found {n} markers of {diameter:.1f} px"
 
 
@@ -917,6 +1006,10 @@ _BINARY_STRUCTURE_RATIO = 10.0
 #: touching markers (two equal discs side by side: area ratio 2, axis ratio about 2).
 _BINARY_PAIR_RATIO = (1.6, 2.6)
 _BINARY_PAIR_ELONGATION = 1.4
+#: The shape of a component of fewer pixels says nothing (two pixels side by side are
+#: "elongated" whatever they image): smaller ones are not shape-filtered, and a pair is
+#: split only if each half would have this many.
+_SHAPED_PIXELS = 4
 #: A grey-level blob of two markers is split only where it narrows, at its cut, to less than
 #: this fraction of a marker diameter: two markers side by side joined by a smear have a waist
 #: (0.45-0.55 of a diameter on the real raw TacTip frames); two caps overlapping by most of
@@ -935,23 +1028,49 @@ def _detect_binary(grey: np.ndarray, shape: tuple[int, int], region, expected_co
     binarised with dark markers on a bright ground). Noise sigma is 0 (two levels); peaks
     are 1."""
     bright = grey == grey.max()
-    det = _binary_components(bright.astype(np.uint8), shape, region, expected_count,
-                             expected_diameter_px, p)
+    det, bright_array = _binary_components(bright.astype(np.uint8), shape, region,
+                                           expected_count, expected_diameter_px, p)
+    if bright_array[0] and not det.reliable and expected_diameter_px is None:
+        # the bright level's specks outnumber its markers: read it again at the size of
+        # its array of large components
+        again, _ = _binary_components(bright.astype(np.uint8), shape, region, expected_count,
+                                      2.0 * np.sqrt(bright_array[1] / np.pi), p)
+        if again.reliable:
+            return again
     if not det.reliable:
-        dark = _binary_components((~bright).astype(np.uint8), shape, region, expected_count,
-                                  expected_diameter_px, p)
+        dark, _ = _binary_components((~bright).astype(np.uint8), shape, region, expected_count,
+                                     expected_diameter_px, p)
+        if dark.reliable and bright_array[0]:
+            return replace(dark, reliable=False, reason=(
+                f"{dark.reason}; but the bright level holds {bright_array[0]} components of "
+                "regular size, much larger: the markers may be those, the dark blobs specks"))
         if dark.reliable:
             return dark
     return det
 
 
+def _array_of_structures(areas: np.ndarray, p: DetectionParams) -> tuple[int, float]:
+    """How many components ``areas`` (those much larger than the reference marker) there
+    are, when they are enough for a marker array (:data:`_ARRAY_MIN_MARKERS`) and of regular
+    size (robust CV within ``max_size_dispersion``): a binarised frame whose specks
+    outnumber its markers takes the specks' area for the marker's, and its markers for
+    structures. 0 when they are not an array (the rim ring and its fragments: few, and of
+    any size). Returns (that number, their median area in px)."""
+    if len(areas) < _ARRAY_MIN_MARKERS:
+        return 0, np.nan
+    med, sd = robust_spread(areas.astype(np.float64))
+    return (len(areas) if sd / med <= p.max_size_dispersion else 0), float(med)
+
+
+
 def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
                        expected_count: int | None, expected_diameter_px: float | None,
-                       p: DetectionParams) -> MarkerDetection:
-    """Markers as the connected components of ``fg`` (uint8, 1 = marker level)."""
+                       p: DetectionParams) -> tuple[MarkerDetection, int]:
+    """Markers as the connected components of ``fg`` (uint8, 1 = marker level), and the
+    number of much larger components of regular size (:func:`_array_of_structures`)."""
     n, labels, stats, cents = cv2.connectedComponentsWithStats(fg, connectivity=8)
     if n <= 1:
-        return _empty(shape, "no bright components in the binarised frame", 0.0)
+        return _empty(shape, "no bright components in the binarised frame", 0.0), (0, np.nan)
     area = stats[1:, cv2.CC_STAT_AREA].astype(np.float64)
     pts = cents[1:].astype(np.float64)  # pixel centres at integer coordinates, as OpenCV's
     ys, xs = np.nonzero(labels)
@@ -968,7 +1087,7 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
     # two touching markers make one component of about twice the area, elongated along the
     # line joining them: split it into its two halves across the major axis
     pair = ((area / ref > _BINARY_PAIR_RATIO[0]) & (area / ref < _BINARY_PAIR_RATIO[1])
-            & (elongation > _BINARY_PAIR_ELONGATION))
+            & (elongation > _BINARY_PAIR_ELONGATION) & (area >= 2 * _SHAPED_PIXELS))
     if pair.any():
         theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # major axis of each component
         side = (dx * np.cos(theta[lab]) + dy * np.sin(theta[lab])) >= 0.0
@@ -990,10 +1109,11 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
     code = np.zeros(m, dtype=np.int8)
     ratio = area / ref
     code[(ratio < p.area_ratio_min) | (ratio > p.area_ratio_max)] = _SIZE
-    shaped = (code == 0) & (area >= 4)  # the shape of 1-3 pixel blobs says nothing
+    shaped = (code == 0) & (area >= _SHAPED_PIXELS)
     code[shaped & ((elongation > p.max_elongation) | (fill < p.min_fill))] = _SHAPE
     is_structure = np.zeros(n, dtype=bool)  # by label (a look-up: faster than np.isin)
     is_structure[1:] = stats[1:, cv2.CC_STAT_AREA] > _BINARY_STRUCTURE_RATIO * ref
+    big_array = _array_of_structures(stats[1:, cv2.CC_STAT_AREA][is_structure[1:]], p)
     structures = is_structure[labels]
     if structures.any():
         dist = cv2.distanceTransform((~structures).astype(np.uint8), cv2.DIST_L2, 3)
@@ -1015,23 +1135,32 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
         # markers a shear pushes against the rim (the lab's shear taps) have two of the
         # array's markers within 1.5 spacings and a marker's size; ring fragments do not
         _rejoin_lattice(pts, area, code, np.flatnonzero(near_ring))
+    tiny = np.flatnonzero((code == _SIZE) & (ratio < p.area_ratio_min))
+    if len(tiny):
+        # a marker imaged as a speck (a shear tilts it away, the threshold keeps a pixel or
+        # two): accepted where it fills a vacant site of the array's lattice
+        _fill_vacancies(pts, area, code, tiny)
     if region is not None:
         ok = np.flatnonzero(code == 0)
         code[ok[~shapely.intersects_xy(region, pts[ok, 0], pts[ok, 1])]] = _OUTSIDE
     ok = code == 0
     if not ok.any():
-        return _reject_all(shape, pts, np.ones(m, bool), code, "every component was rejected",
-                           0.0)
+        return _reject_all(shape, pts, np.ones(m, bool), code,
+                           "every component was rejected", 0.0), big_array
     d_final = 2.0 * np.sqrt(float(median(area[ok])) / np.pi)
     # binarised markers of a few pixels still locate to a fraction of a pixel on average:
     # the diameter floor of grey frames does not apply
     reliable, why = _off_array(off, int(ok.sum()), *_reliability(
         pts[ok], area[ok], max(d_final, p.min_diameter_px), expected_count, p))
+    if reliable and big_array[0]:
+        reliable, why = False, (f"{why}; but the frame also holds {big_array[0]} components of "
+                                f"over {_BINARY_STRUCTURE_RATIO:g} of these blobs' area, of "
+                                "regular size: the markers may be those, the blobs specks")
     return MarkerDetection(
         points=pts[ok], areas_px=area[ok], peaks=np.ones(int(ok.sum())),
         marker_diameter_px=d_final, image_shape=shape, reliable=reliable,
         reason=f"binarised frame: {why}", rejected_points=pts[~ok],
-        rejected_reasons=tuple(_REASONS[c] for c in code[~ok]), noise_sigma=0.0)
+        rejected_reasons=tuple(_REASONS[c] for c in code[~ok]), noise_sigma=0.0), big_array
 
 
 def detect_markers(

@@ -484,7 +484,8 @@ class Score:
         Count within :data:`COUNT_FRACTION` of the true count.
     rms_px : float
         RMS distance of the matched markers to their true (or reference) positions, px;
-        NaN when positions are not known. A true marker is matched to the nearest detection
+        NaN when positions are not known, infinite when no detection lies within half a
+        spacing of any true marker. A true marker is matched to the nearest detection
         within half a spacing (one-to-one).
     correct : bool
         ``count_ok`` and (``rms_px`` <= :data:`RMS_LIMIT_PX` or unknown).
@@ -516,8 +517,8 @@ def score(frame: ZooFrame, det) -> Score:
             if i_ not in seen:
                 seen.add(int(i_))
                 keep.append(d_)
-        if keep:
-            rms = float(np.sqrt(np.mean(np.square(keep))))
+        # no detection within half a spacing of any true marker: the positions are wrong
+        rms = float(np.sqrt(np.mean(np.square(keep)))) if keep else float("inf")
     correct = count_ok and not (rms > RMS_LIMIT_PX)
     return Score(count=n, count_ok=bool(count_ok), rms_px=rms, correct=bool(correct),
                  reliable=bool(det.reliable))
@@ -534,7 +535,7 @@ def rates(rows: list[dict]) -> dict:
     for fam in [*fams, "ALL"]:
         sel = [r for r in rows if fam == "ALL" or r["family"] == fam]
         n = len(sel)
-        pos = [r for r in sel if np.isfinite(r["rms_px"])]
+        pos = [r for r in sel if not np.isnan(r["rms_px"])]
         out[fam] = dict(
             frames=n,
             within=np.mean([r["count_ok"] for r in sel]),
