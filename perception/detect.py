@@ -1151,7 +1151,8 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
     # binarised markers of a few pixels still locate to a fraction of a pixel on average:
     # the diameter floor of grey frames does not apply
     reliable, why = _off_array(off, int(ok.sum()), *_reliability(
-        pts[ok], area[ok], max(d_final, p.min_diameter_px), expected_count, p))
+        pts[ok], area[ok], max(d_final, p.min_diameter_px), expected_count, p,
+        sizes_resolved=d_final >= _UPSAMPLE_BELOW_DIAMETER_PX))
     if reliable and big_array[0]:
         reliable, why = False, (f"{why}; but the frame also holds {big_array[0]} components of "
                                 f"over {_BINARY_STRUCTURE_RATIO:g} of these blobs' area, of "
