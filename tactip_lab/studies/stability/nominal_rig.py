@@ -48,10 +48,13 @@ class _Obs:
 
 class Rig:
     """The nominal tip's chain (:class:`tactip_lab.sampling.chain.Chain`, the bundled mesh), built
-    once for the whole study, with its ground-truth marker identities."""
+    once for the whole study, with its ground-truth marker identities. A pose pressed again
+    (the depth map's roll and pitch panels share the column roll 0 at the box's centre pitch)
+    is solved once: the chain's press cache (a press is deterministic)."""
 
     def __init__(self, scene: ts.Scene, frames: int) -> None:
-        self.chain = Chain.for_tip(scene, scene.protocol.tips[0], nominal=True, frames=frames)
+        self.chain = Chain.for_tip(scene, scene.protocol.tips[0], nominal=True, frames=frames,
+                                   press_cache={})
         self.scene = self.chain.scene
         self.pad = self.chain.pad
         self.renderer = self.chain.renderer
