@@ -781,19 +781,26 @@ def _fill_vacancies(pts: np.ndarray, areas: np.ndarray, code: np.ndarray,
     lie inside the convex hull of the accepted markers, at least :data:`_VACANCY_SPACINGS`
     local spacings from each of them, with :data:`_ARRAY_JOIN_NEIGHBOURS` of them within
     :data:`_ARRAY_JOIN_SPACINGS` local spacings: the vacant sites of the lattice, one
-    speck each (the largest)."""
+    speck each (the largest). The local spacing is the median nearest-neighbour distance
+    of the :data:`_ARRAY_LOCAL_MARKERS` accepted markers nearest the speck (a press
+    compresses the lattice in places)."""
     ok = np.flatnonzero(code == 0)
     if len(ok) < _ARRAY_MIN_MARKERS:
         return
     cand = cand[_in_hull_of(pts[ok], pts[cand])]
     if not len(cand):
         return
-    tree = cKDTree(pts[ok])
-    nn = tree.query(pts[ok], k=2)[0][:, 1]
-    k = min(_ARRAY_LOCAL_MARKERS, len(ok))
-    d, i = tree.query(pts[cand], k=k)
-    local = np.median(nn[i], axis=1)  # the spacing of the markers around the site
-    vacant = ((d[:, 0] >= _VACANCY_SPACINGS * local)
+    acc = pts[ok]
+    d = cdist(pts[cand], acc)  # (a few specks: no tree)
+    k = _ARRAY_LOCAL_MARKERS
+    near = np.argpartition(d, k, axis=1)[:, :k]  # each speck's nearest markers
+    around = np.unique(near)
+    d_around = cdist(acc[around], acc)
+    d_around[np.arange(len(around)), around] = np.inf  # (not itself)
+    nn = np.full(len(acc), np.nan)
+    nn[around] = d_around.min(axis=1)
+    local = np.median(nn[near], axis=1)
+    vacant = ((d.min(axis=1) >= _VACANCY_SPACINGS * local)
               & ((d <= _ARRAY_JOIN_SPACINGS * local[:, None]).sum(axis=1)
                  >= _ARRAY_JOIN_NEIGHBOURS))
     taken: list[int] = []
@@ -895,8 +902,9 @@ def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
     ``expected_count`` (or without it regular spacings). ``sizes_resolved`` False: the
     markers were recorded under :data:`_UPSAMPLE_BELOW_DIAMETER_PX` across, where a blob's
     area measures how the pixel grid cuts the marker more than the marker (a 1.5 px disc
-    covers 1-4 pixels by its sub-pixel position), so the array's regularity is read from
-    its spacings alone, with or without ``expected_count``."""
+    covers 1-4 pixels by its sub-pixel position): irregular sizes then say nothing, and
+    the array's regularity is read from its spacings instead (with or without
+    ``expected_count``)."""
     n = len(points)
     if diameter < p.min_diameter_px:
         return False, (f"markers of {diameter:.2f} px are below min_diameter_px="
@@ -904,7 +912,7 @@ def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
     if n < p.min_markers:
         return False, f"only {n} markers found (min_markers={p.min_markers})"
     med, sd = robust_spread(areas)
-    irregular = sizes_resolved and sd / med > p.max_size_dispersion
+    irregular = sd / med > p.max_size_dispersion
     sizes = (f"blob sizes are irregular (robust CV {sd / med:.2f} > "
              f"max_size_dispersion={p.max_size_dispersion}): not a marker array")
     if expected_count is not None:
@@ -913,11 +921,9 @@ def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
         tol = max(1, int(np.floor(p.count_tolerance * expected_count)))
         if abs(n - expected_count) > tol:
             return False, f"found {n} markers, expected {expected_count} ± {tol}"
-        if irregular:
-            return False, sizes
-        if sizes_resolved:
+        if not irregular:
             return True, f"found {n} markers, expected {expected_count} ± {tol}"
-    if irregular:
+    if irregular and sizes_resolved:
         return False, sizes
     if n >= 3:
         dist, _ = cKDTree(points).query(points, k=2)
@@ -926,10 +932,11 @@ def _reliability(points: np.ndarray, areas: np.ndarray, diameter: float,
         if cv > p.max_spacing_dispersion:
             return False, (f"marker spacing is irregular (robust CV {cv:.2f} > "
                            f"max_spacing_dispersion={p.max_spacing_dispersion})")
-    if expected_count is not None:
-        return True, (f"found {n} markers, expected {expected_count} ± {tol} (markers under "
-                      f"{_UPSAMPLE_BELOW_DIAMETER_PX:g} px: regular spacings, sizes not "
-                      "resolved)")
+    if irregular:
+        return True, (f"found {n} markers" + ("" if expected_count is None else
+                                              f", expected {expected_count} ± {tol}")
+                      + f" (markers under {_UPSAMPLE_BELOW_DIAMETER_PX:g} px: sizes irregular "
+                        "as the pixel grid cuts them, spacings regular)")
     return True, f"found {n} markers of {diameter:.1f} px"
 
 

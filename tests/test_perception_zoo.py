@@ -99,6 +99,8 @@ def test_score_counts_and_positions():
     assert s.correct
     s = zoo.score(frame, fake(truth[:59] + 0.1))  # 2 of 61 missing: 3.3 % > 2 %
     assert not s.count_ok and not s.correct and s.rms_px == pytest.approx(np.sqrt(0.02))
+    s = zoo.score(frame, fake(truth + (5.0, 0.0)))  # the right count, none within 5 px
+    assert s.count_ok and s.rms_px == np.inf and not s.correct
 
 
 # ------------------------------------------------------------------------- the detector ---
@@ -213,3 +215,112 @@ def test_a_reliable_verdict_on_the_quick_zoo_is_right():
     assert not wrong
     # and most frames are read: the verdict is not bought by refusing everything
     assert np.mean([r["reliable"] for r in rows]) > 0.75
+
+
+# --------------------------------------------------- the verdict's consistency checks ---
+
+def test_two_markers_read_as_one_blob_are_not_called_reliable():
+    """Two markers of a 12 px lattice 8 px apart (overlapping: one blob of 1.8 marker areas,
+    elongated, no waist to cut) in a frame read alone: the grey reading calls the frame
+    unreliable (a centroid halfway between two markers, 4 px from each), and whatever
+    reading is kept, a reliable one finds both (a detection within 1 px of each: a blob cut
+    across its axis puts each half's centroid up to a pixel off its disc's centre, the
+    overlap being shared) and places the frame's markers within 0.5 px RMS."""
+    lattice = pc.hex_lattice(91, 30.0, (320.0, 240.0))
+    a = lattice[45]
+    centres = np.vstack([np.delete(lattice, 45, axis=0), a - (4.0, 0.0), a + (4.0, 0.0)])
+    frame = render_markers(centres, diameter_px=12.0, noise_sigma=0.01,
+                           rng=np.random.default_rng(7), sensor_radius_px=200)
+    from perception.blobs import pixel_noise_sigma
+
+    grey = pc.detect_markers_detailed(frame.image, expected_count=len(centres),
+                                      noise_sigma=pixel_noise_sigma(frame.image))
+    assert not grey.reliable and "two markers read as one" in grey.reason
+    assert len(grey.points) == len(centres) - 1  # the count alone would have passed
+    det = pc.detect_markers_detailed(frame.image, expected_count=len(centres))
+    if det.reliable:
+        assert cKDTree(det.points).query(centres[-2:])[0].max() < 1.0, det.reason
+        s = zoo.score(zoo.ZooFrame("f", "v", "s", frame.image, len(centres), centres, True),
+                      det)
+        assert s.correct, (s.count, s.rms_px)
+
+
+def _disc_frame(centres, d, shape):
+    img = np.zeros(shape, np.uint8)
+    for x, y in centres:  # integer centres: each rasterised disc's centroid is its centre
+        cv2.circle(img, (int(x), int(y)), int(d // 2), 255, -1, cv2.LINE_8)
+    return img
+
+
+def test_specks_as_many_as_the_markers_are_not_taken_for_them():
+    """A binarised frame of 61 discs 21 px across and 64 one-pixel specks between them (a
+    threshold's noise): the specks are the median component and their number is within
+    the count tolerance (5 %) of the expected 61, but the frame's array is the discs:
+    read at their size, all 61 centres exactly."""
+    centres = np.rint(pc.hex_lattice(61, 40.0, (200.0, 200.0)))
+    img = _disc_frame(centres, 21, (400, 400))
+    rng = np.random.default_rng(3)
+    specks = []
+    while len(specks) < 64:
+        p = rng.uniform(40, 360, 2).astype(int)
+        if cKDTree(centres).query(p)[0] > 14 and img[p[1], p[0]] == 0:
+            img[p[1], p[0]] = 255
+            specks.append(p)
+    det = pc.detect_markers_detailed(img, expected_count=61,
+                                     params=pc.DetectionParams(count_tolerance=0.05))
+    assert det.reliable and det.count == 61, det.reason
+    np.testing.assert_allclose(np.sort(cKDTree(det.points).query(centres)[0]), 0.0,
+                               atol=1e-9)
+
+
+def test_a_speck_at_a_vacant_lattice_site_is_a_marker_one_between_markers_is_not():
+    """A binarised 127-marker array (5 px discs, 12 px apart): three markers imaged as a
+    single pixel at their sites count; three single pixels at the centres of lattice
+    triangles (0.58 spacings from three markers: no site) do not."""
+    centres = np.rint(pc.hex_lattice(127, 12.0, (100.0, 100.0)))
+    vacant = [40, 60, 80]
+    img = _disc_frame(np.delete(centres, vacant, axis=0), 5, (200, 200))
+    for i in vacant:
+        img[int(centres[i, 1]), int(centres[i, 0])] = 255
+    # triangle centres: three mutually nearest markers of the array's interior
+    tree = cKDTree(centres)
+    between = []
+    for i in (30, 50, 90):
+        _, nb = tree.query(centres[i], k=7)
+        j = nb[1]
+        k = [m for m in nb[2:] if np.hypot(*(centres[m] - centres[j])) < 13.0][0]
+        between.append(np.rint((centres[i] + centres[j] + centres[k]) / 3.0))
+    for x, y in between:
+        img[int(y), int(x)] = 255
+    det = pc.detect_markers_detailed(img, expected_count=127,
+                                     params=pc.DetectionParams(count_tolerance=0.02))
+    assert det.count == 127 and det.reliable, det.reason
+    assert cKDTree(det.points).query(centres)[0].max() < 1e-9
+    assert cKDTree(det.points).query(np.array(between))[0].min() > 3.0
+
+
+@pytest.mark.parametrize("n_pins", [331, 127])
+def test_markers_of_one_and_a_half_pixels_are_counted_and_placed(n_pins):
+    """A 96 px frame of 1.5 px markers 3.5 px apart (a 331-pin field at 96 px): their blob
+    sizes are the pixel grid's (1-4 pixels by their sub-pixel position), so the verdict
+    reads the array from its spacings; the count within 2 % and positions within 0.5 px
+    RMS of the exact centres."""
+    src = zoo.sim_frame(n_pins, 1.5, (96, 96), seed=11)
+    det = pc.detect_markers_detailed(src.image, expected_count=n_pins,
+                                     params=pc.DetectionParams(count_tolerance=0.02))
+    assert det.reliable, det.reason
+    frame = zoo.ZooFrame("f", "v", "s", src.image, n_pins, src.points, True)
+    s = zoo.score(frame, det)
+    assert s.correct, (s.count, s.rms_px)
+
+
+def test_tiny_blobs_off_any_lattice_are_not_an_array():
+    """331 markers of 1.5 px at uniformly random places of a 96 px field (no lattice): the
+    verdict, which cannot use their sizes, does not call them an array."""
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(20, 76, (331, 2))
+    frame = render_markers(pts, shape=(96, 96), diameter_px=1.5, marker_level=0.75,
+                           skin_level=0.08, exterior_level=0.85, sensor_centre=(47.5, 47.5),
+                           sensor_radius_px=44, noise_sigma=0.02, rng=rng)
+    det = pc.detect_markers_detailed(frame.image, expected_count=331)
+    assert not det.reliable, det.reason
