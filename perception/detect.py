@@ -777,32 +777,28 @@ _VACANCY_SPACINGS = 0.75
 
 def _fill_vacancies(pts: np.ndarray, areas: np.ndarray, code: np.ndarray,
                     cand: np.ndarray) -> None:
-    """Accept again (code 0) the candidates ``cand`` (specks too small for a marker) that
-    lie inside the convex hull of the accepted markers, at least :data:`_VACANCY_SPACINGS`
-    local spacings from each of them, with :data:`_ARRAY_JOIN_NEIGHBOURS` of them within
-    :data:`_ARRAY_JOIN_SPACINGS` local spacings: the vacant sites of the lattice, one
-    speck each (the largest). The local spacing is the median nearest-neighbour distance
-    of the :data:`_ARRAY_LOCAL_MARKERS` accepted markers nearest the speck (a press
-    compresses the lattice in places)."""
+    """Accept again (code 0) the candidates ``cand`` (specks too small for a marker) at
+    vacant sites of the array's core: at least :data:`_VACANCY_SPACINGS` local spacings
+    from every accepted marker, with :data:`_ARRAY_CORE_NEIGHBOURS` of them within
+    :data:`_ARRAY_NEIGHBOUR_SPACINGS` local spacings (a site inside the lattice has six;
+    one beyond the outer ring, two or three), one speck per site (the largest). The local
+    spacing is the median nearest-neighbour distance of the three accepted markers nearest
+    the speck (a press compresses the lattice in places)."""
     ok = np.flatnonzero(code == 0)
     if len(ok) < _ARRAY_MIN_MARKERS:
         return
-    cand = cand[_in_hull_of(pts[ok], pts[cand])]
-    if not len(cand):
-        return
     acc = pts[ok]
     d = cdist(pts[cand], acc)  # (a few specks: no tree)
-    k = _ARRAY_LOCAL_MARKERS
-    near = np.argpartition(d, k, axis=1)[:, :k]  # each speck's nearest markers
+    near = np.argpartition(d, 3, axis=1)[:, :3]  # each speck's three nearest markers
     around = np.unique(near)
     d_around = cdist(acc[around], acc)
     d_around[np.arange(len(around)), around] = np.inf  # (not itself)
-    nn = np.full(len(acc), np.nan)
+    nn = np.zeros(len(acc))
     nn[around] = d_around.min(axis=1)
-    local = np.median(nn[near], axis=1)
+    local = np.sort(nn[near], axis=1)[:, 1]  # the median of three
     vacant = ((d.min(axis=1) >= _VACANCY_SPACINGS * local)
-              & ((d <= _ARRAY_JOIN_SPACINGS * local[:, None]).sum(axis=1)
-                 >= _ARRAY_JOIN_NEIGHBOURS))
+              & ((d <= _ARRAY_NEIGHBOUR_SPACINGS * local[:, None]).sum(axis=1)
+                 >= _ARRAY_CORE_NEIGHBOURS))
     taken: list[int] = []
     for j in np.flatnonzero(vacant)[np.argsort(-areas[cand[vacant]], kind="stable")]:
         if all(np.hypot(*(pts[cand[j]] - pts[cand[t]])) >= _VACANCY_SPACINGS * local[j]
