@@ -439,7 +439,8 @@ def test_sim2real_clears_the_real_data_files_of_an_earlier_run(tmp_path, counter
              "real_raw_features.npz"]
     for name in stale + ["summary.json", "table.md"]:
         (out / name).write_text("from the earlier run\n")
-    rc, err = tactip("sim2real", SCENE, "--out", out, "--n", "10", "--no-progress")
+    rc, err = tactip("sim2real", SCENE, "--model", "cop", "--out", out, "--n", "10",
+                     "--no-progress")
     assert len(calls) == 1, err
     assert not any((out / n).exists() for n in stale)
     assert not (out / "table.md").exists()  # the old table scored the old real data

@@ -120,7 +120,8 @@ def test_sim2real_command_smoke(tmp_path):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "tactip_sim.commands", "sim2real",
            str(SCENES / "tactip_331_identified.toml"), "--out", str(out), "--n", "10",
-           "--k", "5", "--order", "1", "--real", str(sub), "--no-progress"]
+           "--k", "5", "--order", "1", "--model", "cop", "--real", str(sub),
+           "--no-progress"]
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
     summary = json.loads((out / "summary.json").read_text())
@@ -173,8 +174,9 @@ def test_sim2real_full_run_meets_the_issue_targets(tmp_path):
         pytest.skip("../shared/real is absent")
     out = tmp_path / "out"
     subprocess.run([sys.executable, "-m", "tactip_sim.commands", "sim2real",
-                    str(SCENES / "tactip_331_identified.toml"), "--out", str(out), "--real",
-                    str(real), "--no-progress"], cwd=ROOT, check=True, capture_output=True)
+                    str(SCENES / "tactip_331_identified.toml"), "--model", "cop", "--out",
+                    str(out), "--real", str(real), "--no-progress"], cwd=ROOT, check=True,
+                   capture_output=True)
     s = json.loads((out / "summary.json").read_text())["real_128"]["scores"]
     g = s["growth/2"]
     assert g["zero_shot"]["r2_roll"] >= 0.8 and g["zero_shot"]["r2_pitch"] >= 0.8

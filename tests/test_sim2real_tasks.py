@@ -358,3 +358,116 @@ def test_sim2real_edge_command_end_to_end(tmp_path):
     assert t["pose_6"]["unit"] == "deg" and t["pose_6"]["wrapped"]
     assert t["pose_2"]["mae"] == pytest.approx(z["pose_2"]["mae"], rel=1e-9)
     assert t["pose_6"]["mae"] == pytest.approx(z["pose_6"]["mae"], rel=1e-9)
+
+
+# --- the surface field model (issue 52) -------------------------------------------------------
+
+def test_median_gamma_is_one_over_the_median_squared_distance():
+    from tactip_lab.fitting.field_model import median_gamma
+
+    # three points on a line at 0, 1 and 3: squared distances 1, 9 and 4, median 4
+    assert median_gamma(np.array([[0.0], [1.0], [3.0]])) == pytest.approx(0.25)
+    # a square of side 2: four sides (4) and two diagonals (8): median 4
+    sq = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 2.0], [2.0, 2.0]])
+    assert median_gamma(sq) == pytest.approx(0.25)
+    with pytest.raises(ValueError, match="all equal"):
+        median_gamma(np.ones((5, 3)))
+
+
+def test_marker_median_reference_averages_the_tilts_of_the_shallowest_presses():
+    """A folder without a rest frame: its reference image is a tilted press. The reference
+    becomes the marker-wise median of the round(sqrt(N)) shallowest presses, whose shifts
+    (+a, 0, -a, ...) cancel; a folder with a rest frame keeps it."""
+    from tactip_lab.fitting.field_model import marker_median_reference
+
+    rest = _lattice(9)
+    depth = np.array([2.0, 2.1, 2.2, 2.3] + [4.0] * 12)  # 16 presses: the 4 shallowest
+    shifts = [(1.0, 0.0), (-1.0, 0.0), (0.0, 0.5), (0.0, -0.5)] + [(5.0, 5.0)] * 12
+    pts = np.stack([rest + s for s in shifts])
+    pts[1, 3] = np.nan  # a marker lost in one of them: the median of the others
+    pts[:4, 7] = np.nan  # a marker no shallow press tracks: keeps the image's position
+    tilted = rest + (1.0, 0.0)  # the shallowest press, the folder's reference image
+    presses = SimpleNamespace(depth_mm=depth, rest_choice="least deformed: the shallowest press")
+    got = marker_median_reference(presses, tilted, pts)
+    keep = np.ones(len(rest), bool)
+    keep[[3, 7]] = False
+    np.testing.assert_allclose(got[keep], rest[keep], atol=1e-12)
+    np.testing.assert_allclose(got[7], tilted[7])
+    # marker 3, lost in the second press: the median of the other three's shifts, x (+1, 0, 0)
+    # and y (0, +0.5, -0.5), is none
+    np.testing.assert_allclose(got[3], rest[3], atol=1e-12)
+    with_rest = SimpleNamespace(depth_mm=depth, rest_choice="the folder's images/rest.png")
+    np.testing.assert_array_equal(marker_median_reference(with_rest, tilted, pts), tilted)
+
+
+def test_few_shot_draw_skips_taps_without_a_prediction():
+    from tactip_lab.real.task_run import few_shot
+
+    rng = np.random.default_rng(5)
+    y = rng.uniform(-15, 15, (40, 2))
+    pred = 0.5 * y + 1.0
+    pred[::4] = np.nan  # 10 taps perception could not read
+    rows, fixed, corr = few_shot(pred, y, ["pose_4", "pose_5"], 20, 0)
+    assert corr["pose_4"]["gain"] == pytest.approx(2.0) and corr["pose_4"]["offset"] == (
+        pytest.approx(-2.0))
+    assert len(rows) == 20  # the 40 less the 20 of the draw, unreadable ones scored as missing
+    ok = np.all(np.isfinite(fixed), axis=1)
+    np.testing.assert_allclose(fixed[ok], y[rows][ok], atol=1e-9)
+    with pytest.raises(ValueError, match="--k=30"):
+        few_shot(pred, y, ["pose_4", "pose_5"], 30, 0)
+
+
+def test_surface_taps_are_simulated_over_the_depths_the_label_may_mean():
+    from tactip_lab.real.tasks import (
+        COLUMNS,
+        PROTOCOLS,
+        SURFACE_CONTACT_MM,
+        draw_poses,
+        simulated_ranges,
+    )
+
+    rows = draw_poses("surface", 2000, 1)
+    d = rows[:, COLUMNS[1:].index("pose_3")]
+    lo, hi = SURFACE_CONTACT_MM["surface"]
+    # from the lowest label less the work frame's 2 mm (rounded up) to the highest label
+    assert lo == pytest.approx(PROTOCOLS["surface"]["pose_3"][0] - 1.5)
+    assert hi == PROTOCOLS["surface"]["pose_3"][1]
+    assert d.min() >= lo and d.max() <= hi and d.min() < lo + 0.05 and d.max() > hi - 0.05
+    assert simulated_ranges("edge") == PROTOCOLS["edge"]  # the edge keeps the lab's labels
+    with pytest.raises(ValueError, match="not known"):
+        simulated_ranges("table")
+
+
+def test_a_simulated_folder_resumes_only_under_its_own_protocol(tmp_path):
+    from tactip_lab.real.tasks import _claim_protocol
+
+    out = tmp_path / "sim"
+    (out / "images").mkdir(parents=True)
+    proto = {"task": "surface", "n": 30, "seed": 0, "ranges": {"pose_3": [0.5, 5.0]}}
+    _claim_protocol(out, proto)
+    (out / "images" / "image_00001.png").write_bytes(b"frame")
+    _claim_protocol(out, dict(proto))  # the same protocol resumes
+    for change in ({"n": 40}, {"seed": 1}, {"ranges": {"pose_3": [2.0, 5.0]}}):
+        with pytest.raises(ValueError, match="another protocol.*" + next(iter(change))):
+            _claim_protocol(out, {**proto, **change})
+    assert (out / "images" / "image_00001.png").read_bytes() == b"frame"  # nothing removed
+    old = tmp_path / "old"
+    (old / "images").mkdir(parents=True)
+    (old / "images" / "image_00001.png").write_bytes(b"frame")
+    with pytest.raises(ValueError, match="no protocol.json"):
+        _claim_protocol(old, proto)
+
+
+def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path, capsys):
+    from tactip_sim.commands import main
+
+    from .conftest import ROOT
+
+    scene = str(ROOT / "scenes" / "tactip_331_identified.toml")
+    for argv, msg in ((["--axes", "xy"], "--axes is for the surface taps' CoP models"),
+                      (["--order", "1"], "--order is for the surface taps' CoP models"),
+                      (["--task", "edge", "--model", "cop"], "--model cop is the surface")):
+        out = tmp_path / f"o{len(argv)}{argv[-1]}"
+        assert main(["sim2real", scene, "--out", str(out), "--no-progress", *argv]) != 0
+        assert msg in capsys.readouterr().err
+        assert not any(out.glob("*")) if out.exists() else True

@@ -169,6 +169,27 @@ def target_scores(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> dict[s
     return out
 
 
+MEDIAN_SAMPLE = 2000
+"""Frames (a seeded draw) over which :func:`median_gamma` takes its median distance."""
+
+
+def median_gamma(x: np.ndarray, seed: int = 0) -> float:
+    """The RBF kernel's ``gamma`` by the median heuristic: one over the median squared distance
+    between training rows (``x``, after standardisation and PCA). The kernel then varies over
+    the spread of the training set itself: at the former fixed ``1 / (2 k)`` (k components)
+    a kernel of 40 standardised components was ~1e-5 between typical neighbours, so the model
+    fell back to its mean away from the training frames."""
+    from scipy.spatial.distance import pdist
+
+    x = np.asarray(x, dtype=float)
+    if len(x) > MEDIAN_SAMPLE:
+        x = x[np.random.default_rng(seed).choice(len(x), MEDIAN_SAMPLE, replace=False)]
+    d = float(np.median(pdist(x, "sqeuclidean")))
+    if not np.isfinite(d) or d <= 0:
+        raise ValueError("the training frames' features are all equal: no kernel width")
+    return 1.0 / d
+
+
 @dataclass
 class FieldModel:
     """Standardise -> PCA -> kernel ridge (RBF) on :func:`field_features`, one output per
@@ -213,7 +234,7 @@ class FieldModel:
         k = int(min(self.n_components, len(x) - 1, x.shape[1]))
         self._pca = PCA(n_components=k, svd_solver="full").fit(xs)
         xp = self._pca.transform(xs)
-        gamma = self.gamma if self.gamma is not None else 1.0 / (2.0 * k)
+        gamma = self.gamma if self.gamma is not None else median_gamma(xp)
         self.gamma = float(gamma)
         self._krr = KernelRidge(kernel="rbf", alpha=self.alpha, gamma=gamma).fit(
             xp, encode(y, self.targets))
@@ -343,7 +364,36 @@ def folder_points(folder: Any, *, expected_count: int | None = None, progress: b
             continue
         pts[i] = f.points
         reliable[i] = bool(f.reliable)
-    return rest, pts, reliable
+    return marker_median_reference(folder, rest, pts), pts, reliable
+
+
+def marker_median_reference(folder: Any, rest: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """The reference positions of a folder's markers (m, 2).
+
+    A folder with a frame without contact (its ``images/rest.png``, ``--rest``, a row of depth
+    <= 0) keeps that frame's markers. Otherwise its reference image is a press: the shallowest
+    one, or the pixel-wise median of the shallowest few (:func:`~tactip_lab.fitting.bristol.
+    _choose_rest`), and a single tilted press moves every displacement. The reference is then
+    the marker-by-marker median of the tracked positions in the ``round(sqrt(N))`` shallowest
+    presses (the same count as the pixel-wise rule, without its depth-span limit, which leaves
+    a folder of 50 taps one press), so their tilts average out; a marker no such press tracks
+    keeps the image's position."""
+    depth = np.asarray(folder.depth_mm, dtype=float)
+    choice = str(folder.rest_choice)
+    if not choice.startswith("least deformed") or not np.all(np.isfinite(depth)):
+        return rest
+    k = max(1, int(round(np.sqrt(len(depth)))))
+    if k < 2:
+        return rest
+    import warnings
+
+    shallow = np.argsort(depth, kind="stable")[:k]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN markers: kept below
+        med = np.nanmedian(pts[shallow], axis=0)
+    lost = ~np.all(np.isfinite(med), axis=1)
+    med[lost] = rest[lost]
+    return med
 
 
 def fields_of(rest: np.ndarray, pts: np.ndarray, rotation_deg: float = 0.0) -> np.ndarray:
@@ -392,4 +442,4 @@ def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str]
 __all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "TARGETS",
            "FieldModel", "augment", "decode", "encode", "field_features", "fields_of",
            "folder_fields", "folder_points", "grid_nodes", "is_field_model", "load_field_model",
-           "rotate", "target_scores", "task_targets"]
+           "marker_median_reference", "median_gamma", "rotate", "target_scores", "task_targets"]

@@ -25,6 +25,20 @@ def _clear_earlier_real_files(out: Path, args: argparse.Namespace) -> None:
             (out / name).unlink(missing_ok=True)
 
 
+def _clear_earlier_task_scores(out: Path) -> None:
+    """A field-model run scores each real folder into ``real_<name>.npz`` / ``.png`` and
+    ``summary.json`` / ``table.md``: those of an earlier run into the same folder are removed
+    first, so no earlier real data's scores stay beside the new models (the tracked points
+    ``real_<name>_points.npz`` stay: a cache, checked by its tag)."""
+    if not out.is_dir():
+        return
+    for p in [*out.glob("real_*.npz"), *out.glob("real_*.png")]:
+        if not p.name.endswith("_points.npz"):
+            p.unlink(missing_ok=True)
+    for name in ("summary.json", "table.md"):
+        (out / name).unlink(missing_ok=True)
+
+
 def _choose_by_taps(scene, image, free, args):
     """:func:`~tactip_lab.real.identify.tilt_candidates`, each scored by the zero-shot error of
     its simulated model on ``--k`` labelled taps of ``--taps``
@@ -140,24 +154,37 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-TASK_N = {"surface": 300, "edge": 400, "surface+shear": 200, "edge+shear": 200}
-"""Default simulated taps per task (``--n``)."""
+TASK_N = {"surface": 1000, "edge": 400, "surface+shear": 200, "edge+shear": 200}
+"""Default simulated taps per task (``--n``) of the field models."""
+COP_N = 300
+"""Default simulated taps of ``--task surface --model cop``."""
+
+
+def _depth_range(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--depth-range {text!r} must be LOW,HIGH in mm") from None
+    return lo, hi
 
 
 def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
-    """``--task edge`` or ``--shear``: field models (tactip_lab.real.task_run)."""
+    """Field models (tactip_lab.real.task_run): every task's default."""
     from tactip_lab.real.task_run import TaskConfig, run_task
 
-    for opt, given in (("--depth-range", args.depth_range != "2,5"),
-                       ("--feature", args.feature != "growth"), ("--order", args.order != 2),
+    depth = None
+    if args.depth_range is not None:
+        depth = _depth_range(args.depth_range)
+    for opt, given in (("--feature", args.feature != "growth"), ("--order", args.order != 2),
                        ("--reference", args.reference != "rest"),
-                       ("--tap-depth", args.tap_depth != "contact")):
+                       ("--tap-depth", args.tap_depth != "contact"),
+                       ("--axes", args.axes != "-x-y"), ("--workers", args.workers != 1)):
         if given:
-            raise ValueError(f"{opt} is for the surface taps' CoP models; --task {args.task}"
-                             f"{' --shear' if args.shear else ''} fits a field model on the "
-                             "lab's protocol (docs/sim2real.md)")
+            raise ValueError(f"{opt} is for the surface taps' CoP models (--model cop); --task "
+                             f"{args.task}{' --shear' if args.shear else ''} --model field fits "
+                             "a field model on the lab's protocol (docs/sim2real.md)")
     cfg = TaskConfig(task=task, n=args.n or TASK_N[task], seed=args.seed, k=args.k,
-                     shear_steps=args.shear_steps)
+                     shear_steps=args.shear_steps, depth_range_mm=depth)
     cfg.check()
     for d in [*(args.real or []), *(args.real_raw or [])]:
         if not Path(d).is_dir():
@@ -165,6 +192,7 @@ def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
     if args.fidelity is None:
         args.fidelity = "fast"
     scene = load_scene_args(args)
+    _clear_earlier_task_scores(Path(args.out))
     s = run_task(scene, args.out, cfg, real=args.real or [], real_raw=args.real_raw or [],
                  progress=not args.no_progress, scene_source=args.scene)
     out = Path(args.out)
@@ -188,8 +216,12 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
     from tactip_lab.real.sim2real import Sim2RealConfig, run
 
     task = args.task + ("+shear" if args.shear else "")
-    if task != "surface":
+    if args.model == "field":
         return _cmd_sim2real_task(args, task)
+    if task != "surface":
+        raise ValueError(f"--model cop is the surface taps' CoP polynomial (the paper's "
+                         f"protocol); --task {args.task}{' --shear' if args.shear else ''} has "
+                         "field models only (--model field)")
     for opt, v in (("--real", args.real), ("--real-raw", args.real_raw)):
         if v and len(v) > 1:
             raise ValueError(f"{opt} given {len(v)} times: the surface taps' run scores one "
@@ -197,11 +229,8 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
     args.real = args.real[0] if args.real else None
     args.real_raw = args.real_raw[0] if args.real_raw else None
     if args.n is None:
-        args.n = TASK_N["surface"]
-    try:
-        lo, hi = (float(v) for v in args.depth_range.split(","))
-    except ValueError:
-        raise ValueError(f"--depth-range {args.depth_range!r} must be LOW,HIGH in mm") from None
+        args.n = COP_N
+    lo, hi = _depth_range(args.depth_range or "2,5")
     cfg = Sim2RealConfig(n=args.n, depth_range_mm=(lo, hi), seed=args.seed,
                          feature=args.feature, order=args.order, k=args.k, axes=args.axes,
                          reference=args.reference, tap_depth=args.tap_depth)
@@ -269,26 +298,27 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser(
         "sim2real", help="fit pose regressors on simulated taps only (surface, edge, with "
-        "or without shear) and score them on real ones", description="--task edge or --shear: "
-        "simulate N taps of the lab's protocol (tactip_lab/real/tasks.py; docs/sim2real.md), "
-        "fit a field model (marker displacement field -> pose_2/pose_6, or pose_4/pose_5) on "
-        "each format, save OUT/model.json (128x128) and OUT/model_raw.json (raw), and with "
-        "--real score them zero-shot, few-shot, against simulation's own cross-validation, "
-        "real-trained and a naive pixel baseline. --task surface (default): simulate N taps "
-        "of a flat plate (roll, pitch uniform in the "
-        "scene's protocol ranges, depth uniform in --depth-range), convert them to the "
-        "processed 128x128 binarised format, fit every CoP feature and order, save "
-        "OUT/model.json (128x128) and OUT/model_raw.json (raw frames) for --feature/--order; "
-        "with --real, score all of them on real labelled taps zero-shot and few-shot (k taps "
-        "fit an affine correction). Resumable (the simulated taps are kept in OUT/sim). "
-        "Without --fidelity the scene's 'fast' preset is used.")
+        "or without shear) and score them on real ones", description="Simulate N taps of "
+        "the lab's protocol for --task (tactip_lab/real/tasks.py; docs/sim2real.md), fit a "
+        "field model (the marker displacement field -> pose_4/pose_5 for the surface, "
+        "pose_2/pose_6 for the edge) on each format, save OUT/model.json (128x128 processed "
+        "frames) and OUT/model_raw.json (raw), and with --real/--real-raw score them "
+        "zero-shot, few-shot, against simulation's own cross-validation, real-trained and a "
+        "naive pixel baseline. --model cop (surface only): the paper's CoP polynomials on "
+        "N flat-plate taps (depth in --depth-range), every feature and order scored. "
+        "Resumable (the simulated taps are kept in OUT/sim). Without --fidelity the scene's "
+        "'fast' preset is used.")
     add_scene_argument(p)
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--task", default="surface", choices=("surface", "edge"),
-                   help="the lab's task: 'surface' (default: flat-plate taps, roll/pitch CoP "
-                   "models, as before) or 'edge' (a straight edge: lateral position pose_2 mm, "
-                   "angle pose_6 deg over the full circle, depth pose_3; field models "
-                   "predicting pose_2 and pose_6)")
+                   help="the lab's task: 'surface' (default: flat-plate taps, roll pose_4 and "
+                   "pitch pose_5) or 'edge' (a straight edge: lateral position pose_2 mm, "
+                   "angle pose_6 deg over the full circle)")
+    p.add_argument("--model", default="field", choices=("field", "cop"),
+                   help="'field' (default): a kernel model of the marker displacement field, "
+                   "every task; 'cop': the surface taps' CoP polynomials (the paper's "
+                   "feature; --feature, --order, --depth-range, --axes, --reference, "
+                   "--tap-depth, --workers apply to it only)")
     p.add_argument("--shear", action="store_true",
                    help="the lab's shear protocol: each tap reaches its pose by a tangential "
                    "move and twist made in contact (move_1, move_2 mm, move_4..6 deg, "
@@ -303,9 +333,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="real labelled taps, raw frames in the Bristol layout (scored with "
                    "model_raw.json)")
     p.add_argument("--n", type=int, default=None,
-                   help="simulated taps (default 300 surface, 400 edge, 200 with --shear)")
-    p.add_argument("--depth-range", default="2,5", metavar="LOW,HIGH",
-                   help="tap depths, mm (default 2,5: the real data set's)")
+                   help="simulated taps (default 1000 surface, 400 edge, 200 with --shear; "
+                   f"{COP_N} with --model cop)")
+    p.add_argument("--depth-range", default=None, metavar="LOW,HIGH",
+                   help="simulated depths of the surface taps, mm: with --model field the "
+                   "indentation beyond first contact (default 0.5,5; 0.5,5.5 with --shear: "
+                   "every depth the lab's 2..5 mm label may mean, tactip_lab/real/tasks.py "
+                   "SURFACE_CONTACT_MM); with --model cop the labelled depth (default 2,5)")
     p.add_argument("--feature", default="growth", help="CoP feature of the saved models "
                    "(growth, area, hull; default growth)")
     p.add_argument("--order", type=int, default=2, help="polynomial order of the saved models "

@@ -1,5 +1,5 @@
-"""``tactip sim2real --task edge | --shear``: field models fitted on simulated taps of the lab's
-tasks (:mod:`tactip_lab.real.tasks`), scored on real labelled folders.
+"""``tactip sim2real`` (``--model field``, the default): field models fitted on simulated taps of
+the lab's tasks (:mod:`tactip_lab.real.tasks`), scored on real labelled folders.
 
 Per real folder (``--real DIR``, repeatable), the figures of docs/sim2real.md:
 
@@ -40,6 +40,9 @@ from tactip_lab.sampling.dataset import atomic_write_text
 
 from .tasks import EDGE_CONVENTION, convert_128, label_turn, simulate_task
 
+POINTS_VERSION = 2
+"""Version of the cached tracked points (2: the marker-wise median reference of a folder
+without a rest frame, :func:`~tactip_lab.fitting.field_model.marker_median_reference`)."""
 FOLDS = 5
 NAIVE_COMPONENTS = 50
 NAIVE_ALPHA = 1.0
@@ -52,15 +55,21 @@ class TaskConfig:
     seed: int = 0
     k: int = 20
     shear_steps: int = 4
+    depth_range_mm: tuple[float, float] | None = None  # surface tasks: simulated indentation
 
     def check(self) -> None:
-        if self.task not in ("edge", "edge+shear", "surface+shear"):
-            raise ValueError(f"task {self.task!r}: the field-model tasks are edge, edge with "
-                             "--shear and surface with --shear")
+        if self.task not in ("surface", "edge", "edge+shear", "surface+shear"):
+            raise ValueError(f"task {self.task!r}: the field-model tasks are surface and edge, "
+                             "with or without --shear")
         if not 20 <= self.n <= 100_000:
             raise ValueError(f"--n={self.n} is out of range: allowed [20, 100000]")
         if not 3 <= self.k <= 1000:
             raise ValueError(f"--k={self.k} is out of range: allowed [3, 1000]")
+        if self.depth_range_mm is not None:
+            lo, hi = self.depth_range_mm
+            if not (self.task.startswith("surface") and 0.0 < lo < hi <= 10.0):
+                raise ValueError(f"--depth-range={lo:g},{hi:g} is out of range: the surface "
+                                 "tasks' simulated indentation, 0 < LOW < HIGH <= 10 mm")
         if not 1 <= self.shear_steps <= 100:
             raise ValueError(f"--shear-steps={self.shear_steps} is out of range: [1, 100]")
 
@@ -110,7 +119,7 @@ def cached_points(folder: Path, cache: Path, *, key: str = "", expected_count: i
     from tactip_lab.fitting.bristol import BristolFolder
 
     f = BristolFolder.open(folder)
-    tag = f"{f.rest_choice}|{len(f)}|{key}"
+    tag = f"{f.rest_choice}|{len(f)}|{key}|{POINTS_VERSION}"
     if cache.is_file():
         z = np.load(cache, allow_pickle=False)
         if str(z["tag"]) == tag:
@@ -138,7 +147,12 @@ def few_shot(pred: np.ndarray, y: np.ndarray, targets: list[str], k: int, seed: 
     """The few-shot correction from ``k`` seeded rows; returns (rows scored, corrected
     predictions of them, the correction)."""
     idx = np.random.default_rng([seed, k]).permutation(len(pred))
-    shot, rest = idx[:k], idx[k:]
+    usable = np.all(np.isfinite(pred[idx]), axis=1) & np.all(np.isfinite(y[idx]), axis=1)
+    if usable.sum() <= k:
+        raise ValueError(f"--k={k}: only {int(usable.sum())} real taps have a prediction; the "
+                         "few-shot correction needs more than k")
+    shot = idx[usable][:k]  # the draw skips taps perception could not read
+    rest = np.setdiff1d(idx, shot, assume_unique=True)
     out = pred[rest].copy()
     corr: dict[str, Any] = {}
     for j, t in enumerate(targets):
@@ -228,7 +242,8 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
         check_task_columns(Path(d) / "targets.csv", folder_columns(Path(d)), targets, cfg.task)
     t0 = time.perf_counter()
     sim = simulate_task(scene, out / "sim", cfg.task, cfg.n, seed=cfg.seed,
-                        shear_steps=cfg.shear_steps, progress=progress)
+                        shear_steps=cfg.shear_steps, depth_mm=cfg.depth_range_mm,
+                        progress=progress)
     t_sim = time.perf_counter() - t0
     sim128 = convert_128(sim, out / "sim128", count)
     cols = folder_columns(sim)

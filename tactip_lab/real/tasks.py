@@ -61,6 +61,18 @@ PROTOCOLS: dict[str, dict[str, Any]] = {
 }
 """The lab's pose ranges per task (``poses_rng`` of its collection scripts; the surface taps'
 2..5 mm is the shared data set's range)."""
+SURFACE_CONTACT_MM = {"surface": (0.5, 5.0), "surface+shear": (0.5, 5.5)}
+"""Simulated indentation (mm beyond first contact) of the surface tasks, uniform per tap and
+written as the simulated folder's ``pose_3``, in place of the lab's label range. What the
+label measures is not settled: the lab's ``work_frame`` puts the tool 2 mm above its stated
+table height (``meta.json`` z 54 mm; the surface script repeats the edge's "52.0mm"), which
+would make a 2..5 mm label a 0..3 mm indentation; the real frames' field also grows with a
+tilt where the simulated one shrinks (docs/sim2real.md, "What the depth label measures").
+The range spans both readings, from the label as indentation (2..5 mm; 2.5..5.5 with shear)
+down to 0.5 mm (the lowest label less the 2 mm offset, rounded up: shallower presses show
+no angle), so the angle models are fitted on every depth the real taps may have and do not
+read the depth to find the angle. Chosen from the published offset and the label ranges, not
+from a score; docs/sim2real.md measures the other choices (the randomisation study)."""
 SHEAR_MOVES = {"move_1": (-5.0, 5.0), "move_2": (-5.0, 5.0), "move_4": (-5.0, 5.0),
                "move_5": (-5.0, 5.0), "move_6": (-5.0, 5.0)}
 """The lab's ``moves_rng`` for shear (mm, deg); ``move_3`` is 0."""
@@ -173,14 +185,33 @@ def edge_contact_depth(sim: Any, indenter: Any, inside_mm: float, yaw_deg: float
     return float(tip_depth_mm - (sim.tip_mm[2] - pl.contact_point_mm[2]))
 
 
-def draw_poses(task: str, n: int, seed: int) -> np.ndarray:
-    """(n, 12) uniform draws of ``pose_1..6, move_1..6`` in the lab's ranges (seeded)."""
+def simulated_ranges(task: str, depth_mm: tuple[float, float] | None = None
+                     ) -> dict[str, tuple[float, float]]:
+    """The pose ranges a simulated folder of ``task`` draws from: the lab's
+    (:data:`PROTOCOLS`), the surface tasks' depth replaced by ``depth_mm`` (default
+    :data:`SURFACE_CONTACT_MM`; the edge's depth follows its own offset, so ``depth_mm`` is
+    for the surface tasks only)."""
+    if task not in PROTOCOLS:
+        raise ValueError(f"task {task!r} is not known: {', '.join(PROTOCOLS)}")
+    out = dict(PROTOCOLS[task])
+    if task in SURFACE_CONTACT_MM:
+        out["pose_3"] = tuple(depth_mm) if depth_mm is not None else SURFACE_CONTACT_MM[task]
+    elif depth_mm is not None:
+        raise ValueError(f"--depth-range is for the surface tasks; the {task} task's depth "
+                         "is the lab's label less its work-frame offset (EDGE_DEPTH_OFFSET_MM)")
+    return out
+
+
+def draw_poses(task: str, n: int, seed: int, depth_mm: tuple[float, float] | None = None
+               ) -> np.ndarray:
+    """(n, 12) uniform draws of ``pose_1..6, move_1..6`` in :func:`simulated_ranges` (seeded;
+    a surface task's ``pose_3`` is the simulated indentation)."""
     if task not in PROTOCOLS:
         raise ValueError(f"task {task!r} is not known: {', '.join(PROTOCOLS)}")
     rng = np.random.default_rng([seed, 53, len(task)])
     out = np.zeros((n, 12))
     names = COLUMNS[1:]
-    for k, (lo, hi) in PROTOCOLS[task].items():
+    for k, (lo, hi) in simulated_ranges(task, depth_mm).items():
         out[:, names.index(k)] = rng.uniform(lo, hi, n)
     if task.endswith("+shear"):
         for k, (lo, hi) in SHEAR_MOVES.items():
@@ -260,9 +291,37 @@ def tap_poses(pose: ts.Pose, steps: int) -> list[ts.Pose]:
     return [replace(pose, depth_mm=pose.depth_mm * j / steps) for j in range(1, steps + 1)]
 
 
+def _claim_protocol(out: Path, protocol: dict[str, Any]) -> None:
+    """Record what defines a simulated folder's frames (``protocol.json``), or check that a
+    folder being resumed was made by the same protocol: its frames are kept and its labels
+    drawn again from the seed, so any difference would pair old frames with new labels."""
+    from tactip_lab.sampling.dataset import atomic_write_text
+
+    path = out / "protocol.json"
+    mine = json.loads(json.dumps(protocol))  # the JSON form (tuples as lists)
+    if path.is_file():
+        try:
+            theirs = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{path}: unreadable ({exc}); simulate into a new --out") from None
+        differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+        if differ:
+            raise ValueError(
+                f"{out}: its frames were simulated with another protocol (differs in "
+                f"{', '.join(differ)}: {', '.join(f'{k} {theirs.get(k)!r} there' for k in differ)}"
+                "); resuming would pair them with new labels. Simulate into a new --out")
+        return
+    if any((out / "images").glob("image_*.png")):
+        raise ValueError(f"{out}: holds simulated frames but no protocol.json (made by an "
+                         "earlier version): their labels cannot be checked. Simulate into a "
+                         "new --out")
+    atomic_write_text(path, json.dumps(mine, indent=2) + "\n")
+
+
 def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 0,
                   convention: EdgeConvention = EDGE_CONVENTION, axes: str = "-x-y",
                   shear_steps: int = 4, tap_steps: int = 2, friction: float = FRICTION_ASSUMED,
+                  depth_mm: tuple[float, float] | None = None,
                   progress: bool = True) -> Path:
     """``n`` simulated taps of ``task`` rendered (raw format) into ``out`` as a Bristol folder
     (``targets.csv`` in the lab's columns, ``images/image_NNNNN.png``, ``images/rest.png``,
@@ -274,10 +333,16 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
 
     from tactip_lab.sampling.chain import Chain
     from tactip_lab.sampling.dataset import atomic_write_text
+    from tactip_sim.scene.load import scene_hash
 
     out = Path(out)
     (out / "images").mkdir(parents=True, exist_ok=True)
-    rows = draw_poses(task, n, seed)
+    _claim_protocol(out, {
+        "task": task, "n": n, "seed": seed, "scene_hash": scene_hash(scene),
+        "ranges": {k: list(v) for k, v in simulated_ranges(task, depth_mm).items()},
+        "convention": dict(convention.__dict__), "axes": axes, "shear_steps": shear_steps,
+        "tap_steps": tap_steps, "friction": friction})
+    rows = draw_poses(task, n, seed, depth_mm)
     offsets = np.random.default_rng([seed, 53, 2]).uniform(*EDGE_DEPTH_OFFSET_MM, n)
     chain = Chain(scene, frames=1)
     if not (out / "images" / "rest.png").is_file():
@@ -379,6 +444,7 @@ def convert_128(sim: Path, dest: Path, expected_count: int, field_128: dict | No
 
 
 __all__ = ["BLOCK_MM", "COLUMNS", "EDGE_CONVENTION", "EDGE_DEPTH_OFFSET_MM", "FRICTION_ASSUMED",
-           "PROTOCOLS", "SHEAR_MOVES", "EdgeConvention", "block_indenter", "convert_128",
-           "draw_poses", "edge_contact_depth", "edge_pose", "label_turn", "shear_path",
-           "sim_pose", "simulate_task", "tap_poses", "IMAGE_YAW_SIGN"]
+           "IMAGE_YAW_SIGN", "PROTOCOLS", "SHEAR_MOVES", "SURFACE_CONTACT_MM", "EdgeConvention",
+           "block_indenter", "convert_128", "draw_poses", "edge_contact_depth", "edge_pose",
+           "label_turn", "shear_path", "sim_pose", "simulate_task", "simulated_ranges",
+           "tap_poses"]
