@@ -140,7 +140,8 @@ def test_converged_path_obeys_equilibrium_and_coulomb(sim):
 
 def test_friction_makes_the_pose_depend_on_the_path(sim):
     """Turning 8° in contact (mu = 0.5) leaves the markers measurably elsewhere than a vertical
-    tap to the same pose; at mu = 0 the two paths agree to solver precision."""
+    tap to the same pose. (At mu = 0 a turn in contact and a tap both end at the press, to
+    solver precision: test_frictionless_path_is_the_press.)"""
     body = sim.body
     placer = placer_of(sim, ts.Plate())
     end, start = ts.Pose(8, -4, 1.0), ts.Pose(0, 0, 1.0)
@@ -150,7 +151,6 @@ def test_friction_makes_the_pose_depend_on_the_path(sim):
                                markers=body.markers)
         return body.markers.from_field(res[-1].u, finite=True)[0]
 
-    assert np.abs(markers(0.0, None) - markers(0.0, start)).max() < 1e-7
     assert np.abs(markers(0.5, None) - markers(0.5, start)).max() > 0.01
 
 
