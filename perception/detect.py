@@ -34,19 +34,30 @@ The method, with no per-image tuning (every threshold is a ratio to something me
 8. **Reliability**: the count against ``expected_count``, or without it the minimum count and
    the regularity of sizes and spacings (a marker array is regular, noise is not); and in
    both cases, a frame whose marker-like blobs lie mostly off the array is not an array.
+   Markers recorded under 3 px across have blob sizes set by how the pixel grid cuts them:
+   irregular sizes are then no verdict, regular spacings are asked instead. A frame read
+   alone (no ``mask``) whose markers are recorded 3 px or more across is unreliable when
+   an accepted blob holds about two marker areas and is elongated (two markers read as
+   one: the count may pass, a position is half a spacing off).
 
 **Binarised frames** (two grey levels, e.g. the Bristol data sets' 128x128 processed frames with
 markers of 4-9 px, or thresholded full-resolution frames) carry no intensity to weigh or noise
 to measure: :func:`_detect_binary` takes the connected components of the bright level, their
 pixel centroids, the reference area from their median, the same area and shape filters, and
 rejects components close to much larger bright structures (the rim ring and its fragments).
+In a frame read alone, a speck too small for a marker is accepted at a vacant site of the
+array's core (no marker within 0.75 local spacings, four within 1.5: a marker a shear tilts
+away, imaged as a pixel or two). When the much larger components are themselves an array
+(at least 19, of regular size), the specks were taken for the markers: the frame is read
+again at the size of those components, and a specks' reading is not called reliable.
 A binarised frame whose dark level alone gives a reliable array has dark markers. A grey frame
 whose grey-level detection is unreliable is read again as its negative (dark markers on a
 bright skin: the polarity read from the frame), then cut at its Otsu level, and the first
 reliable reading is kept; a small frame (shorter side <= 400 px) whose markers read under
-3 px is then read enlarged three times (bilinear) and mapped back. A grey reading of markers
-under 4 px that is reliable but more than 1 % short of ``expected_count`` (a binarised frame
-saved as JPEG) gives way to the Otsu reading if that one is reliable and nearer the count.
+3 px in either polarity is then read enlarged three times (bilinear) and mapped back. A
+grey reading of markers under 4 px that is reliable but more than 1 % short of
+``expected_count`` (a binarised frame saved as JPEG) gives way to the Otsu reading if that
+one is reliable and nearer the count.
 The Otsu reading is kept if it is reliable (a binarised frame saved as JPEG, blurred or resampled),
 unless the caller gave a noise sigma above 0: then the frame's noise is known, and so is the
 floor no marker rose above (a :class:`~perception.FeaturePipeline` whose rest frame was read
@@ -1138,10 +1149,12 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
         # markers a shear pushes against the rim (the lab's shear taps) have two of the
         # array's markers within 1.5 spacings and a marker's size; ring fragments do not
         _rejoin_lattice(pts, area, code, np.flatnonzero(near_ring))
-    tiny = np.flatnonzero((code == _SIZE) & (ratio < p.area_ratio_min))
+    tiny = (np.flatnonzero((code == _SIZE) & (ratio < p.area_ratio_min)) if region is None
+            else ())
     if len(tiny):
         # a marker imaged as a speck (a shear tilts it away, the threshold keeps a pixel or
-        # two): accepted where it fills a vacant site of the array's lattice
+        # two): accepted where it fills a vacant site of the array's lattice, in a frame read
+        # alone (a pipeline's frames: the tracker keeps a lost marker's track)
         _fill_vacancies(pts, area, code, tiny)
     if region is not None:
         ok = np.flatnonzero(code == 0)
