@@ -810,12 +810,17 @@ def _fill_vacancies(pts: np.ndarray, areas: np.ndarray, code: np.ndarray,
     vacant = ((d.min(axis=1) >= _VACANCY_SPACINGS * local)
               & ((d <= _ARRAY_NEIGHBOUR_SPACINGS * local[:, None]).sum(axis=1)
                  >= _ARRAY_CORE_NEIGHBOURS))
-    taken: list[int] = []
-    for j in np.flatnonzero(vacant)[np.argsort(-areas[cand[vacant]], kind="stable")]:
-        if all(np.hypot(*(pts[cand[j]] - pts[cand[t]])) >= _VACANCY_SPACINGS * local[j]
-               for t in taken):
-            taken.append(int(j))
-    code[cand[taken]] = 0
+    order = np.flatnonzero(vacant)[np.argsort(-areas[cand[vacant]], kind="stable")]
+    if not len(order):
+        return
+    # one speck per site, the largest first: a speck nearer than that to a taken one is out
+    apart = cdist(pts[cand[order]], pts[cand[order]]) >= (_VACANCY_SPACINGS
+                                                         * local[order])[None, :]
+    take = np.ones(len(order), dtype=bool)
+    for a in range(len(order)):
+        if take[a]:
+            take[a + 1:] &= apart[a, a + 1:]
+    code[cand[order[take]]] = 0
 
 
 def _regular_outline(p: np.ndarray) -> bool:
