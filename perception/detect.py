@@ -45,11 +45,12 @@ markers of 4-9 px, or thresholded full-resolution frames) carry no intensity to 
 to measure: :func:`_detect_binary` takes the connected components of the bright level, their
 pixel centroids, the reference area from their median, the same area and shape filters, and
 rejects components close to much larger bright structures (the rim ring and its fragments).
-In a frame read alone, a speck too small for a marker is accepted at a vacant site of the
-array's core (no marker within 0.75 local spacings, four within 1.5: a marker a shear tilts
-away, imaged as a pixel or two). When the much larger components are themselves an array
-(at least 19, of regular size), the specks were taken for the markers: the frame is read
-again at the size of those components, and a specks' reading is not called reliable.
+In a frame read alone (short of ``expected_count`` when one is given), a speck too small
+for a marker is accepted at a vacant site of the array's core (no marker within 0.75 local
+spacings, four within 1.5: a marker a shear tilts away, imaged as a pixel or two). When the
+much larger components are themselves an array (at least 19, of regular size), the specks
+were taken for the markers: the frame is read again at the size of those components, and a
+specks' reading is not called reliable.
 A binarised frame whose dark level alone gives a reliable array has dark markers. A grey frame
 whose grey-level detection is unreliable is read again as its negative (dark markers on a
 bright skin: the polarity read from the frame), then cut at its Otsu level, and the first
@@ -1154,12 +1155,14 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
         # markers a shear pushes against the rim (the lab's shear taps) have two of the
         # array's markers within 1.5 spacings and a marker's size; ring fragments do not
         _rejoin_lattice(pts, area, code, np.flatnonzero(near_ring))
-    tiny = (np.flatnonzero((code == _SIZE) & (ratio < p.area_ratio_min)) if region is None
-            else ())
+    tiny = (np.flatnonzero((code == _SIZE) & (ratio < p.area_ratio_min))
+            if region is None and (expected_count is None
+                                   or np.count_nonzero(code == 0) < expected_count) else ())
     if len(tiny):
         # a marker imaged as a speck (a shear tilts it away, the threshold keeps a pixel or
         # two): accepted where it fills a vacant site of the array's lattice, in a frame read
-        # alone (a pipeline's frames: the tracker keeps a lost marker's track)
+        # alone (a pipeline's frames: the tracker keeps a lost marker's track) that does not
+        # already hold the expected count
         _fill_vacancies(pts, area, code, tiny)
     if region is not None:
         ok = np.flatnonzero(code == 0)
