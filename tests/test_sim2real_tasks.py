@@ -471,3 +471,48 @@ def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path
         assert main(["sim2real", scene, "--out", str(out), "--no-progress", *argv]) != 0
         assert msg in capsys.readouterr().err
         assert not any(out.glob("*")) if out.exists() else True
+
+
+def test_sim2real_surface_field_command_end_to_end(tmp_path):
+    """``tactip sim2real --task surface`` (the field model, the default) on 20 simulated taps,
+    scored on 30 real 128x128 taps: the contract's files, and ``tactip evaluate``'s
+    ``targets`` giving the run's own zero-shot figures (a second computation through the
+    command)."""
+    import shutil
+
+    from tactip_sim.commands import main
+
+    from .conftest import ROOT
+
+    real = ROOT.parent / "shared" / "real" / "tactip331_tap128"
+    if not real.is_dir():
+        pytest.skip("../shared/real is absent")
+    sub = tmp_path / "real"
+    (sub / "images").mkdir(parents=True)
+    lines = (real / "targets.csv").read_text().splitlines()
+    keep = [lines[0]] + lines[1:301:10]
+    for ln in keep[1:]:
+        name = ln.split(",")[1]
+        shutil.copyfile(real / "images" / name, sub / "images" / name)
+    (sub / "targets.csv").write_text("\n".join(keep) + "\n")
+    out = tmp_path / "run"
+    scene = ROOT / "scenes" / "tactip_331_identified.toml"
+    assert main(["sim2real", str(scene), "--n", "20", "--k", "5", "--out", str(out),
+                 "--real", str(sub), "--no-progress"]) == 0
+    for name in ("model.json", "model_raw.json", "summary.json", "table.md", "real_real.png"):
+        assert (out / name).is_file(), name
+    s = json.loads((out / "summary.json").read_text())
+    assert s["task"] == "surface" and s["targets"] == ["pose_4", "pose_5"]
+    d = np.loadtxt(out / "sim" / "targets.csv", delimiter=",", skiprows=1, usecols=3)
+    assert d.min() >= 0.5 and d.max() <= 5.0  # the simulated indentation's range
+    z = s["real"][str(sub)]["zero_shot"]
+    ev = tmp_path / "ev.json"
+    assert main(["evaluate", str(out / "model.json"), str(sub), "--json", str(ev),
+                 "--no-progress"]) == 0
+    t = json.loads(ev.read_text())["targets"]
+    assert set(t) == {"pose_4", "pose_5"} and t["pose_4"]["unit"] == "deg"
+    assert t["pose_4"]["mae"] == pytest.approx(z["pose_4"]["mae"], rel=1e-9)
+    assert t["pose_5"]["r2"] == pytest.approx(z["pose_5"]["r2"], rel=1e-9)
+    # the raw model is refused on the 128x128 folder, naming both formats
+    assert main(["evaluate", str(out / "model_raw.json"), str(sub), "--json",
+                 str(tmp_path / "ev2.json"), "--no-progress"]) != 0
