@@ -1,10 +1,18 @@
-"""Issue 54 (docs/robustness.md): a Ctrl-C while Dr.Jit's binary extension loads.
+"""Issue 54 (docs/robustness.md): a Ctrl-C from Dr.Jit's first import to the process's end.
 
 Runs ``tactip render`` (spp 1) with ``-X importtime`` and sends SIGINT OFFSET s after
-Dr.Jit's first submodule (``drjit.detail``) has finished importing, i.e. while its extension
-initialises; prints how each run ended (one line and 130 is the guarantee).
+Dr.Jit's first submodule (``drjit.detail``) has finished importing: while its extension
+initialises (~0-0.12 s here), Mitsuba loads and renders, and after the command has written its
+files and Python shuts down. Prints how each run ended (one line and 130 is the guarantee)
+and where the signal landed: ``[after the output]`` when the command had already printed its
+``wrote ...`` line (its work was done), ``[process gone]`` when it had already exited or was
+exiting (nothing left to interrupt: the kernel takes ~35 ms to tear down the process after its
+``exit_group``, measured with strace, and a signal then is not acted on).
 
-    python benchmarks/ctrl_c_drjit_import.py [OFFSET ...]      (default 0, 0.02 ... 0.28)
+    python benchmarks/ctrl_c_drjit_import.py [OFFSET ...]   (default 0, 0.05 ... 0.8)
+
+An OFFSET written ``wT`` (``w0``, ``w0.01``) sends SIGINT T s after the command's output line
+instead: the moment from the command's end to the process's end.
 
 ``TACTIP_TREE=/path/to/another/checkout`` runs that checkout's code instead (e.g. a worktree
 of an older commit, to compare). The render reads the cache: run it once first so the mesh
@@ -18,6 +26,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections import Counter
 from pathlib import Path
@@ -25,49 +34,75 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def one_run(offset: float, work: Path) -> str:
-    env = dict(os.environ)
+def exiting(pid: int) -> bool:
+    """Whether process ``pid`` has ended or is ending (the kernel's PF_EXITING flag, set when
+    it calls exit, field 9 of /proc/PID/stat)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return True
+    return bool(int(stat.rsplit(")", 1)[1].split()[6]) & 0x4)
+
+
+def one_run(offset: float, work: Path, n: int, after_output: bool = False) -> str:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # the output line as it is printed
     tree = os.environ.get("TACTIP_TREE")
     if tree:
         env["PYTHONPATH"] = tree
     argv = [sys.executable, "-X", "importtime", "-m", "tactip_sim.commands", "render",
-            str(ROOT / "scenes" / "shadow_fingertip.toml"), "-o", str(work / "f.png"),
+            str(ROOT / "scenes" / "shadow_fingertip.toml"), "-o", str(work / f"f{n}.png"),
             "--spp", "1"]
-    if not tree:
-        argv.append("--overwrite")
-    proc = subprocess.Popen(argv, cwd=work, env=env, stdout=subprocess.DEVNULL,
+    proc = subprocess.Popen(argv, cwd=work, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    said, sent = [], False
+    wrote = threading.Event()
+
+    def read_stdout() -> None:
+        for line in proc.stdout:
+            if line.startswith("wrote"):
+                wrote.set()
+
+    reader = threading.Thread(target=read_stdout, daemon=True)
+    reader.start()
+    said, sent, where = [], False, ""
     for line in proc.stderr:
         if not line.startswith("import time:"):
             said.append(line)
         elif line.rstrip().endswith("drjit.detail") and not sent:
+            if after_output:
+                wrote.wait(120)
             time.sleep(offset)
+            gone = proc.poll() is not None or exiting(proc.pid)
+            where = (" [process gone]" if gone else
+                     " [after the output]" if wrote.is_set() else "")
             proc.send_signal(signal.SIGINT)
             sent = True
     proc.wait()
+    reader.join(10)
     err = "".join(said)
     lines = [x for x in said if x.strip()]
     if not sent:
         return "never reached Dr.Jit"
     if "NameError" in err:
-        return "NameError traceback"
+        return "NameError traceback" + where
     if "Traceback" in err:
-        return "traceback"
-    if proc.returncode == 130 and len(lines) == 1:
-        return "one line, 130"
-    return f"exit {proc.returncode}: {lines[-1:]}"
+        return "traceback" + where
+    if proc.returncode == 130 and len(lines) == 1 and "interrupted" in lines[0]:
+        return "one line, 130" + where
+    return f"exit {proc.returncode}: {lines[-1:]}" + where
 
 
 def main() -> None:
-    offsets = [float(x) for x in sys.argv[1:]] or [0.02 * i for i in range(15)]
+    offsets = sys.argv[1:] or [f"{0.05 * i:.2f}" for i in range(17)]
     counts: Counter = Counter()
     with tempfile.TemporaryDirectory() as d:
-        for offset in offsets:
-            verdict = one_run(offset, Path(d))
+        for n, arg in enumerate(offsets):
+            after_output = arg.startswith("w")
+            offset = float(arg.lstrip("w"))
+            verdict = one_run(offset, Path(d), n, after_output)
             counts[verdict] += 1
-            print(f"+{offset:.2f} s: {verdict}", flush=True)
+            where = "after the output" if after_output else "after drjit.detail"
+            print(f"+{offset:.2f} s {where}: {verdict}", flush=True)
     print(dict(counts))
 
 

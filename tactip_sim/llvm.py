@@ -9,12 +9,16 @@ by the library's path, size and mtime and the Dr.Jit version), so the probe cost
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 from . import cache
@@ -80,7 +84,8 @@ def probe(path: str | None, *, timeout: float = 120.0) -> tuple[bool, str]:
 
 def _stamp(path: str) -> str:
     try:
-        import drjit
+        with interrupts_held():
+            import drjit
 
         ver = drjit.__version__
     except ImportError:  # pragma: no cover - drjit is a hard dependency
@@ -141,8 +146,40 @@ def ensure_llvm() -> str:
 def import_mitsuba(variant: str = "llvm_ad_rgb"):
     """Import Mitsuba with a working libLLVM and set ``variant``; returns the module."""
     ensure_llvm()
-    import mitsuba as mi
+    with interrupts_held():
+        import mitsuba as mi
 
-    if mi.variant() != variant:
-        mi.set_variant(variant)
+        if mi.variant() != variant:
+            mi.set_variant(variant)
     return mi
+
+
+@contextlib.contextmanager
+def interrupts_held() -> Iterator[None]:
+    """Hold a Ctrl-C (SIGINT) or SIGTERM while the block runs, then act on it.
+
+    Dr.Jit's and Mitsuba's binary extensions must not be interrupted while they initialise:
+    a KeyboardInterrupt raised inside them left them half set up (a NameError from Dr.Jit's
+    own error handler, a segmentation fault: measured with SIGINT 0-0.1 s after
+    ``drjit.detail``, ``benchmarks/ctrl_c_drjit_import.py``). So the block's imports run to
+    the end (~0.1-0.2 s here), with each Python-level handler replaced by one that records
+    the signal; afterwards the handlers are restored and a recorded signal is given to its
+    handler (Python's raises KeyboardInterrupt). Handlers that are not Python functions
+    (``SIG_IGN``, ``SIG_DFL``) and calls outside the main thread are left alone."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    seen: list[int] = []
+    previous: dict[int, object] = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        handler = signal.getsignal(sig)
+        if callable(handler):
+            previous[sig] = handler
+            signal.signal(sig, lambda signum, frame: seen.append(signum))
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for sig in dict.fromkeys(seen):
+            previous[sig](sig, None)

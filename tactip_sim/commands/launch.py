@@ -31,6 +31,16 @@ INTERRUPTED = 130
 def main(argv: list[str] | None = None) -> int:
     """Run ``tactip`` with ``argv`` (default: ``sys.argv[1:]``) as the program; returns its exit
     status (see :func:`tactip_sim.commands.cli.main`; 130 if interrupted at any point)."""
+    status = _main(argv)
+    _RETURNED[:] = [status]
+    return status
+
+
+_RETURNED: list[int] = []
+"""The status :func:`main` returned (for :func:`_quiet_end`)."""
+
+
+def _main(argv: list[str] | None) -> int:
     held: list[int] = []
     owned = False
     try:
@@ -132,11 +142,56 @@ def _stop_now(signum: int, frame: object) -> None:
 
 
 def _quiet_end() -> None:
-    """The last exit handler: Python is done with the tool's code and only flushes and frees
-    from here, which a Ctrl-C would cut short (Python's handler is gone by then: the process
-    would be killed by the signal). So it is ignored for those last milliseconds and the run
-    keeps its exit status."""
+    """The last exit handler the tool registers (the first registered, so it runs after every
+    exit handler registered after it). From here Python only flushes and frees, and the
+    freeing took 0.65-0.8 s once Mitsuba and Dr.Jit were loaded (~1 900 modules, ~200 000
+    objects: the garbage collector's passes while Python clears its modules, seen with gdb); a
+    Ctrl-C there was ignored and the run exited 0 without a word (docs/robustness.md).
+
+    So when :func:`main` is the program (the console script and ``python -m`` run
+    ``sys.exit(main())``), the process ends right after the remaining exit handlers (those
+    registered before the tool's first line, e.g. by a ``.pth`` file), in Python's flush of
+    ``sys.stderr`` that follows them, with the status :func:`main` returned; until then a
+    Ctrl-C ends it as one during the exit handlers does. Otherwise (an in-process caller)
+    SIGINT is ignored for Python's last steps, so the run keeps its exit status (Python's own
+    handler is gone by then: the signal would kill the process)."""
+    if _RETURNED and _is_program() and sys.stderr is not None:
+        sys.stderr = _EndInFinalFlush(sys.stderr, _RETURNED[0])
+        return
     try:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     except KeyboardInterrupt:  # pending, run by the handler in place first
         _stop_now(signal.SIGINT, None)
+
+
+def _is_program() -> bool:
+    """Whether the process's exit status is the one :func:`main` returned: the script run as
+    ``__main__`` (pip's console script, ``commands/__main__.py``) calls it as ``main``."""
+    return getattr(sys.modules.get("__main__"), "main", None) is main
+
+
+class _EndInFinalFlush:
+    """``sys.stderr`` for the process's last steps: once every exit handler has run, Python
+    flushes ``sys.stdout`` and ``sys.stderr`` (``Py_FinalizeEx``: after the exit handlers,
+    before it removes its signal handlers and frees its modules); that flush of stderr ends
+    the process with ``status``. Before it (``sys.is_finalizing()`` false) the stream is
+    stderr as it was."""
+
+    def __init__(self, stream: object, status: int) -> None:
+        self._stream = stream
+        self._status = status
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._stream, name)
+
+    def flush(self) -> None:
+        self._stream.flush()
+        if not sys.is_finalizing():
+            return
+        status = self._status
+        try:
+            sys.stdout.flush()
+        except Exception:  # noqa: BLE001 - as Python's own exit: 120 if stdout cannot be flushed
+            if status == 0:
+                status = 120
+        os._exit(status)
