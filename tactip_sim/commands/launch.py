@@ -185,13 +185,16 @@ class _EndInFinalFlush:
         return getattr(self._stream, name)
 
     def flush(self) -> None:
-        self._stream.flush()
         if not sys.is_finalizing():
+            self._stream.flush()
             return
         status = self._status
-        try:
-            sys.stdout.flush()
-        except Exception:  # noqa: BLE001 - as Python's own exit: 120 if stdout cannot be flushed
-            if status == 0:
-                status = 120
+        for stream in (self._stream, sys.stdout):
+            if stream is None:
+                continue
+            try:
+                stream.flush()
+            except Exception:  # noqa: BLE001 - as Python's exit: 120 if stdout cannot be flushed
+                if stream is sys.stdout and status == 0:
+                    status = 120
         os._exit(status)
