@@ -9,7 +9,11 @@ and where the signal landed: ``[after the output]`` when the command had already
 exiting (nothing left to interrupt: the kernel takes ~35 ms to tear down the process after its
 ``exit_group``, measured with strace, and a signal then is not acted on).
 
-    python benchmarks/ctrl_c_drjit_import.py [OFFSET ...]   (default 0, 0.05 ... 0.8)
+    python benchmarks/ctrl_c_drjit_import.py [--command C] [OFFSET ...]   (default 0, 0.05 ... 0.8)
+
+``--command calibrate`` (``--quick``, one worker) or ``sim2real`` (``--model cop --n 10``)
+runs that command's start instead of ``render``; the verdict then also counts the temporary
+files left in its output folder (``.tmp`` in the name; there should be none).
 
 An OFFSET written ``wT`` (``w0``, ``w0.01``) sends SIGINT T s after the command's output line
 instead: the moment from the command's end to the process's end.
@@ -44,14 +48,28 @@ def exiting(pid: int) -> bool:
     return bool(int(stat.rsplit(")", 1)[1].split()[6]) & 0x4)
 
 
-def one_run(offset: float, work: Path, n: int, after_output: bool = False) -> str:
+COMMANDS = {
+    "render": lambda out: ["render", str(ROOT / "scenes" / "shadow_fingertip.toml"), "-o",
+                           str(out / "f.png"), "--spp", "1"],
+    "calibrate": lambda out: ["calibrate", str(ROOT / "scenes" / "shadow_fingertip.toml"),
+                              "--out", str(out), "--quick", "--no-progress", "--workers", "1"],
+    "sim2real": lambda out: ["sim2real", str(ROOT / "scenes" / "shadow_fingertip.toml"),
+                             "--model", "cop", "--n", "10", "--out", str(out),
+                             "--no-progress"],
+}
+
+
+def one_run(offset: float, work: Path, n: int, after_output: bool = False,
+            command: str = "render") -> str:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # the output line as it is printed
     tree = os.environ.get("TACTIP_TREE")
     if tree:
         env["PYTHONPATH"] = tree
-    argv = [sys.executable, "-X", "importtime", "-m", "tactip_sim.commands", "render",
-            str(ROOT / "scenes" / "shadow_fingertip.toml"), "-o", str(work / f"f{n}.png"),
-            "--spp", "1"]
+    out = work / f"run{n}"
+    if command == "render":
+        out.mkdir()  # -o names a file in it; the other commands make their --out folder
+    argv = [sys.executable, "-X", "importtime", "-m", "tactip_sim.commands",
+            *COMMANDS[command](out)]
     proc = subprocess.Popen(argv, cwd=work, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
@@ -81,6 +99,9 @@ def one_run(offset: float, work: Path, n: int, after_output: bool = False) -> st
     reader.join(10)
     err = "".join(said)
     lines = [x for x in said if x.strip()]
+    tmp = [f for f in out.rglob("*") if ".tmp" in f.name] if out.is_dir() else []
+    if tmp:
+        where += f" [{len(tmp)} temporary files left]"
     if not sent:
         return "never reached Dr.Jit"
     if "NameError" in err:
@@ -93,13 +114,17 @@ def one_run(offset: float, work: Path, n: int, after_output: bool = False) -> st
 
 
 def main() -> None:
-    offsets = sys.argv[1:] or [f"{0.05 * i:.2f}" for i in range(17)]
+    args = sys.argv[1:]
+    command = "render"
+    if args[:1] == ["--command"]:
+        command, args = args[1], args[2:]
+    offsets = args or [f"{0.05 * i:.2f}" for i in range(17)]
     counts: Counter = Counter()
     with tempfile.TemporaryDirectory() as d:
         for n, arg in enumerate(offsets):
             after_output = arg.startswith("w")
             offset = float(arg.lstrip("w"))
-            verdict = one_run(offset, Path(d), n, after_output)
+            verdict = one_run(offset, Path(d), n, after_output, command)
             counts[verdict] += 1
             where = "after the output" if after_output else "after drjit.detail"
             print(f"+{offset:.2f} s {where}: {verdict}", flush=True)
