@@ -595,6 +595,7 @@ class _WorkStarted(Exception):
 
 
 _WORK = [("tactip_lab.protocol.calibrate", "calibrate"), ("tactip_lab.real.sim2real", "run"),
+         ("tactip_lab.real.task_run", "run_task"),
          ("tactip_lab.real.identify", "identify"), ("tactip_lab.real.identify", "tilt_candidates"),
          ("tactip_lab.recognition.recognise", "run_recognition"),
          ("tactip_lab.recognition.select", "run_selection"),
