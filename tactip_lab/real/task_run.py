@@ -248,9 +248,17 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
     sim128 = convert_128(sim, out / "sim128", count)
     cols = folder_columns(sim)
     y_sim = np.stack([cols[t] for t in targets], axis=1)
-    p128 = cached_points(sim128, out / "sim128_points.npz",
-                         key=(sim128 / "crop.json").read_text(), expected_count=count,
-                         progress=progress)
+    try:
+        p128 = cached_points(sim128, out / "sim128_points.npz",
+                             key=(sim128 / "crop.json").read_text(), expected_count=count,
+                             progress=progress)
+    except ValueError as exc:  # PerceptionError is a ValueError
+        raise ValueError(
+            f"{sim128}: the simulated taps converted to the lab's 128x128 processed format "
+            f"cannot be read ({exc}). That format's field and marker size are the Bristol "
+            f"331-pin TacTip's (measured on ../shared/real/tactip331_tap128); this scene has "
+            f"{count} pins. sim2real is for scenes of the lab's sensors "
+            "(scenes/tactip_331_identified.toml)") from None
     praw = cached_points(sim, out / "sim_raw_points.npz", expected_count=count,
                          progress=progress)
     timing = json.loads((sim / "timing.json").read_text())
