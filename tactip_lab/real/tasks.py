@@ -32,9 +32,10 @@ the marker field's size grows linearly with ``pose_3`` and extrapolates to zero 
 simulated tap, uniform in :data:`EDGE_DEPTH_OFFSET_MM` (the cited 2 mm to the measured onset,
 rounded up). With the sensor's centre beside the block the first contact is lower on the
 dome, so the simulated indentation beyond first contact is the tip's depth minus that drop
-(:func:`edge_contact_depth`). The surface sets' depth is taken as labelled, as the surface
-taps always were (their table height is not published; the surface script repeats the edge's
-comment).
+(:func:`edge_contact_depth`). The surface tasks' table height is not published (the surface
+script repeats the edge's comment), so their simulated taps span every indentation the label
+may mean, :data:`SURFACE_CONTACT_MM`, and the simulated folder's ``pose_3`` is that
+indentation.
 """
 
 from __future__ import annotations
