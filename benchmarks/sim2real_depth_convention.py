@@ -34,8 +34,8 @@ def field_spread(folder: str, expected_count: int) -> tuple[np.ndarray, np.ndarr
     from tqdm import tqdm
 
     import perception as pc
-    from tactip_lab.real.sim2real import field_of
     from tactip_lab.fitting.bristol import BristolFolder
+    from tactip_lab.real.sim2real import field_of
 
     f = BristolFolder.open(folder)
     radius = np.array([field_of(pc.detect_markers(str(p), expected_count=expected_count))[1]
