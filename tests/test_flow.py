@@ -15,9 +15,9 @@ import perception as pc
 from perception.errors import ModelError, PerceptionError, PointsError
 from perception.flow import FLOW_NAMES, flow_features
 from perception.vector_regression import VectorRegressor
+from tactip_lab.fitting.bristol import FrameTable, cross_validate
 from tactip_lab.fitting.cv_select import nested_cv, select_by_cv
 from tactip_lab.fitting.fit import FeatureTable
-from tactip_lab.fitting.bristol import FrameTable, cross_validate
 
 REST = pc.hex_lattice(61, 12.0, (64.0, 64.0))
 NO_COP = np.array([np.nan, np.nan])
