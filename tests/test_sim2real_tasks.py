@@ -36,6 +36,27 @@ def _bump(rest: np.ndarray, at, amp: float = 1.5, width: float = 15.0) -> np.nda
     return rest + amp * v / np.maximum(r, 1e-9) * np.exp(-(r / width) ** 2) * (r > 0)
 
 
+def _real_subset(name: str, tmp_path, rows: int):
+    """Every tenth of the first ``rows`` taps of ``../shared/real/NAME`` copied into
+    ``tmp_path/real`` (a Bristol folder named ``real``); skips when the real data is absent."""
+    import shutil
+
+    from .conftest import ROOT
+
+    real = ROOT.parent / "shared" / "real" / name
+    if not real.is_dir():
+        pytest.skip("../shared/real is absent")
+    sub = tmp_path / "real"
+    (sub / "images").mkdir(parents=True)
+    lines = (real / "targets.csv").read_text().splitlines()
+    keep = [lines[0]] + lines[1:rows + 1:10]
+    for ln in keep[1:]:
+        image = ln.split(",")[1]
+        shutil.copyfile(real / "images" / image, sub / "images" / image)
+    (sub / "targets.csv").write_text("\n".join(keep) + "\n")
+    return sub
+
+
 # --- the feature ---------------------------------------------------------------------------
 
 def test_features_ignore_a_shift_and_the_frame_scale_and_keep_the_size_apart():
@@ -324,23 +345,11 @@ def test_sim2real_edge_command_end_to_end(tmp_path):
     """``tactip sim2real --task edge`` on 20 simulated taps, scored on 40 real edge taps:
     the files of the contract, the table's rows, and ``tactip evaluate``'s ``targets`` giving
     the run's own zero-shot figures (a second computation through the command)."""
-    import shutil
-
     from tactip_sim.commands import main
 
     from .conftest import ROOT
 
-    real = ROOT.parent / "shared" / "real" / "tactip331_edge128"
-    if not real.is_dir():
-        pytest.skip("../shared/real is absent")
-    sub = tmp_path / "real"
-    (sub / "images").mkdir(parents=True)
-    lines = (real / "targets.csv").read_text().splitlines()
-    keep = [lines[0]] + lines[1:401:10]
-    for ln in keep[1:]:
-        name = ln.split(",")[1]
-        shutil.copyfile(real / "images" / name, sub / "images" / name)
-    (sub / "targets.csv").write_text("\n".join(keep) + "\n")
+    sub = _real_subset("tactip331_edge128", tmp_path, 400)
     out = tmp_path / "run"
     scene = ROOT / "scenes" / "tactip_331_identified.toml"
     assert main(["sim2real", str(scene), "--task", "edge", "--n", "20", "--out", str(out),
@@ -429,9 +438,10 @@ def test_surface_taps_are_simulated_over_the_depths_the_label_may_mean():
     rows = draw_poses("surface", 2000, 1)
     d = rows[:, COLUMNS[1:].index("pose_3")]
     lo, hi = SURFACE_CONTACT_MM["surface"]
-    # from the lowest label less the work frame's 2 mm (rounded up) to the highest label
-    assert lo == pytest.approx(PROTOCOLS["surface"]["pose_3"][0] - 1.5)
-    assert hi == PROTOCOLS["surface"]["pose_3"][1]
+    label_lo, label_hi = PROTOCOLS["surface"]["pose_3"]
+    # both readings of the label are covered: as the indentation (up to its highest value)
+    # and less the work frame's 2 mm (down to within 0.5 mm of zero contact)
+    assert hi >= label_hi and 0.0 < lo <= max(label_lo - 2.0, 0.0) + 0.5
     assert d.min() >= lo and d.max() <= hi and d.min() < lo + 0.05 and d.max() > hi - 0.05
     assert simulated_ranges("edge") == PROTOCOLS["edge"]  # the edge keeps the lab's labels
     with pytest.raises(ValueError, match="not known"):
@@ -470,7 +480,7 @@ def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path
         out = tmp_path / f"o{len(argv)}{argv[-1]}"
         assert main(["sim2real", scene, "--out", str(out), "--no-progress", *argv]) != 0
         assert msg in capsys.readouterr().err
-        assert not any(out.glob("*")) if out.exists() else True
+        assert not out.exists() or not any(out.iterdir())  # refused before any work
 
 
 def test_sim2real_surface_field_command_end_to_end(tmp_path):
@@ -478,23 +488,11 @@ def test_sim2real_surface_field_command_end_to_end(tmp_path):
     scored on 30 real 128x128 taps: the contract's files, and ``tactip evaluate``'s
     ``targets`` giving the run's own zero-shot figures (a second computation through the
     command)."""
-    import shutil
-
     from tactip_sim.commands import main
 
     from .conftest import ROOT
 
-    real = ROOT.parent / "shared" / "real" / "tactip331_tap128"
-    if not real.is_dir():
-        pytest.skip("../shared/real is absent")
-    sub = tmp_path / "real"
-    (sub / "images").mkdir(parents=True)
-    lines = (real / "targets.csv").read_text().splitlines()
-    keep = [lines[0]] + lines[1:301:10]
-    for ln in keep[1:]:
-        name = ln.split(",")[1]
-        shutil.copyfile(real / "images" / name, sub / "images" / name)
-    (sub / "targets.csv").write_text("\n".join(keep) + "\n")
+    sub = _real_subset("tactip331_tap128", tmp_path, 300)
     out = tmp_path / "run"
     scene = ROOT / "scenes" / "tactip_331_identified.toml"
     assert main(["sim2real", str(scene), "--n", "20", "--k", "5", "--out", str(out),
