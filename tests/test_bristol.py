@@ -67,6 +67,7 @@ def test_folder_reads_columns_images_and_picks_the_frame_without_contact_as_rest
     f = BristolFolder.open(root)
     assert len(f) == len(contacts) + 1 and f.image_size == (640, 480)
     assert f.rest.name == "image_1.png" and "without contact" in f.rest_choice  # depth 0
+    assert not f.reference_is_a_press
     np.testing.assert_allclose(f.angles_deg[1:, 0], ROLL_PER_PX * (contacts[:, 0] - C[0]))
     flipped = BristolFolder.open(root, columns=ColumnMap(roll_sign=-1.0))
     np.testing.assert_array_equal(flipped.angles_deg[:, 0], -f.angles_deg[:, 0])
@@ -111,6 +112,7 @@ def test_without_a_rest_frame_the_median_of_the_shallowest_taps_is_nearer_rest(t
     (tmp_path / "targets.csv").write_text("\n".join(rows) + "\n")
     f = BristolFolder.open(tmp_path)
     assert f.rest.name == "t0.png" and "median of the 6 shallowest" in f.rest_choice
+    assert f.reference_is_a_press and f.with_single_rest("a test").reference_is_a_press
     lattice = pc.hex_lattice(97, SPACING, C)
 
     def error(ref):

@@ -396,7 +396,7 @@ def test_marker_median_reference_averages_the_tilts_of_the_shallowest_presses():
     pts[1, 3] = np.nan  # a marker lost in one of them: the median of the others
     pts[:4, 7] = np.nan  # a marker no shallow press tracks: keeps the image's position
     tilted = rest + (1.0, 0.0)  # the shallowest press, the folder's reference image
-    presses = SimpleNamespace(depth_mm=depth, rest_choice="least deformed: the shallowest press")
+    presses = SimpleNamespace(depth_mm=depth, reference_is_a_press=True)
     got = marker_median_reference(presses, tilted, pts)
     keep = np.ones(len(rest), bool)
     keep[[3, 7]] = False
@@ -405,7 +405,7 @@ def test_marker_median_reference_averages_the_tilts_of_the_shallowest_presses():
     # marker 3, lost in the second press: the median of the other three's shifts, x (+1, 0, 0)
     # and y (0, +0.5, -0.5), is none
     np.testing.assert_allclose(got[3], rest[3], atol=1e-12)
-    with_rest = SimpleNamespace(depth_mm=depth, rest_choice="the folder's images/rest.png")
+    with_rest = SimpleNamespace(depth_mm=depth, reference_is_a_press=False)
     np.testing.assert_array_equal(marker_median_reference(with_rest, tilted, pts), tilted)
 
 

@@ -218,13 +218,19 @@ class BristolFolder:
         """The reference frame as perception takes it: the median image, or the file's path."""
         return self.rest_frame if self.rest_frame is not None else str(self.rest)
 
+    @property
+    def reference_is_a_press(self) -> bool:
+        """Whether the reference is a press (the shallowest, or the median of the shallowest
+        few), not a frame without contact: the folder has no rest frame."""
+        return self.rest_choice.startswith(LEAST_DEFORMED)
+
     def with_single_rest(self, why: str) -> BristolFolder:
         """This folder with its shallowest press alone as the reference (a median reference
         that perception cannot use: ``why``)."""
         from dataclasses import replace
 
         return replace(self, rest_frame=None, rest_choice=(
-            f"least deformed: the shallowest press ({self.rest.name}); {why}"))
+            f"{LEAST_DEFORMED}: the shallowest press ({self.rest.name}); {why}"))
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -327,6 +333,9 @@ def _is_ours(root: Path) -> bool:
         return False
 
 
+LEAST_DEFORMED = "least deformed"
+"""How :attr:`BristolFolder.rest_choice` begins when the reference is a press (the folder has
+no frame without contact): :attr:`BristolFolder.reference_is_a_press`."""
 MEDIAN_MIN_FRAMES = 5
 """A median reference needs at least this many presses (``round(sqrt(N)) >= 5``, N >= 21
 frames, all within :data:`MEDIAN_DEPTH_SPAN`); with fewer, the shallowest press alone is the
@@ -371,10 +380,10 @@ def _choose_rest(root: Path, rest: str | Path | None, images: list[Path], depth:
             return images[k], (f"a frame without contact (depth {depth[k]:g}: "
                                f"{images[k].name})"), None
         if n < MEDIAN_MIN_FRAMES:
-            return images[k], f"least deformed: the shallowest press ({images[k].name})", None
+            return images[k], f"{LEAST_DEFORMED}: the shallowest press ({images[k].name})", None
         picked = [images[int(i)] for i in order[:n]]
         return images[k], (
-            f"least deformed: the pixel-wise median of the {n} shallowest presses (depth "
+            f"{LEAST_DEFORMED}: the pixel-wise median of the {n} shallowest presses (depth "
             f"{depth[order[0]]:.4g}-{depth[order[n - 1]]:.4g}; {images[k].name} the "
             "shallowest)"), median_reference(picked)
     return images[0], f"the first frame ({images[0].name}; no depth column varies)", None

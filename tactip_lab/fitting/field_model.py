@@ -379,8 +379,7 @@ def marker_median_reference(folder: Any, rest: np.ndarray, pts: np.ndarray) -> n
     a folder of 50 taps one press), so their tilts average out; a marker no such press tracks
     keeps the image's position."""
     depth = np.asarray(folder.depth_mm, dtype=float)
-    choice = str(folder.rest_choice)
-    if not choice.startswith("least deformed") or not np.all(np.isfinite(depth)):
+    if not folder.reference_is_a_press or not np.all(np.isfinite(depth)):
         return rest
     k = max(1, int(round(np.sqrt(len(depth)))))
     if k < 2:
