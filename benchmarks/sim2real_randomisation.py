@@ -14,8 +14,9 @@ end of its range; the ranges and their sources:
   "order 10-50 kPa for Shore OO 10" (scenes/tactip_331.toml);
 - marker diameter 1.2 mm: the published scene's assumed value, against the 1.05 mm
   identified from the real rest frame;
-- camera noise x3 (read 6 DN, shot 1.5): the scene's values are assumed;
-- lighting x0.5 (LED intensity 30): assumed, arbitrary units.
+- camera noise x3 (read 6 DN, shot 1.5) and lighting x0.5 (LED intensity 30): the scene's
+  values are assumed and no range is published or measured, so these factors are chosen, not
+  sourced: they say whether the model is sensitive to the value at all.
 
 "randomised" pools every variant's simulated taps (a seeded draw of at most 3 000) into one
 field model. Every model is scored zero-shot on the real folders (no real label used), the
