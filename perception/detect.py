@@ -1083,6 +1083,44 @@ def _array_of_structures(areas: np.ndarray, p: DetectionParams) -> tuple[int, fl
 
 
 
+def _diagonal_cuts(fg: np.ndarray, xs: np.ndarray, ys: np.ndarray, lab: np.ndarray,
+                   area: np.ndarray, ref: float, p: DetectionParams
+                   ) -> tuple[np.ndarray, int] | None:
+    """The components of ``fg`` (pixels ``xs, ys`` of component ``lab``, of pixel ``area``)
+    that are several markers joined only at pixel corners, taken apart. A threshold of small
+    markers packed a spacing of one or two pixels apart (a frame binarised at one size and
+    stored at a smaller one, then cut again) leaves touching markers joined by a diagonal
+    step: one 8-connected component of several marker areas, which no size or shape test
+    reads as markers. A component of :data:`_CLUSTER_RATIO` reference areas whose
+    4-connected pieces hold two or more of at least ``area_ratio_min`` reference areas each is
+    replaced by its 4-connected pieces (a single marker is 4-connected: a disc cut at any
+    level is; the corner pixels that joined the markers become pieces too small for one).
+    Returns (new component of each pixel, number of components), or None when no
+    component is so cut."""
+    ratio = area / ref
+    cluster = ((ratio > _BINARY_PAIR_RATIO[0]) & (ratio < _CLUSTER_RATIO[1])
+               & (area >= 2 * _SHAPED_PIXELS))
+    if not cluster.any():
+        return None
+    inside = cluster[lab]
+    sub = np.zeros(fg.shape, np.uint8)
+    sub[ys[inside], xs[inside]] = 1
+    n4, lab4 = cv2.connectedComponents(sub, connectivity=4)
+    piece = lab4[ys, xs]  # 0 outside the clusters
+    piece_area = np.bincount(piece, minlength=n4)
+    parent = np.full(n4, -1)
+    parent[piece[inside]] = lab[inside]
+    marker_sized = piece_area >= p.area_ratio_min * ref
+    marker_sized[0] = False
+    split = cluster & (np.bincount(parent[marker_sized], minlength=len(area)) >= 2)
+    if not split.any():
+        return None
+    # new components: the unsplit ones, then the pieces of the split ones
+    key = np.where(split[lab], len(area) + piece, lab)
+    uniq, new = np.unique(key, return_inverse=True)
+    return new.astype(np.intp), len(uniq)
+
+
 def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
                        expected_count: int | None, expected_diameter_px: float | None,
                        p: DetectionParams) -> tuple[MarkerDetection, int]:
@@ -1096,14 +1134,19 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
     ys, xs = np.nonzero(labels)
     lab = labels[ys, xs] - 1
     m = n - 1
+    ref = (np.pi * float(expected_diameter_px) ** 2 / 4.0 if expected_diameter_px
+           else float(median(area)))
+    cut = _diagonal_cuts(fg, xs, ys, lab, area, ref, p)
+    if cut is not None:  # clusters of markers joined only at pixel corners, taken apart
+        lab, m = cut
+        area = np.bincount(lab, minlength=m).astype(np.float64)
+        pts = np.stack([np.bincount(lab, xs, m), np.bincount(lab, ys, m)], axis=1) / area[:, None]
     dx, dy = xs - pts[lab, 0], ys - pts[lab, 1]
     # second moments, each pixel a unit square (variance 1/12 per axis of its own)
     sxx = np.bincount(lab, dx * dx, m) / area + 1.0 / 12.0
     syy = np.bincount(lab, dy * dy, m) / area + 1.0 / 12.0
     sxy = np.bincount(lab, dx * dy, m) / area
     elongation, fill = _ellipse_shape(area, sxx, syy, sxy)
-    ref = (np.pi * float(expected_diameter_px) ** 2 / 4.0 if expected_diameter_px
-           else float(median(area)))
     # two touching markers make one component of about twice the area, elongated along the
     # line joining them: split it into its two halves across the major axis
     pair = ((area / ref > _BINARY_PAIR_RATIO[0]) & (area / ref < _BINARY_PAIR_RATIO[1])

@@ -324,3 +324,30 @@ def test_tiny_blobs_off_any_lattice_are_not_an_array():
                            sensor_radius_px=44, noise_sigma=0.02, rng=rng)
     det = pc.detect_markers_detailed(frame.image, expected_count=331)
     assert not det.reliable, det.reason
+
+
+def test_markers_joined_only_at_pixel_corners_are_taken_apart():
+    """A binarised array of markers imaged as 3 x 3 squares on a square lattice 5 px apart (a
+    frame binarised at one size, stored smaller and cut again), where in eight places three
+    markers of a row are joined by two-pixel steps touching their corners diagonally: one
+    8-connected blob of three marker areas each, which no size or shape test reads as
+    markers. Every square's centre is found exactly (a square's pixel centroid is its
+    centre), the frame is reliable at 2 %, and the steps are not markers."""
+    g = np.arange(-30, 31, 5)
+    centres = np.array([(40 + x, 40 + y) for y in g for x in g if x * x + y * y <= 31**2])
+    img = np.zeros((80, 80), np.uint8)
+    for x, y in centres:
+        img[y - 1:y + 2, x - 1:x + 2] = 255
+    steps = []
+    for y in (15, 25, 35, 45, 55):
+        for a in ((25, 45) if y in (25, 45, 55) else (30,)):  # eight runs of three
+            for x0 in (a, a + 5):  # a step above the gap: corner to corner, diagonally
+                img[y - 2, x0 + 2:x0 + 4] = 255
+                steps.append((x0 + 2.5, y - 2.0))
+    assert len(steps) == 16
+    n = len(centres)
+    assert cv2.connectedComponents(img, connectivity=8)[0] - 1 == n - 16
+    det = pc.detect_markers_detailed(img, expected_count=n, params=STRICT)
+    assert det.reliable and det.count == n, det.reason
+    assert cKDTree(det.points).query(centres)[0].max() < 1e-9
+    assert cKDTree(det.points).query(np.array(steps))[0].min() > 1.0
