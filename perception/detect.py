@@ -426,7 +426,8 @@ def _detect_grey(grey: np.ndarray, shape: tuple[int, int], scale: float, region,
         return _reject_all(shape, pts, finite, code, "no marker-shaped blobs", sigma)
     area_ref = np.pi * d_known**2 / 4.0 if d_known else float(median(mom.area[ok]))
     ratio = mom.area / area_ref
-    code[ok & ((ratio < p.area_ratio_min) | (ratio > p.area_ratio_max))] = _SIZE
+    code[ok & ((ratio < p.area_ratio_min)
+               | (ratio > _grid_area_ratio_max(area_ref, enlarged, p)))] = _SIZE
     label_ids = (order + 1).astype(np.int64)  # each row's label (-1: a piece of a split blob)
     split = False
     if p.split_clusters:
@@ -497,6 +498,21 @@ def _detect_grey(grey: np.ndarray, shape: tuple[int, int], scale: float, region,
         rejected_points=pts[rej], rejected_reasons=tuple(_REASONS[c] for c in code[rej]),
         noise_sigma=sigma,
     )
+
+
+def _grid_area_ratio_max(area_ref: float, enlarged: int, p: DetectionParams) -> float:
+    """The largest area, in reference areas, of a blob that is one marker: ``area_ratio_max``,
+    or for markers recorded under :data:`_UPSAMPLE_BELOW_DIAMETER_PX` across (``area_ref``
+    px² in a frame ``enlarged`` times the recorded one) what the pixel grid allows. A marker
+    of recorded diameter d cut by the grid spreads over up to d + 1 pixels per axis (its
+    edges in two pixels each), so its blob may hold ((d + 1) / d)² times the area of
+    one centred on a pixel: 3.4 for 1.2 px markers (a 127-pin field of 1 px markers at
+    96 px, read enlarged: blobs of 0.5-3.1 times their median, measured), below
+    ``area_ratio_max`` = 2.5 from 2 px on."""
+    d = 2.0 * np.sqrt(area_ref / np.pi) / enlarged
+    if d >= _UPSAMPLE_BELOW_DIAMETER_PX or not d > 0:
+        return p.area_ratio_max
+    return max(p.area_ratio_max, 4.0 / np.pi * ((d + 1.0) / d) ** 2)
 
 
 def _ellipse_shape(area, cxx, cyy, cxy):
