@@ -430,14 +430,18 @@ def _detect_grey(grey: np.ndarray, shape: tuple[int, int], scale: float, region,
                | (ratio > _grid_area_ratio_max(area_ref, enlarged, p)))] = _SIZE
     label_ids = (order + 1).astype(np.int64)  # each row's label (-1: a piece of a split blob)
     split = False
-    if p.split_clusters:
+    if p.split_clusters or enlarged > 1:
         # touching markers (a press crowding them): one marker per peak of the distance
-        # transform, the blob's pixels shared among the peaks
-        many = (((code == 0) | (code == _SHAPE) | (code == _SIZE)) & finite
+        # transform, the blob's pixels shared among the peaks. Markers recorded a pixel or
+        # two apart (a frame read enlarged) touch wherever blur or resampling fills their
+        # one-pixel gaps: there the blobs rejected for their shape or size are split (not
+        # the accepted ones, whose area the pixel grid spreads, :func:`_grid_area_ratio_max`)
+        rejected = (code == _SHAPE) | (code == _SIZE)
+        many = ((rejected | ((code == 0) & p.split_clusters)) & finite
                 & (ratio > _CLUSTER_RATIO[0]) & (ratio < _CLUSTER_RATIO[1]))
         if many.any():
             pieces = _split_clusters(labels, label_ids, np.flatnonzero(many), th_box,
-                                     th_level, area_ref, p)
+                                     th_level, area_ref, p, by_area=p.split_clusters)
             if pieces is not None:
                 pts, mom, code, label_ids = _with_pieces(pts, mom, code, label_ids, pieces,
                                                          (x0, y0))
@@ -558,7 +562,8 @@ def _piece_measures(xs: np.ndarray, ys: np.ndarray, th: np.ndarray, level: float
 
 
 def _split_clusters(labels: np.ndarray, label_ids: np.ndarray, rows: np.ndarray,
-                    th: np.ndarray, level: float, area_ref: float, p: DetectionParams):
+                    th: np.ndarray, level: float, area_ref: float, p: DetectionParams,
+                    by_area: bool = True):
     """Markers of the blobs ``rows`` that are several touching markers. A blob is several
     markers when its distance transform has 2 or more peaks at least half a marker radius
     deep and a radius apart (greedy, deepest first: one marker, however large, has one). It
@@ -569,6 +574,7 @@ def _split_clusters(labels: np.ndarray, label_ids: np.ndarray, rows: np.ndarray,
     shape filters; None if no blob does."""
     r_ref = float(np.sqrt(area_ref / np.pi))
     k = odd(r_ref)
+    sep = r_ref if by_area else 2.0 * r_ref
     found = []
     for row in rows:
         ys, xs = np.nonzero(labels == label_ids[row])
@@ -580,11 +586,11 @@ def _split_clusters(labels: np.ndarray, label_ids: np.ndarray, rows: np.ndarray,
         cand = np.argwhere((dist >= top) & (dist >= 0.5 * r_ref))
         peaks: list[np.ndarray] = []
         for c in cand[np.argsort(-dist[cand[:, 0], cand[:, 1]], kind="stable")]:
-            if all(np.hypot(*(c - q)) >= r_ref for q in peaks):
+            if all(np.hypot(*(c - q)) >= sep for q in peaks):
                 peaks.append(c)
         if len(peaks) < 2:
             continue
-        n_markers = min(max(len(peaks), int(round(len(ys) / area_ref))), 6)
+        n_markers = min(max(len(peaks), int(round(len(ys) / area_ref)) if by_area else 0), 6)
         at = _kmeans(np.column_stack([ys, xs]).astype(np.float64),
                      np.asarray(peaks, dtype=np.float64) + (by, bx), n_markers)
         owner = np.argmin((ys[:, None] - at[None, :, 0]) ** 2
