@@ -1124,23 +1124,31 @@ def _diagonal_cuts(fg: np.ndarray, xs: np.ndarray, ys: np.ndarray, lab: np.ndarr
                & (area >= 2 * _SHAPED_PIXELS))
     if not cluster.any():
         return None
-    inside = cluster[lab]
-    sub = np.zeros(fg.shape, np.uint8)
-    sub[ys[inside], xs[inside]] = 1
+    inside = np.flatnonzero(cluster[lab])
+    iy, ix = ys[inside], xs[inside]
+    y0, x0 = iy.min(), ix.min()  # (labelled in the clusters' bounding box only)
+    sub = np.zeros((iy.max() - y0 + 1, ix.max() - x0 + 1), np.uint8)
+    sub[iy - y0, ix - x0] = 1
     n4, lab4 = cv2.connectedComponents(sub, connectivity=4)
-    piece = lab4[ys, xs]  # 0 outside the clusters
-    piece_area = np.bincount(piece, minlength=n4)
-    parent = np.full(n4, -1)
-    parent[piece[inside]] = lab[inside]
-    marker_sized = piece_area >= p.area_ratio_min * ref
+    piece = lab4[iy - y0, ix - x0]
+    parent = np.zeros(n4, np.intp)
+    parent[piece] = lab[inside]
+    marker_sized = np.bincount(piece, minlength=n4) >= p.area_ratio_min * ref
     marker_sized[0] = False
     split = cluster & (np.bincount(parent[marker_sized], minlength=len(area)) >= 2)
     if not split.any():
         return None
-    # new components: the unsplit ones, then the pieces of the split ones
-    key = np.where(split[lab], len(area) + piece, lab)
-    uniq, new = np.unique(key, return_inverse=True)
-    return new.astype(np.intp), len(uniq)
+    # new components: the unsplit ones in their order, then the pieces of the split ones
+    kept = ~split
+    new_comp = np.cumsum(kept) - 1
+    n_kept = int(new_comp[-1]) + 1 if len(new_comp) else 0
+    of_split = split[parent]
+    of_split[0] = False
+    new_piece = n_kept + np.cumsum(of_split) - 1
+    new = new_comp[lab]
+    moved = split[lab[inside]]
+    new[inside[moved]] = new_piece[piece[moved]]
+    return new.astype(np.intp), n_kept + int(of_split.sum())
 
 
 def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
