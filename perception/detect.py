@@ -45,6 +45,9 @@ markers of 4-9 px, or thresholded full-resolution frames) carry no intensity to 
 to measure: :func:`_detect_binary` takes the connected components of the bright level, their
 pixel centroids, the reference area from their median, the same area and shape filters, and
 rejects components close to much larger bright structures (the rim ring and its fragments).
+A component of several marker areas whose 4-connected pieces hold two or more markers is
+several markers joined only at pixel corners (a frame thresholded at one size, stored smaller
+and cut again): it is replaced by those pieces.
 In a frame read alone (short of ``expected_count`` when one is given), a speck too small
 for a marker is accepted at a vacant site of the array's core (no marker within 0.75 local
 spacings, four within 1.5: a marker a shear tilts away, imaged as a pixel or two). When the
@@ -55,7 +58,12 @@ A binarised frame whose dark level alone gives a reliable array has dark markers
 whose grey-level detection is unreliable is read again as its negative (dark markers on a
 bright skin: the polarity read from the frame), then cut at its Otsu level, and the first
 reliable reading is kept; a small frame (shorter side <= 400 px) whose markers read under
-3 px in either polarity is then read enlarged three times (bilinear) and mapped back. A
+3 px in either polarity is then read enlarged three times (bilinear) and mapped back. Markers
+recorded under 3 px are cut by the pixel grid: a blob may hold up to 4/pi ((d + 1) / d)² of
+the median area (a d px disc spreads over d + 1 pixels per axis), and in the enlarged
+reading a blob rejected for its shape or size (touching markers recorded a pixel apart,
+their gaps filled by blur or resampling) is split at the peaks of its distance transform
+at least a marker diameter apart. A
 grey reading of markers under 4 px that is reliable but more than 1 % short of
 ``expected_count`` (a binarised frame saved as JPEG) gives way to the Otsu reading if that
 one is reliable and nearer the count.
