@@ -1112,6 +1112,10 @@ def _array_of_structures(areas: np.ndarray, p: DetectionParams) -> tuple[int, fl
     return (len(areas) if sd / med <= p.max_size_dispersion else 0), float(med)
 
 
+#: The pixels that join two markers at their corners, per marker of the cluster: a diagonal
+#: step of one or two pixels.
+_CORNER_STEP_PIXELS = 2
+
 
 def _diagonal_cuts(fg: np.ndarray, xs: np.ndarray, ys: np.ndarray, lab: np.ndarray,
                    area: np.ndarray, ref: float, p: DetectionParams
@@ -1121,14 +1125,17 @@ def _diagonal_cuts(fg: np.ndarray, xs: np.ndarray, ys: np.ndarray, lab: np.ndarr
     markers packed a spacing of one or two pixels apart (a frame binarised at one size and
     stored at a smaller one, then cut again) leaves touching markers joined by a diagonal
     step: one 8-connected component of several marker areas, which no size or shape test
-    reads as markers. A component of :data:`_CLUSTER_RATIO` reference areas whose
-    4-connected pieces hold two or more of at least ``area_ratio_min`` reference areas each is
-    replaced by its 4-connected pieces (a single marker is 4-connected: a disc cut at any
-    level is; the corner pixels that joined the markers become pieces too small for one).
+    reads as markers. A component too large for one marker (over ``area_ratio_max`` and under
+    :data:`_CLUSTER_RATIO` reference areas) is replaced by its 4-connected pieces when two or
+    more of them are of marker size (within :data:`_ARRAY_JOIN_AREA_RATIO` of the reference
+    area) and the rest are the steps joining them (at most :data:`_CORNER_STEP_PIXELS` pixels
+    per marker): a single marker is 4-connected (a disc cut at any level is), and a fragment
+    of the rim ring, a staircase of thin runs, has neither marker-sized pieces nor so few
+    pixels between them.
     Returns (new component of each pixel, number of components), or None when no
     component is so cut."""
     ratio = area / ref
-    cluster = ((ratio > _BINARY_PAIR_RATIO[0]) & (ratio < _CLUSTER_RATIO[1])
+    cluster = ((ratio > p.area_ratio_max) & (ratio < _CLUSTER_RATIO[1])
                & (area >= 2 * _SHAPED_PIXELS))
     if not cluster.any():
         return None
@@ -1141,9 +1148,13 @@ def _diagonal_cuts(fg: np.ndarray, xs: np.ndarray, ys: np.ndarray, lab: np.ndarr
     piece = lab4[iy - y0, ix - x0]
     parent = np.zeros(n4, np.intp)
     parent[piece] = lab[inside]
-    marker_sized = np.bincount(piece, minlength=n4) >= p.area_ratio_min * ref
+    piece_area = np.bincount(piece, minlength=n4).astype(np.float64)
+    marker_sized = piece_area >= ref / _ARRAY_JOIN_AREA_RATIO
     marker_sized[0] = False
-    split = cluster & (np.bincount(parent[marker_sized], minlength=len(area)) >= 2)
+    n_markers = np.bincount(parent[marker_sized], minlength=len(area))
+    rest = area - np.bincount(parent[marker_sized], piece_area[marker_sized],
+                              minlength=len(area))
+    split = cluster & (n_markers >= 2) & (rest <= _CORNER_STEP_PIXELS * n_markers)
     if not split.any():
         return None
     # new components: the unsplit ones in their order, then the pieces of the split ones
