@@ -1125,17 +1125,18 @@ def _diagonal_cuts(fg: np.ndarray, xs: np.ndarray, ys: np.ndarray, lab: np.ndarr
     markers packed a spacing of one or two pixels apart (a frame binarised at one size and
     stored at a smaller one, then cut again) leaves touching markers joined by a diagonal
     step: one 8-connected component of several marker areas, which no size or shape test
-    reads as markers. A component too large for one marker (over ``area_ratio_max`` and under
-    :data:`_CLUSTER_RATIO` reference areas) is replaced by its 4-connected pieces when two or
-    more of them are of marker size (within :data:`_ARRAY_JOIN_AREA_RATIO` of the reference
-    area) and the rest are the steps joining them (at most :data:`_CORNER_STEP_PIXELS` pixels
-    per marker): a single marker is 4-connected (a disc cut at any level is), and a fragment
-    of the rim ring, a staircase of thin runs, has neither marker-sized pieces nor so few
-    pixels between them.
-    Returns (new component of each pixel, number of components), or None when no
-    component is so cut."""
+    reads as markers. A component of more than one marker area (over
+    ``_BINARY_PAIR_RATIO[0]`` and under :data:`_CLUSTER_RATIO` reference areas) is replaced
+    by its 4-connected pieces when two or more of them are a marker or a pair (from
+    ``area_ratio_min`` to ``_BINARY_PAIR_RATIO[1]`` reference areas, two pixels across both
+    ways, a bounding box no longer than ``max_elongation`` times its width) and the rest are
+    the steps joining them (at most :data:`_CORNER_STEP_PIXELS` pixels per such piece): a
+    single marker is 4-connected (a disc cut at any level is); a fragment of the rim ring, a
+    staircase of runs one pixel thin, and a glare arc, of long pieces, have no such pieces.
+    Returns (new component of each pixel, number of components), or None when no component
+    is so cut."""
     ratio = area / ref
-    cluster = ((ratio > p.area_ratio_max) & (ratio < _CLUSTER_RATIO[1])
+    cluster = ((ratio > _BINARY_PAIR_RATIO[0]) & (ratio < _CLUSTER_RATIO[1])
                & (area >= 2 * _SHAPED_PIXELS))
     if not cluster.any():
         return None
@@ -1144,12 +1145,16 @@ def _diagonal_cuts(fg: np.ndarray, xs: np.ndarray, ys: np.ndarray, lab: np.ndarr
     y0, x0 = iy.min(), ix.min()  # (labelled in the clusters' bounding box only)
     sub = np.zeros((iy.max() - y0 + 1, ix.max() - x0 + 1), np.uint8)
     sub[iy - y0, ix - x0] = 1
-    n4, lab4 = cv2.connectedComponents(sub, connectivity=4)
+    n4, lab4, stats4, _ = cv2.connectedComponentsWithStats(sub, connectivity=4)
     piece = lab4[iy - y0, ix - x0]
     parent = np.zeros(n4, np.intp)
     parent[piece] = lab[inside]
-    piece_area = np.bincount(piece, minlength=n4).astype(np.float64)
-    marker_sized = piece_area >= ref / _ARRAY_JOIN_AREA_RATIO
+    piece_area = stats4[:, cv2.CC_STAT_AREA].astype(np.float64)
+    w4, h4 = stats4[:, cv2.CC_STAT_WIDTH], stats4[:, cv2.CC_STAT_HEIGHT]
+    marker_sized = ((piece_area >= p.area_ratio_min * ref)
+                    & (piece_area <= _BINARY_PAIR_RATIO[1] * ref)
+                    & (np.minimum(w4, h4) >= 2)
+                    & (np.maximum(w4, h4) <= p.max_elongation * np.minimum(w4, h4)))
     marker_sized[0] = False
     n_markers = np.bincount(parent[marker_sized], minlength=len(area))
     rest = area - np.bincount(parent[marker_sized], piece_area[marker_sized],
