@@ -514,3 +514,54 @@ def test_sim2real_surface_field_command_end_to_end(tmp_path):
     # the raw model is refused on the 128x128 folder, naming both formats
     assert main(["evaluate", str(out / "model_raw.json"), str(sub), "--json",
                  str(tmp_path / "ev2.json"), "--no-progress"]) != 0
+
+
+def _latent_rows(spread: list[tuple[int, float]], informative: int, n: int = 250,
+                 seed: int = 3):
+    """Synthetic taps: latent factors with the given (count, sd) blocks, mixed by a random
+    orthogonal matrix into features; the target is the latent factor ``informative``."""
+    from tactip_lab.real.task_run import Rows
+
+    rng = np.random.default_rng(seed)
+    sd = np.concatenate([np.full(c, s) for c, s in spread])
+    z = rng.normal(size=(n, len(sd))) * sd
+    q, _ = np.linalg.qr(rng.normal(size=(len(sd), len(sd))))
+    x = z @ q
+    y = (z[:, informative] / sd[informative] * 3.0)[:, None]
+    return Rows(x, x, y, 1), y
+
+
+def test_component_count_is_chosen_by_cross_validation():
+    """The target hides in a weak direction (the 61st by variance, behind 60 of nuisance):
+    20 or 40 components drop it, and the selection takes more."""
+    from tactip_lab.real.task_run import choose_components_rows
+
+    rows, y = _latent_rows([(60, 1.0), (1, 0.9), (99, 0.05)], informative=60, n=250)
+    k, pred, table = choose_components_rows(rows, y, ["pose_3"], (128, 128))
+    assert k >= 80
+    assert table[k]["loss"] < 0.5 * table[20]["loss"]
+    assert table[k]["loss"] < 0.6 * table[40]["loss"]
+    assert np.all(np.isfinite(pred))
+
+
+def test_component_counts_the_folds_cannot_support_are_not_tried():
+    from tactip_lab.real.task_run import choose_components_rows
+
+    rows, y = _latent_rows([(1, 3.0), (59, 1.0)], informative=0, n=60)  # folds of 48 rows
+    _, _, table = choose_components_rows(rows, y, ["pose_3"], (128, 128))
+    assert sorted(table) == [20, 40]
+
+
+def test_cv_loss_weighs_units_alike_and_wraps_angles():
+    from tactip_lab.real.task_run import cv_loss
+
+    # an angle across the seam, 150 and -170 (= 190): circular mean 170, deviations 20
+    y = np.array([[150.0, 1.0], [-170.0, 3.0]])
+    assert cv_loss(y, y, ["pose_6", "pose_2"]) == pytest.approx(0.0)
+    assert cv_loss(y + [360.0, 0.0], y, ["pose_6", "pose_2"]) == pytest.approx(0.0)
+    # the constant (170 deg, 2 mm): each target off by its own mean deviation -> 1 + 1
+    mean = np.array([[170.0, 2.0], [170.0, 2.0]])
+    assert cv_loss(y, mean, ["pose_6", "pose_2"]) == pytest.approx(2.0)
+    # off by half the deviation in one unit only
+    half = np.array([[160.0, 1.0], [-180.0, 3.0]])
+    assert cv_loss(y, half, ["pose_6", "pose_2"]) == pytest.approx(0.5)

@@ -154,11 +154,17 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-TASK_N = {"surface": 1000, "edge": 400, "surface+shear": 1000, "edge+shear": 200}
-"""Default simulated taps per task (``--n``) of the field models. Surface under shear: 1 000
-(zero-shot 3.43 / 3.58 deg on the shared shear taps against 3.91 / 3.95 with 200, and
-simulation's own prediction 3.25 / 3.44 against 4.72 / 4.59; docs/sim2real.md), ~0.85 s a
-tap here."""
+TASK_N = {"surface": 3000, "edge": 400, "surface+shear": 3000, "edge+shear": 200}
+"""Default simulated taps per task (``--n``) of the field models; measured on the identified
+scene (docs/sim2real.md, "More simulated taps"), 0.09-0.13 s a tap here (render included):
+
+- surface under shear: 3 000. Simulation's own CV 3.25 / 3.44 deg with 1 000 taps, 2.26 /
+  2.26 with 3 000 (its learning curve still falling); zero-shot on the shared shear taps
+  3.43 / 3.58 -> 2.74 / 3.10.
+- surface: 3 000. Simulation's CV 0.50 / 0.45 -> 0.31 / 0.31 deg; zero-shot on the shared
+  128x128 taps 0.95 / 1.20 -> 0.92 / 1.11 (raw unchanged, 2.08 / 1.51 -> 2.09 / 1.59).
+- edge: 400, each tap turned 12 times in training: simulation's CV falls only from 1.58 mm
+  / 47 deg with 75 taps to 1.22 mm / 39 deg with 300 (a held-out 81)."""
 COP_N = 300
 """Default simulated taps of ``--task surface --model cop``."""
 
@@ -336,7 +342,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="real labelled taps, raw frames in the Bristol layout (scored with "
                    "model_raw.json)")
     p.add_argument("--n", type=int, default=None,
-                   help="simulated taps (default 1000 surface, 400 edge, 1000 surface --shear, "
+                   help="simulated taps (default 3000 surface, 400 edge, 3000 surface --shear, "
                    f"200 edge --shear; {COP_N} with --model cop)")
     p.add_argument("--depth-range", default=None, metavar="LOW,HIGH",
                    help="simulated depths of the surface taps, mm: with --model field the "

@@ -1,0 +1,132 @@
+"""Where on the array the marker field lives: simulated against real taps (docs/sim2real.md).
+
+    python benchmarks/sim2real_field_profile.py [VARIANT ...] [--real DIR]
+
+The field model reads the *pattern* of the marker displacements (its size divided out), so
+what transfers is where on the array the markers move. This measures that pattern as a radial
+profile: each marker's displacement magnitude, averaged in rings of its rest radius (in RMS
+field radii), over the frame's mean displacement (1 everywhere = a field spread evenly).
+
+- real: the lab's surface taps (``../shared/real/tactip331_tap128``) pressed nearly square on
+  (roll and pitch within 5 deg) and deep (label ``pose_3`` >= 4 mm), tracked as ``tactip
+  sim2real`` tracks them;
+- simulated: the identified scene (``fast``) pressed square on by a flat plate at 1, 2 and
+  3 mm beyond first contact, the FEM's marker caps through the camera model (no render),
+  for the nominal scene and variants of its *assumed* values.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RINGS = np.array([0.0, 0.3, 0.6, 0.9, 1.2, 1.5])
+"""Ring edges (RMS field radii; the outer ring of a disc of markers sits at ~1.41)."""
+DEPTHS_MM = (1.0, 2.0, 3.0)
+VARIANTS = {
+    "nominal": {},
+    "skin 0.5 mm": {"skin": {"thickness_mm": 0.5}},
+    "skin 2 mm": {"skin": {"thickness_mm": 2.0}},
+    "skin E/3": {"skin": {"youngs_modulus_kpa": 300.0}},
+    "skin E*3": {"skin": {"youngs_modulus_kpa": 2700.0}},
+    "gel E*3": {"gel": {"youngs_modulus_kpa": 90.0}},
+    "gel nu 0.49": {"gel": {"poisson_ratio": 0.49}},
+    "gel nu 0.40": {"gel": {"poisson_ratio": 0.40}},
+    "mesh 1.5 mm": {"fidelity": {"mesh_edge_mm": 1.5}},
+    "P2 elements": {"fidelity": {"element_order": 2}},
+    "mesh 1.5 mm P2": {"fidelity": {"element_order": 2, "mesh_edge_mm": 1.5}},
+    "mesh 1.5 mm P2 neo-Hookean": {"fidelity": {"element_order": 2, "mesh_edge_mm": 1.5,
+                                                "material_model": "neo_hookean"}},
+}
+
+
+def profile(rest: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(len(RINGS) - 1,) mean displacement magnitude per ring of rest radius over the frame's
+    mean (NaN where a ring has no tracked marker); ``rest``, ``points`` (m, 2) px."""
+    c = rest.mean(axis=0)
+    s = np.sqrt(np.mean(np.sum((rest - c) ** 2, axis=1)))
+    r = np.hypot(*(rest - c).T) / s
+    d = np.linalg.norm(points - rest, axis=1)
+    ok = np.isfinite(d)
+    mean = d[ok].mean()
+    out = np.full(len(RINGS) - 1, np.nan)
+    for i, (lo, hi) in enumerate(zip(RINGS[:-1], RINGS[1:], strict=True)):
+        m = ok & (r >= lo) & (r < hi)
+        if m.any():
+            out[i] = d[m].mean() / mean
+    return out
+
+
+def real_profile(folder: Path) -> tuple[np.ndarray, int]:
+    from tactip_lab.fitting.bristol import BristolFolder
+    from tactip_lab.fitting.field_model import folder_points
+    from tactip_lab.real.task_run import folder_columns
+
+    cols = folder_columns(folder)
+    sel = (np.hypot(cols["pose_4"], cols["pose_5"]) < 5.0) & (cols["pose_3"] >= 4.0)
+    rest, pts, _ = folder_points(BristolFolder.open(folder), expected_count=331, progress=True)
+    rows = np.array([profile(rest, p) for p in pts[sel]])
+    return np.nanmedian(rows, axis=0), int(sel.sum())
+
+
+def sim_profiles(scene) -> list[np.ndarray]:
+    import tactip_sim as ts
+    from tactip_sim.render import Renderer
+
+    sim = ts.Simulator(scene)
+    ren = Renderer(scene, ts.build_pad(scene))
+    r0 = sim.rest_state()
+    _, vis0, rest = ren.ground_truth(r0.markers_mm, r0.marker_directions)
+    out = []
+    for depth in DEPTHS_MM:
+        st = sim.press(ts.Pose(0.0, 0.0, depth))
+        _, vis, pts = ren.ground_truth(st.markers_mm, st.marker_directions)
+        ok = vis0 & vis & np.isfinite(rest).all(axis=1) & np.isfinite(pts).all(axis=1)
+        out.append(profile(rest[ok], pts[ok]))
+    return out
+
+
+def _row(label: str, prof: np.ndarray) -> str:
+    return f"| {label} | " + " | ".join(f"{v:.2f}" for v in prof) + " |"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("variants", nargs="*", metavar="VARIANT",
+                   help=f"scene variants (default all): {', '.join(VARIANTS)}")
+    p.add_argument("--real", type=Path, default=ROOT.parent / "shared" / "real" /
+                   "tactip331_tap128", help="real surface taps (Bristol layout, 128x128)")
+    p.add_argument("--no-real", action="store_true", help="skip the real taps")
+    args = p.parse_args(argv)
+    unknown = [v for v in args.variants if v not in VARIANTS]
+    if unknown:
+        p.error(f"unknown variant {unknown[0]!r}: choose from {', '.join(VARIANTS)}")
+    sys.path.insert(0, str(ROOT))
+    import tactip_sim as ts
+    from tactip_sim.scene import apply_preset, replace_in
+
+    rings = [f"{lo:.1f}-{hi:.1f}" for lo, hi in zip(RINGS[:-1], RINGS[1:], strict=True)]
+    print("| taps | " + " | ".join(rings) + " |")
+    print("|---|" + "---:|" * len(rings))
+    if not args.no_real:
+        prof, n = real_profile(args.real)
+        print(_row(f"real {args.real.name} (n = {n}, square on, pose_3 >= 4 mm)", prof),
+              flush=True)
+    base = apply_preset(ts.load_scene(ROOT / "scenes" / "tactip_331_identified.toml"), "fast")
+    for name in args.variants or VARIANTS:
+        t0 = time.perf_counter()
+        over = VARIANTS[name]
+        profs = sim_profiles(replace_in(base, **over) if over else base)
+        for depth, prof in zip(DEPTHS_MM, profs, strict=True):
+            print(_row(f"simulated, {name}, {depth:g} mm", prof), flush=True)
+        print(f"({name}: {time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
