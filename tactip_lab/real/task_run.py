@@ -50,7 +50,7 @@ POINTS_VERSION = 2
 without a rest frame, :func:`~tactip_lab.fitting.field_model.marker_median_reference`)."""
 FOLDS = 5
 COMPONENT_GRID = (20, 40, 80, 160)
-"""PCA components :func:`choose_components` tries (doubling from 20; the field feature has 355
+"""PCA components :func:`choose_components` tries (doubling from 20; the field feature has 299
 numbers). Measured on the simulated surface taps under shear (3 000 taps, 5-fold CV): 40
 components 2.61 / 2.53 deg, 80 2.26 / 2.26 (docs/sim2real.md)."""
 NAIVE_COMPONENTS = 50
