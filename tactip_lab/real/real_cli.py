@@ -154,7 +154,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-TASK_N = {"surface": 3000, "edge": 400, "surface+shear": 3000, "edge+shear": 200}
+TASK_N = {"surface": 3000, "edge": 400, "surface+shear": 3000, "edge+shear": 600}
 """Default simulated taps per task (``--n``) of the field models; measured on the identified
 scene (docs/sim2real.md, "More simulated taps"), 0.09-0.13 s a tap here (render included):
 
@@ -164,7 +164,9 @@ scene (docs/sim2real.md, "More simulated taps"), 0.09-0.13 s a tap here (render 
 - surface: 3 000. Simulation's CV 0.50 / 0.45 -> 0.31 / 0.31 deg; zero-shot on the shared
   128x128 taps 0.95 / 1.20 -> 0.92 / 1.11 (raw unchanged, 2.08 / 1.51 -> 2.09 / 1.59).
 - edge: 400, each tap turned 12 times in training: simulation's CV falls only from 1.58 mm
-  / 47 deg with 75 taps to 1.22 mm / 39 deg with 300 (a held-out 81)."""
+  / 47 deg with 75 taps to 1.22 mm / 39 deg with 300 (a held-out 81).
+- edge under shear: 600 (549 stay in contact), 0.5 s a tap: simulation's CV 1.66 mm / 53.7
+  deg with 200 (worse than the mean for the angle), 1.50 mm / 38.0 deg with 600."""
 COP_N = 300
 """Default simulated taps of ``--task surface --model cop``."""
 
@@ -343,7 +345,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "model_raw.json)")
     p.add_argument("--n", type=int, default=None,
                    help="simulated taps (default 3000 surface, 400 edge, 3000 surface --shear, "
-                   f"200 edge --shear; {COP_N} with --model cop)")
+                   f"600 edge --shear; {COP_N} with --model cop)")
     p.add_argument("--depth-range", default=None, metavar="LOW,HIGH",
                    help="simulated depths of the surface taps, mm: with --model field the "
                    "indentation beyond first contact (default 0.5,5; 0.5,5.5 with --shear: "
