@@ -45,9 +45,10 @@ markers of 4-9 px, or thresholded full-resolution frames) carry no intensity to 
 to measure: :func:`_detect_binary` takes the connected components of the bright level, their
 pixel centroids, the reference area from their median, the same area and shape filters, and
 rejects components close to much larger bright structures (the rim ring and its fragments).
-A component of several marker areas whose 4-connected pieces hold two or more markers is
-several markers joined only at pixel corners (a frame thresholded at one size, stored smaller
-and cut again): it is replaced by those pieces.
+In a frame read alone, a component of several marker areas whose 4-connected pieces are two
+or more markers (or pairs) and the steps between them is several markers joined only at pixel
+corners (a frame thresholded at one size, stored smaller and cut again): it is replaced by
+those pieces.
 In a frame read alone (short of ``expected_count`` when one is given), a speck too small
 for a marker is accepted at a vacant site of the array's core (no marker within 0.75 local
 spacings, four within 1.5: a marker a shear tilts away, imaged as a pixel or two). When the
@@ -1145,12 +1146,19 @@ def _diagonal_cuts(fg: np.ndarray, xs: np.ndarray, ys: np.ndarray, lab: np.ndarr
     y0, x0 = iy.min(), ix.min()  # (labelled in the clusters' bounding box only)
     sub = np.zeros((iy.max() - y0 + 1, ix.max() - x0 + 1), np.uint8)
     sub[iy - y0, ix - x0] = 1
-    n4, lab4, stats4, _ = cv2.connectedComponentsWithStats(sub, connectivity=4)
-    piece = lab4[iy - y0, ix - x0]
+    n4, lab4 = cv2.connectedComponents(sub, connectivity=4, ltype=cv2.CV_16U)
+    piece = lab4[iy - y0, ix - x0].astype(np.intp)
     parent = np.zeros(n4, np.intp)
     parent[piece] = lab[inside]
-    piece_area = stats4[:, cv2.CC_STAT_AREA].astype(np.float64)
-    w4, h4 = stats4[:, cv2.CC_STAT_WIDTH], stats4[:, cv2.CC_STAT_HEIGHT]
+    piece_area = np.bincount(piece, minlength=n4).astype(np.float64)
+    # each piece's bounding box, from its pixels sorted by piece (a few hundred: cheaper
+    # than OpenCV's statistics over the clusters' whole bounding box)
+    order = np.argsort(piece, kind="stable")
+    starts = np.searchsorted(piece[order], np.arange(1, n4))
+    w4, h4 = np.zeros(n4, np.intp), np.zeros(n4, np.intp)
+    for coord, out in ((ix[order], w4), (iy[order], h4)):
+        out[1:] = (np.maximum.reduceat(coord, starts) - np.minimum.reduceat(coord, starts)
+                   + 1)
     marker_sized = ((piece_area >= p.area_ratio_min * ref)
                     & (piece_area <= _BINARY_PAIR_RATIO[1] * ref)
                     & (np.minimum(w4, h4) >= 2)
@@ -1190,8 +1198,11 @@ def _binary_components(fg: np.ndarray, shape: tuple[int, int], region,
     m = n - 1
     ref = (np.pi * float(expected_diameter_px) ** 2 / 4.0 if expected_diameter_px
            else float(median(area)))
-    cut = _diagonal_cuts(fg, xs, ys, lab, area, ref, p)
-    if cut is not None:  # clusters of markers joined only at pixel corners, taken apart
+    # clusters of markers joined only at pixel corners, taken apart in a frame read alone (a
+    # pipeline's frames: the tracker keeps the tracks of markers so joined, as of merged
+    # pairs, and its per-frame time stays that of 834abd4)
+    cut = _diagonal_cuts(fg, xs, ys, lab, area, ref, p) if region is None else None
+    if cut is not None:
         lab, m = cut
         area = np.bincount(lab, minlength=m).astype(np.float64)
         pts = np.stack([np.bincount(lab, xs, m), np.bincount(lab, ys, m)], axis=1) / area[:, None]
