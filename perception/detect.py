@@ -1113,9 +1113,10 @@ def _array_of_structures(areas: np.ndarray, p: DetectionParams) -> tuple[int, fl
     return (len(areas) if sd / med <= p.max_size_dispersion else 0), float(med)
 
 
-#: The pixels that join two markers at their corners, per marker of the cluster: a diagonal
-#: step of one or two pixels.
-_CORNER_STEP_PIXELS = 2
+#: The pixels that join markers at their corners, per marker of the cluster, in reference
+#: marker areas: a diagonal step of one or two pixels on markers of about 9 (the lab's
+#: default threshold at 440 px cut again at 128 px), whatever the frame is enlarged to.
+_CORNER_STEP_AREA = 0.25
 
 
 def _diagonal_cuts(fg: np.ndarray, xs: np.ndarray, ys: np.ndarray, lab: np.ndarray,
@@ -1129,11 +1130,13 @@ def _diagonal_cuts(fg: np.ndarray, xs: np.ndarray, ys: np.ndarray, lab: np.ndarr
     reads as markers. A component of more than one marker area (over
     ``_BINARY_PAIR_RATIO[0]`` and under :data:`_CLUSTER_RATIO` reference areas) is replaced
     by its 4-connected pieces when two or more of them are a marker or a pair (from
-    ``area_ratio_min`` to ``_BINARY_PAIR_RATIO[1]`` reference areas, two pixels across both
-    ways, a bounding box no longer than ``max_elongation`` times its width) and the rest are
-    the steps joining them (at most :data:`_CORNER_STEP_PIXELS` pixels per such piece): a
-    single marker is 4-connected (a disc cut at any level is); a fragment of the rim ring, a
-    staircase of runs one pixel thin, and a glare arc, of long pieces, have no such pieces.
+    ``area_ratio_min`` to ``_BINARY_PAIR_RATIO[1]`` reference areas, half a marker diameter
+    and two pixels across both ways, a bounding box no longer than ``max_elongation`` times
+    its width) and the rest are the steps joining them (at most :data:`_CORNER_STEP_AREA`
+    reference areas per such piece): a single marker is 4-connected (a disc cut at any level
+    is); a fragment of the rim ring, a staircase of thin runs, and a glare arc, of long
+    pieces, have no such pieces. The conditions scale with the markers, so a binarised frame
+    enlarged by whole pixels is cut as the frame itself.
     Returns (new component of each pixel, number of components), or None when no component
     is so cut."""
     ratio = area / ref
@@ -1159,15 +1162,16 @@ def _diagonal_cuts(fg: np.ndarray, xs: np.ndarray, ys: np.ndarray, lab: np.ndarr
     for coord, out in ((ix[order], w4), (iy[order], h4)):
         out[1:] = (np.maximum.reduceat(coord, starts) - np.minimum.reduceat(coord, starts)
                    + 1)
+    thick = max(2.0, 0.5 * 2.0 * np.sqrt(ref / np.pi))  # half a marker diameter, px
     marker_sized = ((piece_area >= p.area_ratio_min * ref)
                     & (piece_area <= _BINARY_PAIR_RATIO[1] * ref)
-                    & (np.minimum(w4, h4) >= 2)
+                    & (np.minimum(w4, h4) >= thick)
                     & (np.maximum(w4, h4) <= p.max_elongation * np.minimum(w4, h4)))
     marker_sized[0] = False
     n_markers = np.bincount(parent[marker_sized], minlength=len(area))
     rest = area - np.bincount(parent[marker_sized], piece_area[marker_sized],
                               minlength=len(area))
-    split = cluster & (n_markers >= 2) & (rest <= _CORNER_STEP_PIXELS * n_markers)
+    split = cluster & (n_markers >= 2) & (rest <= _CORNER_STEP_AREA * ref * n_markers)
     if not split.any():
         return None
     # new components: the unsplit ones in their order, then the pieces of the split ones
