@@ -158,9 +158,9 @@ TASK_N = {"surface": 3000, "edge": 400, "surface+shear": 3000, "edge+shear": 600
 """Default simulated taps per task (``--n``) of the field models; measured on the identified
 scene (docs/sim2real.md, "More simulated taps"), 0.09-0.13 s a tap here (render included):
 
-- surface under shear: 3 000. Simulation's own CV 3.25 / 3.44 deg with 1 000 taps, 2.26 /
-  2.26 with 3 000 (its learning curve still falling); zero-shot on the shared shear taps
-  3.43 / 3.58 -> 2.74 / 3.10.
+- surface under shear: 3 000. Simulation's own CV 3.15 / 3.21 deg with 1 000 taps, 2.26 /
+  2.26 with 3 000 (the component count by CV: 80 for both; its learning curve still
+  falling); zero-shot on the shared shear taps 3.20 / 3.18 -> 2.74 / 3.10.
 - surface: 3 000. Simulation's CV 0.50 / 0.45 -> 0.31 / 0.31 deg; zero-shot on the shared
   128x128 taps 0.95 / 1.20 -> 0.92 / 1.11 (raw unchanged, 2.08 / 1.51 -> 2.09 / 1.59).
 - edge: 400, each tap turned 12 times in training: simulation's CV falls only from 1.58 mm
