@@ -565,3 +565,29 @@ def test_cv_loss_weighs_units_alike_and_wraps_angles():
     # off by half the deviation in one unit only
     half = np.array([[160.0, 1.0], [-180.0, 3.0]])
     assert cv_loss(y, half, ["pose_6", "pose_2"]) == pytest.approx(0.5)
+
+
+def test_cached_points_are_tracked_again_by_another_detector(folder, tmp_path, monkeypatch):  # noqa: F811
+    """A folder's tracked points are cached; a rerun with the same detector reads the cache,
+    one with another perception ``RESULTS_VERSION`` tracks the frames again (points cached
+    by an older detector are not paired with a newer one's)."""
+    import perception
+    import tactip_lab.real.task_run as tr
+
+    root, _ = folder
+    calls = []
+    real = tr.folder_points
+
+    def counting(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(tr, "folder_points", counting)
+    cache = tmp_path / "points.npz"
+    rest, pts = tr.cached_points(root, cache, expected_count=97)
+    rest2, pts2 = tr.cached_points(root, cache, expected_count=97)
+    assert len(calls) == 1
+    np.testing.assert_array_equal(pts, pts2)
+    monkeypatch.setattr(perception, "RESULTS_VERSION", perception.RESULTS_VERSION + 1)
+    tr.cached_points(root, cache, expected_count=97)
+    assert len(calls) == 2

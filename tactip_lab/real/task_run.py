@@ -124,11 +124,14 @@ def check_task_columns(path: Path, cols: dict[str, np.ndarray], targets: list[st
 def cached_points(folder: Path, cache: Path, *, key: str = "", expected_count: int = 331,
                   progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(rest, tracked points) of a Bristol folder (:func:`folder_points`), cached as npz
-    (valid for the same frame count, reference choice and ``key``)."""
+    (valid for the same frame count, reference choice, ``key`` and perception's
+    ``RESULTS_VERSION``: points tracked by another detector are tracked again)."""
+    import perception
     from tactip_lab.fitting.bristol import BristolFolder
 
     f = BristolFolder.open(folder)
-    tag = f"{f.rest_choice}|{len(f)}|{key}|{POINTS_VERSION}"
+    tag = (f"{f.rest_choice}|{len(f)}|{key}|{POINTS_VERSION}|"
+           f"perception {perception.RESULTS_VERSION}")
     if cache.is_file():
         z = np.load(cache, allow_pickle=False)
         if str(z["tag"]) == tag:
