@@ -591,3 +591,15 @@ def test_cached_points_are_tracked_again_by_another_detector(folder, tmp_path, m
     monkeypatch.setattr(perception, "RESULTS_VERSION", perception.RESULTS_VERSION + 1)
     tr.cached_points(root, cache, expected_count=97)
     assert len(calls) == 2
+
+
+def test_naive_baseline_is_the_same_on_a_rerun():
+    """The naive pixel baseline is deterministic for a seed (scikit-learn's PCA takes a
+    randomised SVD for frames of 4 096 pixels: unseeded, two runs on these frames differ)."""
+    from tactip_lab.real.task_run import naive_cv
+
+    rng = np.random.default_rng(0)
+    pixels, y = rng.random((100, 4096)), rng.uniform(-15, 15, (100, 2))
+    a = naive_cv(pixels, y, ["pose_4", "pose_5"], seed=3)
+    b = naive_cv(pixels, y, ["pose_4", "pose_5"], seed=3)
+    np.testing.assert_array_equal(a, b)
