@@ -162,7 +162,7 @@ scene (docs/sim2real.md, "More simulated taps"), 0.09-0.13 s a tap here (render 
   2.26 with 3 000 (the component count by CV: 80 for both; its learning curve still
   falling); zero-shot on the shared shear taps 3.20 / 3.18 -> 2.74 / 3.10.
 - surface: 3 000. Simulation's CV 0.50 / 0.45 -> 0.31 / 0.31 deg; zero-shot on the shared
-  128x128 taps 0.95 / 1.20 -> 0.93 / 1.06 (raw unchanged, 2.08 / 1.51 -> 2.09 / 1.59).
+  128x128 taps 0.95 / 1.20 -> 0.93 / 1.06 (raw: 2.08 / 1.51 -> 2.09 / 1.59).
 - edge: 400, each tap turned 12 times in training: simulation's CV falls only from 1.58 mm
   / 47 deg with 75 taps to 1.22 mm / 39 deg with 300 (a held-out 81).
 - edge under shear: 600 (549 stay in contact), 0.5 s a tap: simulation's CV 1.66 mm / 53.7
