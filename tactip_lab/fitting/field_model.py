@@ -140,6 +140,16 @@ def decode(z: np.ndarray, targets: list[str]) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
+def deviation_from_mean(t: np.ndarray, wraps: bool) -> np.ndarray:
+    """Each value's deviation from the values' mean: for a wrapping angle (deg) from their
+    circular mean, wrapped to [-180, 180)."""
+    t = np.asarray(t, dtype=float)
+    if not wraps:
+        return t - t.mean()
+    a = np.deg2rad(t)
+    return _wrap(t - np.rad2deg(np.arctan2(np.sin(a).mean(), np.cos(a).mean())))
+
+
 def target_scores(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> dict[str, Any]:
     """Per target: ``mae``, ``rmse``, ``r2``, ``unit``, ``n``, ``wrapped``. A wrapping angle's
     error is wrapped to [-180, 180); its R² is ``1 - sum(err²) / sum(dev²)`` with ``dev`` the
@@ -154,13 +164,8 @@ def target_scores(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> dict[s
             out[name] = {"mae": float("nan"), "rmse": float("nan"), "r2": float("nan"),
                          "unit": TARGETS[name]["unit"], "n": int(len(t)), "wrapped": wraps}
             continue
-        if wraps:
-            err = _wrap(p - t)
-            m = np.rad2deg(np.arctan2(np.sin(np.deg2rad(t)).mean(), np.cos(np.deg2rad(t)).mean()))
-            dev = _wrap(t - m)
-        else:
-            err = p - t
-            dev = t - t.mean()
+        err = _wrap(p - t) if wraps else p - t
+        dev = deviation_from_mean(t, wraps)
         ss = float(np.sum(dev ** 2))
         out[name] = {"mae": float(np.mean(np.abs(err))),
                      "rmse": float(np.sqrt(np.mean(err ** 2))),
@@ -439,6 +444,7 @@ def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str]
 
 
 __all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "TARGETS",
-           "FieldModel", "augment", "decode", "encode", "field_features", "fields_of",
-           "folder_fields", "folder_points", "grid_nodes", "is_field_model", "load_field_model",
-           "marker_median_reference", "median_gamma", "rotate", "target_scores", "task_targets"]
+           "FieldModel", "augment", "decode", "deviation_from_mean", "encode", "field_features",
+           "fields_of", "folder_fields", "folder_points", "grid_nodes", "is_field_model",
+           "load_field_model", "marker_median_reference", "median_gamma", "rotate",
+           "target_scores", "task_targets"]

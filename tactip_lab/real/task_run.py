@@ -36,6 +36,7 @@ from tactip_lab.fitting.field_model import (
     TARGETS,
     FieldModel,
     augment,
+    deviation_from_mean,
     fields_of,
     folder_points,
     target_scores,
@@ -240,13 +241,8 @@ def cv_loss(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> float:
     for j, t in enumerate(targets):
         v = np.asarray(y[:, j], dtype=float)
         v = v[np.isfinite(v)]
-        if TARGETS[t]["wraps"]:
-            a = np.deg2rad(v)
-            m = np.rad2deg(np.arctan2(np.sin(a).mean(), np.cos(a).mean()))
-            dev = np.abs((v - m + 180.0) % 360.0 - 180.0)
-        else:
-            dev = np.abs(v - v.mean())
-        spread = float(dev.mean()) if len(dev) else 0.0
+        spread = float(np.abs(deviation_from_mean(v, TARGETS[t]["wraps"])).mean()) \
+            if len(v) else 0.0
         total += s[t]["mae"] / spread if spread > 0 else 0.0
     return float(total)
 
@@ -387,7 +383,7 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
         m.save(out / name)
         models[fmt] = m
         summary["formats"][fmt] = {"model": str(out / name), "frames_usable": int(
-            np.all(np.isfinite(fields_of(rest, pts)), axis=1).sum()), "n_components": k,
+            np.all(np.isfinite(rows.x), axis=1).sum()), "n_components": k,
             "components_cv": {str(c): v for c, v in tried.items()},
             "predicted_by_simulation": _short(target_scores(y_sim, pred, targets))}
     for fmt, folders in (("128x128", real), ("raw", real_raw)):
@@ -409,11 +405,12 @@ def score_real(model: FieldModel, folder: Path, out: Path, cfg: TaskConfig, fmt:
     name = folder.name
     rest, pts = cached_points(folder, out / f"real_{name}_points.npz", progress=progress,
                               expected_count=331)
-    x = fields_of(rest, pts)
+    features = training_rows("", targets, rest, pts, y)  # the real taps as they are
+    x = features.x
     zero = model.predict(x)
     rows, few, corr = few_shot(zero, y, targets, cfg.k, cfg.seed)
-    k_real, real_cv, _, _ = choose_components(rest, pts, y, targets, model.image_size,
-                                              seed=cfg.seed)
+    k_real, real_cv, _ = choose_components_rows(features, y, targets, model.image_size,
+                                                seed=cfg.seed)
     naive = naive_cv(naive_pixels(folder), y, targets, seed=cfg.seed)
     np.savez(out / f"real_{name}.npz", truth=y, zero_shot=zero, few_shot_rows=rows,
              few_shot=few, real_cv=real_cv, naive_cv=naive, targets=np.array(targets))
