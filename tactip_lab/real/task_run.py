@@ -205,20 +205,12 @@ def few_shot(pred: np.ndarray, y: np.ndarray, targets: list[str], k: int, seed: 
     return rest, out, corr
 
 
-def cv_predict(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str],
-               image_size, *, task: str = "", seed: int = 0, n_components: int | None = None
-               ) -> np.ndarray:
-    """5-fold cross-validated predictions of the task's model (folds of taps, shuffled,
-    seeded; with ``task`` the training folds are augmented as :func:`fit_model` does, the
-    held-out fold never)."""
-    return cv_predict_rows(training_rows(task, targets, rest, pts, y), y, targets, image_size,
-                           task=task, seed=seed, n_components=n_components)
-
-
 def cv_predict_rows(rows: Rows, y: np.ndarray, targets: list[str], image_size, *,
                     task: str = "", seed: int = 0, n_components: int | None = None
                     ) -> np.ndarray:
-    """:func:`cv_predict` on features already computed (:func:`training_rows`)."""
+    """5-fold cross-validated predictions of the task's model on taps whose features are
+    ``rows`` (:func:`training_rows`): folds of taps, shuffled, seeded; with ``task`` the
+    training folds hold every tap's turned copies, the held-out fold the taps as seen."""
     from sklearn.model_selection import KFold
 
     n = len(rows.x)
@@ -252,7 +244,7 @@ def choose_components(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets:
                       grid: tuple[int, ...] = COMPONENT_GRID
                       ) -> tuple[int, np.ndarray, dict[int, dict[str, float]], Rows]:
     """The PCA component count of ``grid`` with the lowest :func:`cv_loss` in
-    :func:`cv_predict` over these taps. Returns (count, its CV predictions, per count tried
+    :func:`cv_predict_rows` over these taps. Returns (count, its CV predictions, per count tried
     the CV MAE of every target and the loss, the :func:`training_rows` for
     :func:`fit_model`)."""
     rows = training_rows(task, targets, rest, pts, y)
