@@ -409,6 +409,53 @@ def test_marker_median_reference_averages_the_tilts_of_the_shallowest_presses():
     np.testing.assert_array_equal(marker_median_reference(with_rest, tilted, pts), tilted)
 
 
+def test_densest_reference_finds_the_rest_among_taps_that_miss_without_labels():
+    """An edge folder holds taps beside the edge that miss it: their frames are the rest state
+    plus noise. Among presses (a radial field about a point on one side, 0.3-1.5 px), 20 such
+    frames are found without labels and their median is the generated rest within the noise;
+    the shallowest-label rule, whose shallowest taps here all press, is off by a press."""
+    from tactip_lab.fitting.field_model import densest_reference, marker_median_reference
+
+    rng = np.random.default_rng(11)
+    rest = _lattice(15)
+    n_miss, n_press = 20, 180
+    frames, depth = [], []
+    for i in range(n_miss + n_press):
+        p = rest + rng.normal(0.0, 0.05, rest.shape)
+        if i >= n_miss:
+            # the contact on one side of the array, as the shared edge taps' 70 deg of angle
+            at = (rng.uniform(80.0, 98.0), rng.uniform(30.0, 98.0))
+            p = _bump(p, at, amp=rng.uniform(0.3, 1.5), width=40.0)  # fields span the array
+        frames.append(p)
+        depth.append(rng.uniform(3.5, 4.0) if i < n_miss else rng.uniform(3.0, 5.0))
+    pts = np.stack(frames)
+    pts[rng.permutation(len(pts))[:5], 3] = np.nan  # a few lost markers
+    order = rng.permutation(len(pts))  # the misses anywhere in the folder
+    pts, depth = pts[order], np.array(depth)[order]
+    misses = np.flatnonzero(order < n_miss)
+
+    ref, members = densest_reference(pts, 10)
+    assert set(members) <= set(misses)
+    assert np.sqrt(np.nanmean(np.sum((ref - rest) ** 2, axis=1))) < 0.03  # noise 0.05 / ~3
+    unlabelled = SimpleNamespace(depth_mm=np.full(len(pts), np.nan), reference_is_a_press=True)
+    got = marker_median_reference(unlabelled, pts[0], pts, rule="densest")  # no labels at all
+    assert np.sqrt(np.mean(np.sum((got - rest) ** 2, axis=1))) < 0.03
+    labelled = SimpleNamespace(depth_mm=depth, reference_is_a_press=True)
+    shallow = marker_median_reference(labelled, pts[0], pts, rule="shallowest")
+    assert np.sqrt(np.mean(np.sum((shallow - rest) ** 2, axis=1))) > 0.1
+    with pytest.raises(ValueError, match="k = 200"):
+        densest_reference(pts, 200)
+    with pytest.raises(ValueError, match="reference rule 'mode'"):
+        marker_median_reference(labelled, pts[0], pts, rule="mode")
+
+
+def test_reference_rule_of_each_task():
+    from tactip_lab.fitting.field_model import reference_rule
+
+    assert [reference_rule(t) for t in ("edge", "edge+shear", "surface", "surface+shear")] \
+        == ["densest", "densest", "shallowest", "shallowest"]
+
+
 def test_few_shot_draw_skips_taps_without_a_prediction():
     from tactip_lab.real.task_run import few_shot
 

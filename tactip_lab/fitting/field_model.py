@@ -345,12 +345,14 @@ def task_targets(task: str) -> list[str]:
     raise ValueError(f"task {task!r} is not known: surface or edge (optionally +shear)")
 
 
-def folder_points(folder: Any, *, expected_count: int | None = None, progress: bool = False
+def folder_points(folder: Any, *, expected_count: int | None = None, progress: bool = False,
+                  reference: str = "shallowest"
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rest (m, 2), tracked points (n, m, 2), reliable (n,)) of every frame of a
     :class:`~tactip_lab.fitting.bristol.BristolFolder`, each tracked from the folder's
     reference as a tap (:func:`~tactip_lab.fitting.bristol.tap_pipeline`); a frame perception
-    cannot read is all NaN."""
+    cannot read is all NaN. ``reference``: how ``rest`` is chosen in a folder without a frame
+    free of contact (:func:`marker_median_reference`)."""
     from tqdm import tqdm
 
     import perception as pc
@@ -369,22 +371,89 @@ def folder_points(folder: Any, *, expected_count: int | None = None, progress: b
             continue
         pts[i] = f.points
         reliable[i] = bool(f.reliable)
-    return marker_median_reference(folder, rest, pts), pts, reliable
+    return marker_median_reference(folder, rest, pts, rule=reference), pts, reliable
 
 
-def marker_median_reference(folder: Any, rest: np.ndarray, pts: np.ndarray) -> np.ndarray:
+REFERENCE_RULES = ("shallowest", "densest")
+"""How a folder without a frame free of contact gets its reference
+(:func:`marker_median_reference`)."""
+
+
+def reference_rule(task: str) -> str:
+    """The reference rule of a task's real folders: ``"densest"`` for the edge tasks, whose
+    protocol (the lab's ``edge_2d``: the sensor ±6 mm about the edge, 3-5 mm deep) holds taps
+    beside the edge that miss it, so the frames hold the rest state itself; ``"shallowest"``
+    for the surface tasks, every tap of which presses (docs/sim2real.md, "The reference of an
+    edge folder")."""
+    return "densest" if task.split("+")[0] == "edge" else "shallowest"
+
+
+def densest_reference(pts: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rest state of a set of frames, read from the frames alone: (positions (m, 2),
+    indices of the frames used). ``pts`` (n, m, 2) are tracked in one marker order (NaN: lost).
+
+    Frames of taps that miss the object are the rest state up to noise, so they are the
+    densest cluster of the set: the frame whose ``k``-th nearest frame (RMS distance over the
+    markers every candidate tracks) is nearest, with those ``k`` neighbours; the reference is
+    their marker-by-marker median (NaN where none of them tracks the marker). Frames tracking
+    fewer than 90 % of the markers are not candidates. No label is used."""
+    pts = np.asarray(pts, dtype=float)
+    n = len(pts)
+    ok = np.all(np.isfinite(pts), axis=2)
+    cand = np.flatnonzero(ok.mean(axis=1) >= 0.9)
+    if not 1 <= k < len(cand):
+        raise ValueError(f"densest_reference: k = {k} must be in 1..{len(cand) - 1}: "
+                         f"{len(cand)} of {n} frames track 90 % of the markers")
+    common = np.all(ok[cand], axis=0)
+    if common.sum() < 3:
+        raise ValueError("densest_reference: fewer than 3 markers are tracked in every "
+                         "candidate frame")
+    x = pts[cand][:, common].reshape(len(cand), -1)
+    x = x - x.mean(axis=0)
+    sq = np.einsum("ij,ij->i", x, x)
+    d2 = np.maximum(sq[:, None] + sq[None, :] - 2.0 * (x @ x.T), 0.0)  # BLAS: (c, c)
+    np.fill_diagonal(d2, 0.0)
+    kth = np.partition(d2, k, axis=1)[:, k]
+    best = int(np.argmin(kth))
+    members = cand[np.argsort(d2[best], kind="stable")[:k + 1]]
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN markers stay NaN
+        return np.nanmedian(pts[members], axis=0), members
+
+
+def marker_median_reference(folder: Any, rest: np.ndarray, pts: np.ndarray, *,
+                            rule: str = "shallowest") -> np.ndarray:
     """The reference positions of a folder's markers (m, 2).
 
     A folder with a frame without contact (its ``images/rest.png``, ``--rest``, a row of depth
     <= 0) keeps that frame's markers. Otherwise its reference image is a press: the shallowest
     one, or the pixel-wise median of the shallowest few (:func:`~tactip_lab.fitting.bristol.
-    _choose_rest`), and a single tilted press moves every displacement. The reference is then
-    the marker-by-marker median of the tracked positions in the ``round(sqrt(N))`` shallowest
-    presses (the same count as the pixel-wise rule, without its depth-span limit, which leaves
-    a folder of 50 taps one press), so their tilts average out; a marker no such press tracks
-    keeps the image's position."""
+    _choose_rest`), and a single tilted press moves every displacement. ``rule``:
+
+    - ``"shallowest"``: the marker-by-marker median of the tracked positions in the
+      ``round(sqrt(N))`` shallowest presses (the same count as the pixel-wise rule, without its
+      depth-span limit, which leaves a folder of 50 taps one press), so their tilts average
+      out;
+    - ``"densest"``: the rest state read from the frames alone (:func:`densest_reference`,
+      ``round(sqrt(N) / 2)`` neighbours), for a set that holds taps missing the object.
+
+    A marker the chosen frames do not track keeps the image's position."""
+    if rule not in REFERENCE_RULES:
+        raise ValueError(f"reference rule {rule!r}: one of {', '.join(REFERENCE_RULES)}")
+    if not folder.reference_is_a_press:
+        return rest
+    if rule == "densest":
+        n = len(pts)
+        if n < 3:
+            return rest
+        med, _ = densest_reference(pts, max(2, min(n - 1, int(round(np.sqrt(n) / 2)))))
+        lost = ~np.all(np.isfinite(med), axis=1)
+        med[lost] = rest[lost]
+        return med
     depth = np.asarray(folder.depth_mm, dtype=float)
-    if not folder.reference_is_a_press or not np.all(np.isfinite(depth)):
+    if not np.all(np.isfinite(depth)):
         return rest
     k = max(1, int(round(np.sqrt(len(depth)))))
     if k < 2:
@@ -407,13 +476,13 @@ def fields_of(rest: np.ndarray, pts: np.ndarray, rotation_deg: float = 0.0) -> n
                      for p in pts]) if len(pts) else np.zeros((0, 2 * len(nodes) + 1))
 
 
-def folder_fields(folder: Any, *, expected_count: int | None = None, progress: bool = False
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def folder_fields(folder: Any, *, expected_count: int | None = None, progress: bool = False,
+                  reference: str = "shallowest") -> tuple[np.ndarray, np.ndarray]:
     """(features (n, 2k+1), reliable (n,)) of every frame of a folder (:func:`folder_points`).
     Frames perception flags keep their features when at least half the markers are tracked
     (``reliable`` says which)."""
     rest, pts, reliable = folder_points(folder, expected_count=expected_count,
-                                        progress=progress)
+                                        progress=progress, reference=reference)
     return fields_of(rest, pts), reliable
 
 
@@ -443,8 +512,9 @@ def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str]
     return np.concatenate(xs), np.concatenate(ys)
 
 
-__all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "TARGETS",
-           "FieldModel", "augment", "decode", "deviation_from_mean", "encode", "field_features",
+__all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "REFERENCE_RULES",
+           "TARGETS", "FieldModel", "augment", "decode", "densest_reference",
+           "deviation_from_mean", "encode", "field_features",
            "fields_of", "folder_fields", "folder_points", "grid_nodes", "is_field_model",
-           "load_field_model", "marker_median_reference", "median_gamma", "rotate",
-           "target_scores", "task_targets"]
+           "load_field_model", "marker_median_reference", "median_gamma", "reference_rule",
+           "rotate", "target_scores", "task_targets"]

@@ -184,7 +184,12 @@ def _evaluate_field(args: argparse.Namespace) -> int:
     import csv
 
     from tactip_lab.fitting.bristol import BristolFolder
-    from tactip_lab.fitting.field_model import folder_fields, load_field_model, target_scores
+    from tactip_lab.fitting.field_model import (
+        folder_fields,
+        load_field_model,
+        reference_rule,
+        target_scores,
+    )
 
     model = load_field_model(args.model)
     if args.feature not in (None, "field"):
@@ -221,13 +226,16 @@ def _evaluate_field(args: argparse.Namespace) -> int:
                 f"{d}: frames are {size[0]}x{size[1]} but {args.model} was fitted on "
                 f"{model.image_size[0]}x{model.image_size[1]} frames (tactip sim2real writes "
                 "model.json for the 128x128 processed frames and model_raw.json for raw ones)")
+        rule = reference_rule(model.task)
         x, _ = folder_fields(f, expected_count=args.expected_count,
-                             progress=not args.no_progress)
+                             progress=not args.no_progress, reference=rule)
         pred = model.predict(x)
         s = target_scores(y, pred, targets)
         rows.append({"dataset": str(d), "n_rows": len(y),
                      "n_used": int(np.all(np.isfinite(pred), axis=1).sum()),
-                     "rest": str(f.rest), "rest_choice": f.rest_choice, "targets": s})
+                     "rest": str(f.rest), "rest_choice": f.rest_choice,
+                     "reference": rule if f.reference_is_a_press else "rest frame",
+                     "targets": s})
         ys.append(y)
         ps.append(pred)
         total += len(y)

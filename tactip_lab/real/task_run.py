@@ -39,6 +39,7 @@ from tactip_lab.fitting.field_model import (
     deviation_from_mean,
     fields_of,
     folder_points,
+    reference_rule,
     target_scores,
     task_targets,
 )
@@ -123,21 +124,26 @@ def check_task_columns(path: Path, cols: dict[str, np.ndarray], targets: list[st
 
 
 def cached_points(folder: Path, cache: Path, *, key: str = "", expected_count: int = 331,
-                  progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """(rest, tracked points) of a Bristol folder (:func:`folder_points`), cached as npz
-    (valid for the same frame count, reference choice, ``key`` and perception's
-    ``RESULTS_VERSION``: points tracked by another detector are tracked again)."""
+                  progress: bool = False, reference: str = "shallowest"
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(rest, tracked points) of a Bristol folder (:func:`folder_points`; ``reference`` its
+    rule for a folder without a frame free of contact), cached as npz (valid for the same
+    frame count, reference image and rule, ``key`` and perception's ``RESULTS_VERSION``:
+    points tracked by another detector are tracked again)."""
     import perception
     from tactip_lab.fitting.bristol import BristolFolder
 
     f = BristolFolder.open(folder)
     tag = (f"{f.rest_choice}|{len(f)}|{key}|{POINTS_VERSION}|"
            f"perception {perception.RESULTS_VERSION}")
+    if reference != "shallowest":  # the tag of caches made before the rule was a choice
+        tag += f"|reference {reference}"
     if cache.is_file():
         z = np.load(cache, allow_pickle=False)
         if str(z["tag"]) == tag:
             return z["rest"], z["pts"]
-    rest, pts, _ = folder_points(f, expected_count=expected_count, progress=progress)
+    rest, pts, _ = folder_points(f, expected_count=expected_count, progress=progress,
+                                 reference=reference)
     tmp = cache.with_name(cache.stem + ".tmp.npz")
     np.savez(tmp, rest=rest, pts=pts, tag=tag)
     tmp.replace(cache)
@@ -395,8 +401,9 @@ def score_real(model: FieldModel, folder: Path, out: Path, cfg: TaskConfig, fmt:
     cols = folder_columns(folder)
     y = np.stack([cols[t] for t in targets], axis=1)
     name = folder.name
+    rule = reference_rule(model.task)
     rest, pts = cached_points(folder, out / f"real_{name}_points.npz", progress=progress,
-                              expected_count=331)
+                              expected_count=331, reference=rule)
     features = training_rows("", targets, rest, pts, y)  # the real taps as they are
     x = features.x
     zero = model.predict(x)
@@ -406,7 +413,7 @@ def score_real(model: FieldModel, folder: Path, out: Path, cfg: TaskConfig, fmt:
     naive = naive_cv(naive_pixels(folder), y, targets, seed=cfg.seed)
     np.savez(out / f"real_{name}.npz", truth=y, zero_shot=zero, few_shot_rows=rows,
              few_shot=few, real_cv=real_cv, naive_cv=naive, targets=np.array(targets))
-    res = {"format": fmt, "n": int(len(y)),
+    res = {"format": fmt, "n": int(len(y)), "reference": rule,
            "frames_usable": int(np.all(np.isfinite(x), axis=1).sum()),
            "zero_shot": _short(target_scores(y, zero, targets)),
            "few_shot": {"k": cfg.k, "correction": corr,
