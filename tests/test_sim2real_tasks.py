@@ -515,6 +515,38 @@ def test_a_simulated_folder_resumes_only_under_its_own_protocol(tmp_path):
         _claim_protocol(old, proto)
 
 
+def test_an_edge_folder_simulated_with_another_depth_offset_does_not_resume(tmp_path,
+                                                                           monkeypatch):
+    """The edge taps' depth offset defines their frames as much as their labels do: a folder
+    claimed under another offset range refuses to resume before anything is simulated."""
+    from pathlib import Path
+
+    import tactip_sim as ts
+    from tactip_lab.real import tasks
+    from tactip_lab.sampling import chain
+
+    class Stop(Exception):
+        pass
+
+    def stop(*a, **k):
+        raise Stop
+
+    monkeypatch.setattr(chain, "Chain", stop)  # the protocol is claimed before any simulation
+    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
+                          "tactip_331_identified.toml")
+    out = tmp_path / "sim"
+    with pytest.raises(Stop):
+        tasks.simulate_task(scene, out, "edge", 3, progress=False)
+    claimed = json.loads((out / "protocol.json").read_text())
+    assert claimed["edge_depth_offset_mm"] == list(tasks.EDGE_DEPTH_OFFSET_MM)
+    (out / "images" / "image_00001.png").write_bytes(b"frame")
+    claimed["edge_depth_offset_mm"] = [2.0, 3.0]  # a folder of the earlier range
+    (out / "protocol.json").write_text(json.dumps(claimed))
+    with pytest.raises(ValueError, match="edge_depth_offset_mm"):
+        tasks.simulate_task(scene, out, "edge", 3, progress=False)
+    assert (out / "images" / "image_00001.png").read_bytes() == b"frame"
+
+
 def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path, capsys):
     from tactip_sim.commands import main
 

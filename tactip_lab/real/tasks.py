@@ -27,8 +27,10 @@ origin of ``pose_6``) are :data:`EDGE_CONVENTION`, each checked as docs/sim2real
 (``work_frame`` z 54 mm, its comment "edge height = 52.0mm"; the same ``work_frame`` is in the
 edge sets' ``meta.json``), with the tool centre point at the sensor's tip (``robot_tcp`` 101 mm).
 So the tip is pushed about 2 mm less than ``pose_3`` past the top face. On the real edge taps
-the marker field's size grows linearly with ``pose_3`` and extrapolates to zero at 2.86 mm
-(taps with the centre over the block, docs/sim2real.md), so the offset is randomised per
+the marker field's size grows linearly with ``pose_3`` and extrapolates to zero at 2.44 mm
+(taps with the centre over the block, measured from the rest state the taps beside the edge
+give, :func:`~tactip_lab.fitting.field_model.densest_reference`; 2.86 mm from the shallowest
+presses, a reference that is itself pressed; docs/sim2real.md), so the offset is randomised per
 simulated tap, uniform in :data:`EDGE_DEPTH_OFFSET_MM` (the cited 2 mm to the measured onset,
 rounded up). With the sensor's centre beside the block the first contact is lower on the
 dome, so the simulated indentation beyond first contact is the tip's depth minus that drop
@@ -134,11 +136,14 @@ def label_turn(task: str, convention: EdgeConvention = EDGE_CONVENTION) -> dict[
 BLOCK_MM = (80.0, 40.0, 20.0)
 """The block (x along the edge, y across, z height), mm: wider than the pad (40 mm) both ways so
 that only its one edge meets it."""
-EDGE_DEPTH_OFFSET_MM = (2.0, 3.0)
+EDGE_DEPTH_OFFSET_MM = (2.0, 2.5)
 """Range (uniform, per simulated tap) of the edge sets' ``pose_3`` less the tip's depth past
 the block's top face: from the lab's ``work_frame`` z 54 mm against its stated edge height
-52 mm (read from its code) to the real taps' measured onset of contact, 2.86 mm, rounded up.
-Randomised, not fitted: no value inside it was chosen by a score."""
+52 mm (read from its code) to the real taps' measured onset of contact, 2.44 mm (from the
+folder's rest state, :func:`~tactip_lab.fitting.field_model.densest_reference`), rounded up.
+It was (2.0, 3.0) while the onset was measured against the shallowest presses (2.86 mm), a
+reference that is itself pressed. Randomised, not fitted: no value inside it was chosen by a
+score."""
 EDGE_TAP_NOTE = """Edge taps are pressed with friction (:data:`FRICTION_ASSUMED`, ``tap_steps``
 load steps), not frictionless: at the block's corner the contact pushes the skin away from the
 block, and without friction on the top face the whole skin slides sideways. Measured on the
@@ -342,7 +347,9 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
         "task": task, "n": n, "seed": seed, "scene_hash": scene_hash(scene),
         "ranges": {k: list(v) for k, v in simulated_ranges(task, depth_mm).items()},
         "convention": dict(convention.__dict__), "axes": axes, "shear_steps": shear_steps,
-        "tap_steps": tap_steps, "friction": friction})
+        "tap_steps": tap_steps, "friction": friction,
+        **({"edge_depth_offset_mm": list(EDGE_DEPTH_OFFSET_MM)} if task.startswith("edge")
+           else {})})
     rows = draw_poses(task, n, seed, depth_mm)
     offsets = np.random.default_rng([seed, 53, 2]).uniform(*EDGE_DEPTH_OFFSET_MM, n)
     chain = Chain(scene, frames=1)
