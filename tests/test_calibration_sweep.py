@@ -127,12 +127,6 @@ def test_dataset_of_another_physics_version_is_refused(spec, serial, monkeypatch
         run_sweep(spec, serial, progress=False)
 
 
-def test_workers_are_byte_identical_to_serial(spec, serial, tmp_path):
-    out = tmp_path / "workers"
-    run_sweep(spec, out, workers=2, progress=False, chunk=2)
-    assert _files(out) == _files(serial)
-
-
 def test_dask_cluster_by_address_is_byte_identical_to_serial(spec, serial, tmp_path):
     from dask.distributed import LocalCluster
 
@@ -162,7 +156,9 @@ def _worker_timers(dask_worker) -> tuple[bool, float, float]:
 def test_local_cluster_workers_sample_their_diagnostics_slowly(spec, serial, tmp_path):
     """The clusters ``--workers N`` starts do not profile their tasks' stacks every 10 ms nor
     wake their event loop every 20 ms (QUIET_WORKERS); this process's settings stay as they
-    were, and the sweep's files (written by the workers themselves) are the serial run's."""
+    were, and the sweep's files (written by the workers themselves) are the serial run's.
+    (The cluster a sweep opens itself, ``run_sweep(workers=2)``, is the same ``open_client(2,
+    None)``; it gives the serial bytes in test_every_worker_computes_with_the_mesh_of_the_spec.)"""
     import dask
 
     from tactip_lab.sampling.executor import close_client, open_client
