@@ -1,0 +1,143 @@
+"""How local the marker field of an edge tap is: simulated against real taps (docs/sim2real.md).
+
+    python benchmarks/sim2real_edge_localisation.py [VARIANT ...] [--no-real]
+
+A tap beside an edge presses one side of the pad. Two numbers say how much of the marker
+field stays on that side, each independent of the frame's scale and of the field's size:
+
+- ``offset``: the centroid of the markers' rest positions weighted by their displacement
+  magnitudes, its distance from the array's centre in RMS field radii (0: a field spread
+  evenly about the centre; ~0.5 and more: a field on one side);
+- ``far``: the share of the summed displacement magnitude on the far half of the array (the
+  half away from that centroid; 0.5: no side preferred).
+
+- real: the lab's edge taps (``../shared/real/tactip331_edge128``) near three lateral
+  positions (``pose_2`` -4.5, -2 and +3 mm, +-0.5) pressed 4.4-5.0 mm (label ``pose_3``; the
+  real field over the block starts at 2.44 mm, docs/sim2real.md, so 2.0-2.6 mm past the top
+  face), tracked from
+  the folder's densest-cluster reference as ``tactip sim2real --task edge`` tracks them
+  (median over the taps of each bin; tracking noise adds to ``far``, so the real ``far`` is
+  an upper bound);
+- simulated: the identified scene's block pressed 2.2 mm past its top face at the same
+  lateral positions (edge yaw 0, 40 and 80 deg, averaged), with the edge taps' friction, the
+  FEM's marker caps through the camera model (no render), for the nominal scene and variants
+  of its discretisation and *assumed* values.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+POSITIONS_MM = (-4.5, -2.0, 3.0)
+"""Lateral positions (``pose_2``; negative: the sensor's centre beside the block)."""
+TIP_DEPTH_MM = 2.2
+REAL_DEPTH_MM = (4.4, 5.0)
+YAWS_DEG = (0.0, 40.0, 80.0)
+VARIANTS = {
+    "fast (P1, 3 mm)": {},
+    "P2": {"fidelity": {"element_order": 2}},
+    "P2, mesh 1.5 mm": {"fidelity": {"element_order": 2, "mesh_edge_mm": 1.5}},
+    "P2, skin E/3": {"fidelity": {"element_order": 2}, "skin": {"youngs_modulus_kpa": 300.0}},
+    "P2, skin E*3": {"fidelity": {"element_order": 2}, "skin": {"youngs_modulus_kpa": 2700.0}},
+    "P2, gel nu 0.40": {"fidelity": {"element_order": 2}, "gel": {"poisson_ratio": 0.40}},
+    "P2, gel nu 0.49": {"fidelity": {"element_order": 2}, "gel": {"poisson_ratio": 0.49}},
+    "P2, skin 0.5 mm": {"fidelity": {"element_order": 2}, "skin": {"thickness_mm": 0.5}},
+}
+
+
+def localisation(rest: np.ndarray, points: np.ndarray) -> tuple[float, float]:
+    """(offset, far) of one frame: ``rest``, ``points`` (m, 2) px, NaN rows lost."""
+    ok = np.all(np.isfinite(rest), axis=1) & np.all(np.isfinite(points), axis=1)
+    rest, points = rest[ok], points[ok]
+    c = rest.mean(axis=0)
+    r = (rest - c) / np.sqrt(np.mean(np.sum((rest - c) ** 2, axis=1)))
+    d = np.linalg.norm(points - rest, axis=1)
+    cen = (d[:, None] * r).sum(axis=0) / d.sum()
+    far = (r @ cen) < 0
+    return float(np.linalg.norm(cen)), float(d[far].sum() / d.sum())
+
+
+def real_rows(folder: Path) -> list[str]:
+    from tactip_lab.fitting.bristol import BristolFolder
+    from tactip_lab.fitting.field_model import folder_points, reference_rule
+    from tactip_lab.real.task_run import folder_columns
+
+    cols = folder_columns(folder)
+    rest, pts, _ = folder_points(BristolFolder.open(folder), expected_count=331, progress=True,
+                                 reference=reference_rule("edge"))
+    out = []
+    for p2 in POSITIONS_MM:
+        sel = (np.abs(cols["pose_2"] - p2) <= 0.5) & (cols["pose_3"] >= REAL_DEPTH_MM[0]) \
+            & (cols["pose_3"] <= REAL_DEPTH_MM[1])
+        s = np.array([localisation(rest, p) for p in pts[sel]])
+        out.append(f"{np.median(s[:, 0]):.2f} / {np.median(s[:, 1]):.2f} (n {int(sel.sum())})")
+    return out
+
+
+def sim_rows(scene) -> list[str]:
+    import tactip_sim as ts
+    from tactip_lab.real import tasks
+    from tactip_sim.render import Renderer
+
+    sim = ts.Simulator(scene)
+    ren = Renderer(scene, ts.build_pad(scene))
+    block = tasks.block_indenter()
+    r0 = sim.rest_state()
+    _, vis0, rest = ren.ground_truth(r0.markers_mm, r0.marker_directions)
+    out = []
+    for p2 in POSITIONS_MM:
+        vals = []
+        for yaw in YAWS_DEG:
+            depth = tasks.edge_contact_depth(sim, block, p2, yaw, TIP_DEPTH_MM)
+            states, _ = sim.continue_path(tasks.tap_poses(tasks.edge_pose(p2, yaw, depth), 2),
+                                          friction=tasks.FRICTION_ASSUMED, indenter=block)
+            st = states[-1]
+            with np.errstate(invalid="ignore"):
+                _, vis, pts = ren.ground_truth(st.markers_mm, st.marker_directions)
+            ok = vis0 & vis
+            vals.append(localisation(np.where(ok[:, None], rest, np.nan), pts))
+        v = np.mean(vals, axis=0)
+        out.append(f"{v[0]:.2f} / {v[1]:.2f}")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("variants", nargs="*", metavar="VARIANT",
+                   help=f"scene variants (default all): {', '.join(VARIANTS)}")
+    p.add_argument("--real", type=Path, default=ROOT.parent / "shared" / "real" /
+                   "tactip331_edge128", help="real edge taps (Bristol layout, 128x128)")
+    p.add_argument("--no-real", action="store_true", help="skip the real taps")
+    args = p.parse_args(argv)
+    unknown = [v for v in args.variants if v not in VARIANTS]
+    if unknown:
+        p.error(f"unknown variant {unknown[0]!r}: choose from {', '.join(VARIANTS)}")
+    sys.path.insert(0, str(ROOT))
+    import tactip_sim as ts
+    from tactip_sim.scene import apply_preset, replace_in
+
+    print("| taps (offset / far) | " + " | ".join(f"pose_2 {v:+g} mm" for v in POSITIONS_MM)
+          + " |")
+    print("|---|" + "---:|" * len(POSITIONS_MM))
+    if not args.no_real:
+        print(f"| real {args.real.name}, pose_3 {REAL_DEPTH_MM[0]}-{REAL_DEPTH_MM[1]} mm | "
+              + " | ".join(real_rows(args.real)) + " |", flush=True)
+    base = apply_preset(ts.load_scene(ROOT / "scenes" / "tactip_331_identified.toml"), "fast")
+    for name in args.variants or VARIANTS:
+        t0 = time.perf_counter()
+        over = VARIANTS[name]
+        rows = sim_rows(replace_in(base, **over) if over else base)
+        print(f"| simulated, {name}, {TIP_DEPTH_MM:g} mm | " + " | ".join(rows) + " |",
+              flush=True)
+        print(f"({name}: {time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
