@@ -48,8 +48,13 @@ def test_the_span_set_is_the_grid_spread_over_the_test_depths(scene):
 
 
 def _tiny(scene):
+    # P1: what is checked here (the training sets, the model, its notes and what it refuses)
+    # does not depend on the element order, and the same assertions hold with P1 (order 2's
+    # R² 0.96-0.99 against P2's 0.95-0.99, depth signal 0.98 against 0.98); P2 would build
+    # the manufactured tip A's compliance, which no other test uses (19 CPU-s on a fresh
+    # clone's empty cache)
     return ts.replace_in(scene, camera={"resolution": [320, 240], "pixel_pitch_um": 16.8},
-                         imaging={"spp": 2},
+                         imaging={"spp": 2}, fidelity={"element_order": 1},
                          protocol={"roll_step_deg": 8.0, "pitch_step_deg": 3.5,
                                    "test_poses": 16})
 
