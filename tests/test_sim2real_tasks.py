@@ -363,7 +363,9 @@ def test_sim2real_edge_command_end_to_end(tmp_path):
     ev = tmp_path / "ev.json"
     assert main(["evaluate", str(out / "model.json"), str(sub), "--json", str(ev),
                  "--no-progress"]) == 0
-    t = json.loads(ev.read_text())["targets"]
+    report = json.loads(ev.read_text())
+    assert report["datasets"][0]["reference"] == "densest"  # the edge folder's rest state
+    t = report["targets"]
     assert t["pose_6"]["unit"] == "deg" and t["pose_6"]["wrapped"]
     assert t["pose_2"]["mae"] == pytest.approx(z["pose_2"]["mae"], rel=1e-9)
     assert t["pose_6"]["mae"] == pytest.approx(z["pose_6"]["mae"], rel=1e-9)
@@ -586,7 +588,9 @@ def test_sim2real_surface_field_command_end_to_end(tmp_path):
     ev = tmp_path / "ev.json"
     assert main(["evaluate", str(out / "model.json"), str(sub), "--json", str(ev),
                  "--no-progress"]) == 0
-    t = json.loads(ev.read_text())["targets"]
+    report = json.loads(ev.read_text())
+    assert report["datasets"][0]["reference"] == "shallowest"  # every surface tap presses
+    t = report["targets"]
     assert set(t) == {"pose_4", "pose_5"} and t["pose_4"]["unit"] == "deg"
     assert t["pose_4"]["mae"] == pytest.approx(z["pose_4"]["mae"], rel=1e-9)
     assert t["pose_5"]["r2"] == pytest.approx(z["pose_5"]["r2"], rel=1e-9)
