@@ -383,8 +383,8 @@ def reference_rule(task: str) -> str:
     """The reference rule of a task's real folders: ``"densest"`` for the edge tasks, whose
     protocol (the lab's ``edge_2d``: the sensor ±6 mm about the edge, 3-5 mm deep) holds taps
     beside the edge that miss it, so the frames hold the rest state itself; ``"shallowest"``
-    for the surface tasks, every tap of which presses (docs/sim2real.md, "The reference of an
-    edge folder")."""
+    for the surface tasks, every tap of which presses (docs/sim2real.md, "The edge folders'
+    rest state")."""
     return "densest" if task.split("+")[0] == "edge" else "shallowest"
 
 
