@@ -549,6 +549,48 @@ def test_an_edge_folder_simulated_with_another_depth_offset_does_not_resume(tmp_
     assert (out / "images" / "image_00001.png").read_bytes() == b"frame"
 
 
+def test_an_edge_tap_that_misses_the_block_is_the_rest_state_with_its_own_noise(tmp_path,
+                                                                                monkeypatch):
+    """A drawn edge pose that leaves the pad clear of the block is not dropped: its frame is
+    the rest state rendered with the tap's own noise key, its row kept, and ``timing.json``
+    lists it (a resumed run keeps the list). The physics is never asked for such a tap."""
+    from pathlib import Path
+
+    import tactip_sim as ts
+    from tactip_lab.real import tasks
+    from tactip_lab.sampling import chain
+
+    rendered = []
+
+    class FakeSim:
+        def continue_path(self, *a, **k):
+            raise AssertionError("a tap that misses the block was simulated")
+
+    class FakeChain:
+        def __init__(self, scene, frames=1):
+            self.sim = FakeSim()
+            self.rest_image = np.zeros((8, 8), np.uint8)
+
+        def render(self, state, *key, frames=1):
+            rendered.append((state, key))
+            return SimpleNamespace(images=[np.full((8, 8), 7, np.uint8)])
+
+    monkeypatch.setattr(chain, "Chain", FakeChain)
+    monkeypatch.setattr(tasks, "sim_pose", lambda *a, **k: ts.Pose(depth_mm=-0.3))
+    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
+                          "tactip_331_identified.toml")
+    out = tmp_path / "sim"
+    tasks.simulate_task(scene, out, "edge", 2, progress=False)
+    assert [r[0] for r in rendered] == [None, None]  # the rest state
+    assert [r[1] for r in rendered] == [(53, 0), (53, 1)]  # each tap its own noise
+    rows = (out / "targets.csv").read_text().splitlines()
+    assert len(rows) == 3 and rows[1].startswith("image_00001.png")
+    assert json.loads((out / "timing.json").read_text())["missed"] == [1, 2]
+    tasks.simulate_task(scene, out, "edge", 2, progress=False)  # resumed: nothing to do
+    assert len(rendered) == 2
+    assert json.loads((out / "timing.json").read_text())["missed"] == [1, 2]
+
+
 def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path, capsys):
     from tactip_sim.commands import main
 
