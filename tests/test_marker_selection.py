@@ -185,11 +185,16 @@ def test_select_markers_command(contacts_folder, tmp_path):
 
 
 def test_select_markers_command_refuses_bad_input(contacts_folder, tmp_path):
-    res = _run("select-markers", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o"))
-    assert res.returncode != 0 and "no such folder" in res.stderr
+    # the command in this process (``tactip_sim.commands.main``, as tests/test_outputs.py
+    # runs them): a refusal is its exit code and message, not the interpreter's start, which
+    # test_select_markers_command and tests/test_cli.py check
+    from .test_outputs import tactip
+
+    rc, err = tactip("select-markers", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o"))
+    assert rc != 0 and "no such folder" in err
     (tmp_path / "empty").mkdir()
-    res = _run("select-markers", str(tmp_path / "empty"), "--out", str(tmp_path / "o"))
-    assert res.returncode != 0 and "not a contacts data set" in res.stderr
-    res = _run("select-markers", str(contacts_folder), "--out", str(tmp_path / "o"),
-               "--tasks", "object,grasp")
-    assert res.returncode != 0 and "--tasks='object,grasp'" in res.stderr
+    rc, err = tactip("select-markers", str(tmp_path / "empty"), "--out", str(tmp_path / "o"))
+    assert rc != 0 and "not a contacts data set" in err
+    rc, err = tactip("select-markers", str(contacts_folder), "--out", str(tmp_path / "o"),
+                     "--tasks", "object,grasp")
+    assert rc != 0 and "--tasks='object,grasp'" in err

@@ -386,15 +386,20 @@ def test_recognise_writes_the_summary_and_resumes(recognised):
 
 
 def test_recognise_refuses_bad_input(recognised, tmp_path):
+    # the command in this process (``tactip_sim.commands.main``, as tests/test_outputs.py
+    # runs them): a refusal is its exit code and message, not the interpreter's start, which
+    # the run above and tests/test_cli.py check
+    from .test_outputs import tactip
+
     out, args = recognised
-    res = _run(*[a if a != "edge,flat_plate" else "edge,teapot" for a in args])
-    assert res.returncode != 0 and "object='teapot' is not in the library" in res.stderr
-    res = _run(*[a if i != args.index("--k") + 1 else "500" for i, a in enumerate(args)])
-    assert res.returncode != 0 and "k=500 is larger than the" in res.stderr
+    rc, err = tactip(*[a if a != "edge,flat_plate" else "edge,teapot" for a in args])
+    assert rc != 0 and "object='teapot' is not in the library" in err
+    rc, err = tactip(*[a if i != args.index("--k") + 1 else "500" for i, a in enumerate(args)])
+    assert rc != 0 and "k=500 is larger than the" in err
     (tmp_path / "lib").mkdir()  # (beside --out: an output inside an input is refused)
-    res = _run("recognise", str(ROOT / "scenes" / "shadow_fingertip.toml"), "--objects",
-               str(tmp_path / "lib"), "--out", str(tmp_path / "o"))
-    assert res.returncode != 0 and "no library.toml" in res.stderr
+    rc, err = tactip("recognise", str(ROOT / "scenes" / "shadow_fingertip.toml"), "--objects",
+                     str(tmp_path / "lib"), "--out", str(tmp_path / "o"))
+    assert rc != 0 and "no library.toml" in err
 
 
 @pytest.mark.slow
