@@ -141,13 +141,14 @@ def test_converged_path_obeys_equilibrium_and_coulomb(sim):
 def test_friction_makes_the_pose_depend_on_the_path(sim):
     """Turning 8° in contact (mu = 0.5) leaves the markers measurably elsewhere than a vertical
     tap to the same pose. (At mu = 0 a turn in contact and a tap both end at the press, to
-    solver precision: test_frictionless_path_is_the_press.)"""
+    solver precision: test_frictionless_path_is_the_press.) Two steps each way: the ends
+    differ by 0.39 mm (0.44 mm in four steps), far above the 0.01 mm asked."""
     body = sim.body
     placer = placer_of(sim, ts.Plate())
     end, start = ts.Pose(8, -4, 1.0), ts.Pose(0, 0, 1.0)
 
     def markers(mu, path_start):
-        res = neo_hookean_path(body, path_poses(end, start=path_start, steps=4), placer, mu=mu,
+        res = neo_hookean_path(body, path_poses(end, start=path_start, steps=2), placer, mu=mu,
                                markers=body.markers)
         return body.markers.from_field(res[-1].u, finite=True)[0]
 
