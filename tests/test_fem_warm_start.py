@@ -166,6 +166,11 @@ def _p1_guess_against_rest(scene, pose, monkeypatch):
     return with_guess, plain.press(pose)
 
 
+# slow (two P2 neo-Hookean presses, ~17 CPU-s): in the default run a neo-Hookean press started
+# from a carried answer is checked to reach the press from rest in fewer iterations
+# (test_the_refinement_levels_start_from_the_level_before) and a P2 field to be carried
+# exactly (test_a_field_is_carried_exactly)
+@pytest.mark.slow
 def test_a_p2_press_starts_from_the_p1_answer(p2_scene, monkeypatch):
     """A P2 neo-Hookean press is first solved at P1 on the same mesh, and the P2 answer from
     there is the P2 answer from rest (the second method), to solver precision."""

@@ -230,6 +230,10 @@ def test_a_stuck_point_pulled_off_and_pressed_back_slides():
     assert wf.let_slide(c, d, d).tolist() == [0]
 
 
+# slow (a second full press of the corner pose, ~13 CPU-s): in the default run the same press,
+# made with the reused factorisations, is checked to balance the plate's and the window's
+# forces (test_a_deep_press_with_stuck_ends_balances)
+@pytest.mark.slow
 def test_reusing_a_factorisation_changes_the_cost_not_the_answer(
         sim, stuck_and_factorisations, monkeypatch):
     """Near the solution the Newton iterations go on with the last factorisation (modified
