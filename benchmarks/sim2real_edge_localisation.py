@@ -26,14 +26,10 @@ field stays on that side, each independent of the frame's scale and of the field
 
 from __future__ import annotations
 
-import argparse
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
 POSITIONS_MM = (-4.5, -2.0, 3.0)
 """Lateral positions (``pose_2``; negative: the sensor's centre beside the block)."""
 TIP_DEPTH_MM = 2.2
@@ -108,34 +104,19 @@ def sim_rows(scene) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("variants", nargs="*", metavar="VARIANT",
-                   help=f"scene variants (default all): {', '.join(VARIANTS)}")
-    p.add_argument("--real", type=Path, default=ROOT.parent / "shared" / "real" /
-                   "tactip331_edge128", help="real edge taps (Bristol layout, 128x128)")
-    p.add_argument("--no-real", action="store_true", help="skip the real taps")
-    args = p.parse_args(argv)
-    unknown = [v for v in args.variants if v not in VARIANTS]
-    if unknown:
-        p.error(f"unknown variant {unknown[0]!r}: choose from {', '.join(VARIANTS)}")
-    sys.path.insert(0, str(ROOT))
-    import tactip_sim as ts
-    from tactip_sim.scene import apply_preset, replace_in
+    import scene_variants
 
+    args = scene_variants.parse(__doc__.split("\n\n")[0], VARIANTS, "tactip331_edge128",
+                                "real edge taps (Bristol layout, 128x128)", argv)
     print("| taps (offset / far) | " + " | ".join(f"pose_2 {v:+g} mm" for v in POSITIONS_MM)
           + " |")
     print("|---|" + "---:|" * len(POSITIONS_MM))
     if not args.no_real:
         print(f"| real {args.real.name}, pose_3 {REAL_DEPTH_MM[0]}-{REAL_DEPTH_MM[1]} mm | "
               + " | ".join(real_rows(args.real)) + " |", flush=True)
-    base = apply_preset(ts.load_scene(ROOT / "scenes" / "tactip_331_identified.toml"), "fast")
-    for name in args.variants or VARIANTS:
-        t0 = time.perf_counter()
-        over = VARIANTS[name]
-        rows = sim_rows(replace_in(base, **over) if over else base)
-        print(f"| simulated, {name}, {TIP_DEPTH_MM:g} mm | " + " | ".join(rows) + " |",
-              flush=True)
-        print(f"({name}: {time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+    for name, scene in scene_variants.scenes(args.variants, VARIANTS):
+        print(f"| simulated, {name}, {TIP_DEPTH_MM:g} mm | " + " | ".join(sim_rows(scene))
+              + " |", flush=True)
     return 0
 
 

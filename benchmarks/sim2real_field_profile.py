@@ -17,14 +17,10 @@ field radii), over the frame's mean displacement (1 everywhere = a field spread 
 
 from __future__ import annotations
 
-import argparse
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
 RINGS = np.array([0.0, 0.3, 0.6, 0.9, 1.2, 1.5])
 """Ring edges (RMS field radii; the outer ring of a disc of markers sits at ~1.41)."""
 DEPTHS_MM = (1.0, 2.0, 3.0)
@@ -96,20 +92,10 @@ def _row(label: str, prof: np.ndarray) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("variants", nargs="*", metavar="VARIANT",
-                   help=f"scene variants (default all): {', '.join(VARIANTS)}")
-    p.add_argument("--real", type=Path, default=ROOT.parent / "shared" / "real" /
-                   "tactip331_tap128", help="real surface taps (Bristol layout, 128x128)")
-    p.add_argument("--no-real", action="store_true", help="skip the real taps")
-    args = p.parse_args(argv)
-    unknown = [v for v in args.variants if v not in VARIANTS]
-    if unknown:
-        p.error(f"unknown variant {unknown[0]!r}: choose from {', '.join(VARIANTS)}")
-    sys.path.insert(0, str(ROOT))
-    import tactip_sim as ts
-    from tactip_sim.scene import apply_preset, replace_in
+    import scene_variants
 
+    args = scene_variants.parse(__doc__.split("\n\n")[0], VARIANTS, "tactip331_tap128",
+                                "real surface taps (Bristol layout, 128x128)", argv)
     rings = [f"{lo:.1f}-{hi:.1f}" for lo, hi in zip(RINGS[:-1], RINGS[1:], strict=True)]
     print("| taps | " + " | ".join(rings) + " |")
     print("|---|" + "---:|" * len(rings))
@@ -117,14 +103,9 @@ def main(argv: list[str] | None = None) -> int:
         prof, n = real_profile(args.real)
         print(_row(f"real {args.real.name} (n = {n}, square on, pose_3 >= 4 mm)", prof),
               flush=True)
-    base = apply_preset(ts.load_scene(ROOT / "scenes" / "tactip_331_identified.toml"), "fast")
-    for name in args.variants or VARIANTS:
-        t0 = time.perf_counter()
-        over = VARIANTS[name]
-        profs = sim_profiles(replace_in(base, **over) if over else base)
-        for depth, prof in zip(DEPTHS_MM, profs, strict=True):
+    for name, scene in scene_variants.scenes(args.variants, VARIANTS):
+        for depth, prof in zip(DEPTHS_MM, sim_profiles(scene), strict=True):
             print(_row(f"simulated, {name}, {depth:g} mm", prof), flush=True)
-        print(f"({name}: {time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     return 0
 
 
