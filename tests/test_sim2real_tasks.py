@@ -589,6 +589,20 @@ def test_an_edge_tap_that_misses_the_block_is_the_rest_state_with_its_own_noise(
     tasks.simulate_task(scene, out, "edge", 2, progress=False)  # resumed: nothing to do
     assert len(rendered) == 2
     assert json.loads((out / "timing.json").read_text())["missed"] == [1, 2]
+    # under shear: a path that misses at every step is the rest state too; one that touches
+    # at some step and not at another is refused, as before
+    depths = iter([[-0.2, -0.1, -0.3], [0.5, -0.1, 0.4]])
+    monkeypatch.setattr(tasks, "shear_path",
+                        lambda *a, **k: [ts.Pose(depth_mm=d) for d in next(depths)])
+    def leaves_contact(self, *a, **k):
+        raise ValueError("the load path leaves contact at step 2")
+
+    monkeypatch.setattr(FakeSim, "continue_path", leaves_contact)
+    out2 = tmp_path / "shear"
+    tasks.simulate_task(scene, out2, "edge+shear", 2, progress=False)
+    timing = json.loads((out2 / "timing.json").read_text())
+    assert timing["missed"] == [1] and [f["row"] for f in timing["failed"]] == [2]
+    assert rendered[-1] == (None, (53, 0))
 
 
 def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path, capsys):

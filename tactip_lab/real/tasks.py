@@ -157,8 +157,9 @@ rest state with its own camera noise, not dropped: the lab's edge folders hold s
 ``tactip331_edge128`` 57 of 1 000 have a field under three times the tracking noise: the
 frames :func:`~tactip_lab.fitting.field_model.densest_reference` reads the rest state from),
 and a model should have seen them. Their rows are listed in ``timing.json`` under ``missed``.
-Under shear such a path is still refused (a move made partly out of contact is another
-protocol)."""
+Under shear the same holds for a tap whose whole path (the tap and every step of the move)
+misses; a path partly out of contact is still refused (a move made partly out of contact is
+another protocol)."""
 FRICTION_ASSUMED = 1.0
 """Coulomb coefficient between skin and object (edge taps, shear moves): *assumed*, not
 published for the lab's skin (a rubber-like print) and its printed block; rubber on rigid
@@ -378,9 +379,14 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
                 poses = shear_path(task, rows[i], shear_steps, sim=chain.sim, indenter=indenter,
                                    convention=convention, axes=axes,
                                    depth_offset_mm=offsets[i])
-                states, _ = chain.sim.continue_path(tap_poses(poses[0], tap_steps) + poses[1:],
-                                                    friction=friction, indenter=indenter)
-                state = states[-1]
+                if task.startswith("edge") and all(p.depth_mm <= 0 for p in poses):
+                    state = None  # the whole path misses the block (MISSED_TAPS_NOTE)
+                    missed.append(i + 1)
+                else:
+                    states, _ = chain.sim.continue_path(
+                        tap_poses(poses[0], tap_steps) + poses[1:], friction=friction,
+                        indenter=indenter)
+                    state = states[-1]
             elif task == "edge":  # a tap with friction (EDGE_TAP_NOTE)
                 pose = sim_pose(task, rows[i], sim=chain.sim, indenter=indenter,
                                 convention=convention, axes=axes, depth_offset_mm=offsets[i])
@@ -418,7 +424,7 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
             "failed": failed}
     old = out / "timing.json"
     prev = json.loads(old.read_text()) if old.is_file() else {}
-    if task == "edge":  # the missed taps of earlier runs into this folder are kept frames
+    if task.startswith("edge"):  # the missed taps of earlier runs here are kept frames
         info["missed"] = sorted({*prev.get("missed", []), *missed})
     if times:
         info["seconds_per_tap"] = float(np.mean(times))
