@@ -691,6 +691,26 @@ def test_component_counts_the_folds_cannot_support_are_not_tried():
     assert sorted(table) == [20, 40]
 
 
+def test_a_count_within_one_standard_error_of_the_best_is_a_tie_for_the_fewer(monkeypatch):
+    """The one-standard-error rule: the fewest components whose loss is within one standard
+    error of the lowest. Predictions with set errors per count: 40 beats 20 by less than the
+    spread of the taps' errors allows (a tie: 20 chosen), 80 beats both by far (80 chosen)."""
+    import tactip_lab.real.task_run as tr
+
+    rng = np.random.default_rng(5)
+    y = rng.uniform(-5.0, 5.0, (400, 1))
+    noise = rng.normal(0.0, 1.0, (400, 1))
+    err = {20: 1.00 * noise, 40: 0.98 * noise, 80: 0.40 * noise, 160: 0.40 * noise}
+    monkeypatch.setattr(tr, "cv_predict_rows",
+                        lambda rows, y, t, size, n_components, **k: y + err[n_components])
+    rows = tr.Rows(np.zeros((400, 3)), np.zeros((400, 3)), y, 1)
+    k, pred, table = tr.choose_components_rows(rows, y, ["pose_3"], (128, 128), grid=(20, 40))
+    assert table[40]["loss"] < table[20]["loss"] < table[40]["loss"] + table[40]["loss_se"]
+    assert k == 20 and np.array_equal(pred, y + err[20])
+    k, _, table = tr.choose_components_rows(rows, y, ["pose_3"], (128, 128))
+    assert k == 80  # 160 ties with it: the fewer
+
+
 def test_cv_loss_weighs_units_alike_and_wraps_angles():
     from tactip_lab.real.task_run import cv_loss
 
@@ -704,6 +724,12 @@ def test_cv_loss_weighs_units_alike_and_wraps_angles():
     # off by half the deviation in one unit only
     half = np.array([[160.0, 1.0], [-180.0, 3.0]])
     assert cv_loss(y, half, ["pose_6", "pose_2"]) == pytest.approx(0.5)
+    # the taps' shares (the one-standard-error rule's spread) average to the loss
+    from tactip_lab.real.task_run import cv_tap_losses
+
+    for p in (mean, half, y + [360.0, 0.0]):
+        assert cv_tap_losses(y, p, ["pose_6", "pose_2"]).mean() == pytest.approx(
+            cv_loss(y, p, ["pose_6", "pose_2"]))
 
 
 def test_cached_points_are_tracked_again_by_another_detector(folder, tmp_path, monkeypatch):  # noqa: F811

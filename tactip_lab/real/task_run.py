@@ -245,6 +245,24 @@ def cv_loss(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> float:
     return float(total)
 
 
+def cv_tap_losses(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> np.ndarray:
+    """(n,) each tap's share of :func:`cv_loss`: the sum over targets of its absolute error
+    (wrapped for an angle) over the target's mean absolute deviation (NaN for a tap without a
+    prediction); their mean is :func:`cv_loss` when every tap has one."""
+    y = np.asarray(y, dtype=float)
+    pred = np.asarray(pred, dtype=float)
+    out = np.zeros(len(y))
+    for j, t in enumerate(targets):
+        v = y[np.isfinite(y[:, j]), j]
+        spread = float(np.abs(deviation_from_mean(v, TARGETS[t]["wraps"])).mean()) \
+            if len(v) else 0.0
+        e = pred[:, j] - y[:, j]
+        if TARGETS[t]["wraps"]:
+            e = (e + 180.0) % 360.0 - 180.0
+        out += np.abs(e) / spread if spread > 0 else 0.0 * e
+    return out
+
+
 def choose_components(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str],
                       image_size, *, task: str = "", seed: int = 0,
                       grid: tuple[int, ...] = COMPONENT_GRID
@@ -263,21 +281,33 @@ def choose_components_rows(rows: Rows, y: np.ndarray, targets: list[str], image_
                            task: str = "", seed: int = 0,
                            grid: tuple[int, ...] = COMPONENT_GRID
                            ) -> tuple[int, np.ndarray, dict[int, dict[str, float]]]:
-    """:func:`choose_components` on features already computed. Ties go to the fewer
-    components; a count the training folds cannot support (as many as their rows, or more)
-    is not tried (the smallest of the grid is, whatever the count)."""
+    """:func:`choose_components` on features already computed. The choice is the fewest
+    components whose :func:`cv_loss` is within one standard error (over the taps) of the
+    lowest: counts whose losses differ by less than their own noise are a tie, and a tie goes
+    to the simpler model (the one-standard-error rule, Hastie, Tibshirani & Friedman, *The
+    Elements of Statistical Learning*, 2nd ed., sec. 7.10). A count the training folds cannot
+    support (as many as their rows, or more) is not tried (the smallest of the grid is,
+    whatever the count)."""
     fold_rows = len(rows.xa) * (FOLDS - 1) // FOLDS
     tried = [k for k in sorted(grid) if k < fold_rows] or [min(grid)]
-    best, best_loss, best_pred, table = tried[0], np.inf, None, {}
+    preds, table = {}, {}
     for k in tried:
         pred = cv_predict_rows(rows, y, targets, image_size, task=task, seed=seed,
                                n_components=k)
-        loss = cv_loss(y, pred, targets)
+        per_tap = cv_tap_losses(y, pred, targets)
+        ok = np.isfinite(per_tap)
         table[k] = {t: v["mae"] for t, v in target_scores(y, pred, targets).items()}
-        table[k]["loss"] = loss
-        if best_pred is None or (np.isfinite(loss) and loss < best_loss - 1e-12):
-            best, best_loss, best_pred = k, (loss if np.isfinite(loss) else np.inf), pred
-    return best, best_pred, table
+        table[k]["loss"] = cv_loss(y, pred, targets)
+        table[k]["loss_se"] = (float(per_tap[ok].std(ddof=1) / np.sqrt(ok.sum()))
+                               if ok.sum() > 1 else 0.0)
+        preds[k] = pred
+    finite = [k for k in tried if np.isfinite(table[k]["loss"])]
+    if not finite:
+        return tried[0], preds[tried[0]], table
+    best = min(finite, key=lambda k: table[k]["loss"])
+    limit = table[best]["loss"] + table[best]["loss_se"]
+    chosen = min(k for k in finite if table[k]["loss"] <= limit + 1e-12)
+    return chosen, preds[chosen], table
 
 
 def naive_pixels(folder: Path) -> np.ndarray:
