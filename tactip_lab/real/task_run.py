@@ -17,9 +17,9 @@ Hyper-parameters: the kernel ridge's ``alpha`` and the kernel width rule are fix
 (:class:`~tactip_lab.fitting.field_model.FieldModel`'s defaults); the number of PCA components
 is chosen from :data:`COMPONENT_GRID` by 5-fold cross-validation within the training taps
 (:func:`choose_components`: the simulated taps for the saved models, the real folder's own for
-the real-trained figure). None is chosen on a score of the data a figure is about: the
-"predicted by simulation" figure is the selection's own CV, so it carries the (small) optimism
-of picking the best of four.
+the real-trained figure; the fewest within one standard error of the best). None is chosen on
+a score of the data a figure is about: the "predicted by simulation" figure is the selection's
+own CV, so it carries the (small) optimism of picking among four.
 """
 
 from __future__ import annotations
@@ -267,10 +267,10 @@ def choose_components(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets:
                       image_size, *, task: str = "", seed: int = 0,
                       grid: tuple[int, ...] = COMPONENT_GRID
                       ) -> tuple[int, np.ndarray, dict[int, dict[str, float]], Rows]:
-    """The PCA component count of ``grid`` with the lowest :func:`cv_loss` in
-    :func:`cv_predict_rows` over these taps. Returns (count, its CV predictions, per count tried
-    the CV MAE of every target and the loss, the :func:`training_rows` for
-    :func:`fit_model`)."""
+    """The PCA component count of ``grid`` by :func:`cv_loss` in :func:`cv_predict_rows` over
+    these taps, with the one-standard-error rule (:func:`choose_components_rows`). Returns
+    (count, its CV predictions, per count tried the CV MAE of every target, the loss and its
+    standard error, the :func:`training_rows` for :func:`fit_model`)."""
     rows = training_rows(task, targets, rest, pts, y)
     k, pred, table = choose_components_rows(rows, y, targets, image_size, task=task, seed=seed,
                                             grid=grid)
