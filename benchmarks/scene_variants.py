@@ -19,7 +19,7 @@ def parse(description: str, variants: dict[str, dict], real: str, real_help: str
           argv: list[str] | None = None) -> argparse.Namespace:
     """``VARIANT ...`` (names of ``variants``; none: all), ``--real DIR`` (default
     ``../shared/real/<real>``), ``--no-real``; an unknown variant is an error naming the
-    choices."""
+    choices. Puts the project's root on ``sys.path`` for the imports that follow."""
     p = argparse.ArgumentParser(description=description)
     p.add_argument("variants", nargs="*", metavar="VARIANT",
                    help=f"scene variants (default all): {', '.join(variants)}")

@@ -230,6 +230,15 @@ def cv_predict_rows(rows: Rows, y: np.ndarray, targets: list[str], image_size, *
     return pred
 
 
+def _spread(y: np.ndarray, target: str) -> float:
+    """A target's mean absolute deviation over its finite labels (about the circular mean for
+    a wrapping angle): the unit :func:`cv_loss` and :func:`cv_tap_losses` divide by."""
+    v = np.asarray(y, dtype=float)
+    v = v[np.isfinite(v)]
+    return float(np.abs(deviation_from_mean(v, TARGETS[target]["wraps"])).mean()) \
+        if len(v) else 0.0
+
+
 def cv_loss(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> float:
     """One number for comparing models: the sum over targets of MAE over the targets' mean
     absolute deviation (about the circular mean for a wrapping angle), so that mm and degrees
@@ -237,10 +246,7 @@ def cv_loss(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> float:
     s = target_scores(y, pred, targets)
     total = 0.0
     for j, t in enumerate(targets):
-        v = np.asarray(y[:, j], dtype=float)
-        v = v[np.isfinite(v)]
-        spread = float(np.abs(deviation_from_mean(v, TARGETS[t]["wraps"])).mean()) \
-            if len(v) else 0.0
+        spread = _spread(y[:, j], t)
         total += s[t]["mae"] / spread if spread > 0 else 0.0
     return float(total)
 
@@ -253,9 +259,7 @@ def cv_tap_losses(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> np.nda
     pred = np.asarray(pred, dtype=float)
     out = np.zeros(len(y))
     for j, t in enumerate(targets):
-        v = y[np.isfinite(y[:, j]), j]
-        spread = float(np.abs(deviation_from_mean(v, TARGETS[t]["wraps"])).mean()) \
-            if len(v) else 0.0
+        spread = _spread(y[:, j], t)
         e = pred[:, j] - y[:, j]
         if TARGETS[t]["wraps"]:
             e = (e + 180.0) % 360.0 - 180.0
