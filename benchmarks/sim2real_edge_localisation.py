@@ -44,6 +44,8 @@ VARIANTS = {
     "P2, gel nu 0.40": {"fidelity": {"element_order": 2}, "gel": {"poisson_ratio": 0.40}},
     "P2, gel nu 0.49": {"fidelity": {"element_order": 2}, "gel": {"poisson_ratio": 0.49}},
     "P2, skin 0.5 mm": {"fidelity": {"element_order": 2}, "skin": {"thickness_mm": 0.5}},
+    "rod pins": {"pins": {"model": "rod"}},
+    "P2, rod pins": {"fidelity": {"element_order": 2}, "pins": {"model": "rod"}},
 }
 
 

@@ -620,6 +620,34 @@ def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path
         assert not out.exists() or not any(out.iterdir())  # refused before any work
 
 
+def test_edge_tasks_simulate_rod_pins_on_p2_unless_told_otherwise(tmp_path, monkeypatch):
+    """Without --fidelity the edge tasks take rods on P2 over the 'fast' preset, the surface
+    tasks the preset itself; --set and --fidelity win over the task's keys."""
+    import tactip_lab.real.task_run as task_run
+    from tactip_sim.commands import main
+
+    from .conftest import ROOT
+
+    seen = []
+
+    def fake_run(scene, out, cfg, **kw):
+        seen.append((cfg.task, scene.pins.model, scene.fidelity.element_order))
+        return {"simulated": {"n": 0}, "targets": [], "formats": {}, "real": {}}
+
+    monkeypatch.setattr(task_run, "run_task", fake_run)
+    scene = str(ROOT / "scenes" / "tactip_331_identified.toml")
+    for i, argv in enumerate((["--task", "edge"], ["--task", "edge", "--shear"],
+                              ["--task", "surface"], ["--task", "surface", "--shear"],
+                              ["--task", "edge", "--set", "pins.model=embedded"],
+                              ["--task", "edge", "--fidelity", "fast"])):
+        assert main(["sim2real", scene, "--out", str(tmp_path / str(i)), "--no-progress",
+                     *argv]) == 0
+    # the identified scene's own file says rod and P2; its 'fast' preset embedded and P1
+    assert seen == [("edge", "rod", 2), ("edge+shear", "rod", 2), ("surface", "embedded", 1),
+                    ("surface+shear", "embedded", 1), ("edge", "embedded", 2),
+                    ("edge", "embedded", 1)]
+
+
 def test_sim2real_surface_field_command_end_to_end(tmp_path):
     """``tactip sim2real --task surface`` (the field model, the default) on 20 simulated taps,
     scored on 30 real 128x128 taps: the contract's files, and ``tactip evaluate``'s

@@ -182,6 +182,7 @@ def _depth_range(text: str) -> tuple[float, float]:
 def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
     """Field models (tactip_lab.real.task_run): every task's default."""
     from tactip_lab.real.task_run import TaskConfig, run_task
+    from tactip_lab.real.tasks import TASK_SCENE_DEFAULTS
 
     depth = None
     if args.depth_range is not None:
@@ -202,6 +203,8 @@ def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
             raise ValueError(f"--real {d}: no such folder (a labelled Bristol-layout folder)")
     if args.fidelity is None:
         args.fidelity = "fast"
+        args.overrides = [f"{k}={json.dumps(v)}" for k, v in
+                          TASK_SCENE_DEFAULTS.get(task, {}).items()] + list(args.overrides)
     scene = load_scene_args(args)
     _clear_earlier_task_scores(Path(args.out))
     s = run_task(scene, args.out, cfg, real=args.real or [], real_raw=args.real_raw or [],
@@ -318,7 +321,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "naive pixel baseline. --model cop (surface only): the paper's CoP polynomials on "
         "N flat-plate taps (depth in --depth-range), every feature and order scored. "
         "Resumable (the simulated taps are kept in OUT/sim). Without --fidelity the scene's "
-        "'fast' preset is used.")
+        "'fast' preset is used, and the edge tasks set pins.model=rod and "
+        "fidelity.element_order=2 over it (tactip_lab/real/tasks.py TASK_SCENE_DEFAULTS; "
+        "--set wins).")
     add_scene_argument(p)
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--task", default="surface", choices=("surface", "edge"),
