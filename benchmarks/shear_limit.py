@@ -126,6 +126,52 @@ def _is_debris(x: float, y: float, debris: np.ndarray, radius: float = 1.5) -> b
                                                       debris[:, 1] - y)) <= radius)
 
 
+def debris_markers(folder: Path, rows: list[dict], debris: np.ndarray,
+                   lit_share: float = 0.5, merged_px: int = 3) -> list[dict]:
+    """The markers the detector accepted *on* marker-sized fixed debris, frame by frame.
+
+    A debris position's footprint: the pixels lit in at least ``lit_share`` of the frames
+    (markers move with each tap's shear, the debris does not), the connected piece of them at
+    the position. Footprints smaller than half the median marker area (1-2 px specks) cannot
+    be a marker alone: a marker accepted there is a marker the shear moved onto the speck;
+    nor can one joined to the rim ring (over ``STRUCTURE_RATIO`` marker areas).
+    For each marker-sized footprint and frame: the frame's bright components that overlap
+    the footprint, the accepted markers lying on them, and the component's pixels beyond the
+    footprint; ``merged_px`` or more such pixels are a marker joined to the debris, and one
+    accepted marker on the component is then taken as real. The others are false markers.
+    Returns, per frame, ``false`` (the number) and ``on`` (the debris indices they lie on)."""
+    greys = [cv2.imread(str(folder / "images" / r["name"]), cv2.IMREAD_GRAYSCALE)
+             for r in rows]
+    lit = np.mean([g == g.max() for g in greys], axis=0)
+    _, modal = cv2.connectedComponents((lit >= lit_share).astype(np.uint8), connectivity=8)
+    marker_area = float(np.median([r["median_area"] for r in rows]))
+    feet = []
+    for j, (x, y) in enumerate(debris):
+        xi, yi = int(round(x)), int(round(y))
+        ids = [i for i in np.unique(modal[max(0, yi - 1):yi + 2, max(0, xi - 1):xi + 2]) if i]
+        foot = np.isin(modal, ids)
+        if 0.5 * marker_area <= foot.sum() <= STRUCTURE_RATIO * marker_area:
+            feet.append((j, foot))
+    out = []
+    for g, r in zip(greys, rows, strict=True):
+        _, lab = cv2.connectedComponents((g == g.max()).astype(np.uint8), connectivity=8)
+        pts = r["points"]
+        ix = np.clip(np.rint(pts[:, 0]).astype(int), 0, g.shape[1] - 1)
+        iy = np.clip(np.rint(pts[:, 1]).astype(int), 0, g.shape[0] - 1)
+        at = lab[iy, ix]
+        false, on = 0, []
+        for j, foot in feet:
+            for c in (i for i in np.unique(lab[foot]) if i):
+                k = int(np.sum(at == c))
+                extra = int(np.sum((lab == c) & ~foot))
+                k -= min(k, 1) if extra >= merged_px else 0
+                if k:
+                    false += k
+                    on.append(j)
+        out.append(dict(false=false, on=on))
+    return out
+
+
 def _kind(area: float, why: str) -> str:
     if not np.isfinite(area):
         return f"{why} (a piece)"
@@ -169,7 +215,7 @@ def edge_reading(row: dict, min_gap: float, min_neighbours: int,
     return c[taken, :2].reshape(-1, 2)
 
 
-def report(rows: list[dict], debris: np.ndarray) -> str:
+def report(rows: list[dict], debris: np.ndarray, on_debris: list[dict]) -> str:
     tol = COUNT_FRACTION * PINS
     within = [abs(r["count"] - PINS) <= tol for r in rows]
     short = [r for r, w in zip(rows, within, strict=True) if not w]
@@ -183,6 +229,22 @@ def report(rows: list[dict], debris: np.ndarray) -> str:
                 for r in rows) for x, y in debris]
     out.append("frames with an accepted marker within 1.5 px of each debris position: "
                + ", ".join(str(h) for h in held))
+    n_false = np.array([d["false"] for d in on_debris])
+    counts = np.array([r["count"] for r in rows])
+    rel = np.array([r["reliable"] for r in rows])
+    hit = n_false > 0
+    false_rel = rel & (np.abs(counts - n_false - PINS) > tol)
+    out.append(f"markers accepted on marker-sized fixed debris (false markers): {n_false.sum()} "
+               f"in {hit.sum()} frames ({np.sum(n_false >= 2)} with two or more; by position: "
+               + ", ".join(f"{j}: {sum(j in d['on'] for d in on_debris)}"
+                           for j in sorted({j for d in on_debris for j in d['on']}))
+               + f"); of those frames {np.sum(rel & hit)} called reliable, "
+               f"{np.sum(hit & (counts == PINS))} read as exactly {PINS}; reliable but, less "
+               f"the false markers, off by more than 2 %: {false_rel.sum()} ("
+               + ", ".join(f"{r['name']} {c}-{k}" for r, c, k, b in
+                           zip(rows, counts, n_false, false_rel, strict=True) if b)
+               + f"); within 2 % less the false markers: "
+               f"{np.sum(np.abs(counts - n_false - PINS) <= tol)}")
     out.append("frames off by more than 2 %: name, count, bright components (not the rim "
                "ring), rejected blobs (debris / other, by kind)")
     for r in sorted(short, key=lambda r: r["count"]):
@@ -285,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
     folder = args.real / args.set
     rows = read_set(folder)
     debris = fixed_debris(rows, args.debris_share)
-    sys.stdout.write(report(rows, debris) + "\n")
+    sys.stdout.write(report(rows, debris, debris_markers(folder, rows, debris)) + "\n")
     if args.picture:
         missing = [n for n in args.frames if n not in {r["name"] for r in rows}]
         if missing:
