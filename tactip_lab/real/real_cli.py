@@ -154,17 +154,19 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-TASK_N = {"surface": 3000, "edge": 400, "surface+shear": 3000, "edge+shear": 600}
+TASK_N = {"surface": 3000, "edge": 1200, "surface+shear": 3000, "edge+shear": 600}
 """Default simulated taps per task (``--n``) of the field models; measured on the identified
-scene (docs/sim2real.md, "More simulated taps"), 0.09-0.13 s a tap here (render included):
+scene (docs/sim2real.md, "More simulated taps" and "The pins at an edge"), 0.09-0.13 s a
+surface tap here (``fast``, render included), 0.42 s an edge tap (rods on P2):
 
 - surface under shear: 3 000. Simulation's own CV 3.15 / 3.21 deg with 1 000 taps, 2.26 /
   2.26 with 3 000 (the component count by CV: 80 for both; its learning curve still
   falling); zero-shot on the shared shear taps 3.20 / 3.18 -> 2.74 / 3.10.
 - surface: 3 000. Simulation's CV 0.50 / 0.45 -> 0.31 / 0.31 deg; zero-shot on the shared
   128x128 taps 0.95 / 1.20 -> 0.93 / 1.06 (raw: 2.08 / 1.51 -> 2.09 / 1.59).
-- edge: 400, each tap turned 12 times in training: simulation's CV falls only from 1.58 mm
-  / 47 deg with 75 taps to 1.22 mm / 39 deg with 300 (a held-out 81).
+- edge: 1 200, each tap turned 12 times in training (rods on P2): simulation's CV 0.76 mm /
+  25.5 deg with 400 taps, 0.55 mm / 22.1 deg with 1 200 (18 min in all here, 8 of them
+  simulating); more would need fewer turns (the kernel model keeps 12 rows a tap).
 - edge under shear: 600 (549 stay in contact), 0.5 s a tap: simulation's CV 1.66 mm / 53.7
   deg with 200 (worse than the mean for the angle), 1.50 mm / 38.0 deg with 600."""
 COP_N = 300
@@ -349,7 +351,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="real labelled taps, raw frames in the Bristol layout (scored with "
                    "model_raw.json)")
     p.add_argument("--n", type=int, default=None,
-                   help="simulated taps (default 3000 surface, 400 edge, 3000 surface --shear, "
+                   help="simulated taps (default 3000 surface, 1200 edge, 3000 surface --shear, "
                    f"600 edge --shear; {COP_N} with --model cop)")
     p.add_argument("--depth-range", default=None, metavar="LOW,HIGH",
                    help="simulated depths of the surface taps, mm: with --model field the "
