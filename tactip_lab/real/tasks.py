@@ -149,16 +149,17 @@ TASK_SCENE_DEFAULTS: dict[str, dict[str, Any]] = {
     "edge+shear": {"fidelity.element_order": 2, "pins.model": "rod"},
 }
 """Scene keys a task sets over the ``fast`` preset when ``tactip sim2real`` is given no
-``--fidelity`` (``--set`` still wins): the edge tasks simulate the pins as rigid rods bonded
-to the skin (their tips swing with the skin's rotation) on P2 elements, not as material
-points of the gel on P1. Measured (docs/sim2real.md, "The pins at an edge"): at the block's
-corner the skin turns sharply, and the tip model decides the field: a model fitted on one
-pin model reads the other's taps 1.5-5 mm off (same poses), while P2 rods on the 3 mm and
-the 1.5 mm mesh read each other's taps to 0.63-0.70 mm, their own CV error (converged). The
-rods' field is the more one-sided beside the edge, as the real one is (the localisation
-benchmark). The surface tasks keep ``fast``: there the two pin models read each other's taps
-2-3 deg off and the embedded tips transfer better (docs/sim2real.md); the pins' true coupling
-(a stiff rod in a soft gel, between the two limits) is not modelled."""
+``--fidelity`` (``--set`` still wins): the edge tasks simulate the pins as rigid rods bonded to
+the skin (their tips swing with the skin's rotation) on P2 elements, the scenes' own FEM
+defaults (those of the calibration sweeps), not as material points of the gel on P1. Measured
+(docs/sim2real.md, "The pins at an edge"): at the block's corner the skin turns sharply, and the
+tip model decides the field: a model fitted on one pin model reads the other's taps 1.5-5 mm off
+(same poses), while P2 rods on the 3 mm and the 1.5 mm mesh read each other's taps to 0.63-0.70
+mm, their own CV error (converged). The rods' field is the more one-sided beside the edge, as
+the real one is (the localisation benchmark). The surface tasks keep ``fast``: there the two pin
+models read each other's taps 2-3 deg off and the embedded tips transfer better
+(docs/sim2real.md); the pins' true coupling (a stiff rod in a soft gel, between the two limits)
+is not modelled."""
 EDGE_TAP_NOTE = """Edge taps are pressed with friction (:data:`FRICTION_ASSUMED`, ``tap_steps``
 load steps), not frictionless: at the block's corner the contact pushes the skin away from the
 block, and without friction on the top face the whole skin slides sideways. Measured on the
