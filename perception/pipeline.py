@@ -7,10 +7,11 @@ real camera frames.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from os import PathLike
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .contact import ContactDetector, surface_deformation
 from .cop import centre_of_pressure
@@ -25,6 +26,23 @@ from .track import MarkerTracker
 from .voronoi import ClippedVoronoi, cell_growth
 
 __all__ = ["FeaturePipeline", "FrameFeatures"]
+
+
+def _without(det: MarkerDetection, drop: np.ndarray) -> MarkerDetection:
+    """``det`` less the markers flagged in ``drop``, which join its rejected blobs as
+    ``"rim"`` (debris off the array)."""
+    keep = ~drop
+    return replace(det, points=det.points[keep], areas_px=det.areas_px[keep],
+                   peaks=det.peaks[keep],
+                   rejected_points=np.vstack([det.rejected_points, det.points[drop]]),
+                   rejected_reasons=det.rejected_reasons + ("rim",) * int(drop.sum()))
+
+
+def _near(points: np.ndarray, to: np.ndarray, reach: float) -> np.ndarray:
+    """(n,) bool: the ``points`` within ``reach`` px of one of ``to``."""
+    if not len(points) or not len(to):
+        return np.zeros(len(points), dtype=bool)
+    return cKDTree(to).query(points)[0] <= reach
 
 
 def _ro(a: np.ndarray) -> np.ndarray:
@@ -132,7 +150,18 @@ class FeaturePipeline:
     Attributes
     ----------
     rest : MarkerDetection
-        The rest-frame detection.
+        The rest-frame detection, less its static blobs.
+    static_points : (k, 2) float64, px
+        *Static blobs* (only with a caller's ``region``, which the detector trusts as the
+        field and so does not test the array's edge within it): blobs the rest frame's
+        detection accepted inside ``region`` that the same frame read alone (no mask, a
+        reliable reading) rejects as rim debris off the marker array (``"rim"``,
+        :func:`perception.detect.detect_markers_detailed`, step 7). They are not tracked,
+        and in every frame a detection within one marker diameter of one is dropped (a
+        marker there would overlap the debris): debris on the lens or the crop does not move
+        with the skin, so the rest frame tells where it is. Without ``region`` the rest frame
+        is read with that test, so there are none (and frames are searched only within the
+        rest markers' hull grown by half a spacing and ``search_margin_px``).
     noise_sigma : float or None
         Pixel-noise sigma measured on the rest frame, as a fraction of full scale (frames of
         another bit depth get it in their own units).
@@ -189,7 +218,15 @@ class FeaturePipeline:
             rest = self._detect(grey, user_region)
         if not rest.reliable:
             raise PerceptionError(f"rest frame detection is unreliable: {rest.reason}")
-        self.rest = rest
+        self._static_reach = float(rest.marker_diameter_px)
+        static = np.zeros(rest.count, dtype=bool)
+        if user_region is not None:
+            alone = self._detect(grey, None)
+            if alone.reliable:
+                rim = alone.rejected_points[[w == "rim" for w in alone.rejected_reasons]]
+                static = _near(rest.points, rim, 0.25 * self._static_reach)
+        self.static_points = _ro(rest.points[static].reshape(-1, 2))
+        self.rest = rest = _without(rest, static) if static.any() else rest
         self.region = user_region if user_region is not None else fit_region(rest.points)
         self.voronoi = ClippedVoronoi(self.region)
         self.search_region = (self.region if margin == 0
@@ -242,6 +279,9 @@ class FeaturePipeline:
             raise ImageError(f"frame shape {grey.shape} differs from the rest frame's "
                              f"{self.image_shape}")
         det = self._detect(grey, self.search_region)
+        on_static = _near(det.points, self.static_points, self._static_reach)
+        if on_static.any():
+            det = _without(det, on_static)
         points = self.tracker.update(det.points, areas=det.areas_px)
         n_lost = self.tracker.n_lost
         # lost markers keep a placeholder seed at their last sighting so that their cell is

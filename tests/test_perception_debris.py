@@ -89,3 +89,42 @@ def test_sheared_frames_keep_every_marker_and_never_the_speck(pipeline, amount):
     err = np.hypot(*(f.points - moved[order]).T)
     assert np.sqrt(np.mean(err ** 2)) < 0.5 and err.max() < 1.0
     assert np.min(np.hypot(*(f.points - speck).T)) > 0.5 * SPACING
+
+
+def _disc(radius):
+    """The skin disc as a caller's region (h, w) bool: it reaches the rim, speck included."""
+    yy, xx = np.mgrid[0:360, 0:360]
+    return np.hypot(xx - CENTRE[0], yy - CENTRE[1]) <= radius - 2.0
+
+
+def test_caller_region_over_the_rim_makes_the_speck_static():
+    """A caller's region covering the rim lets the rest frame accept the speck (the detector
+    does not test the array's edge inside a given field); the pipeline must still know it as
+    static debris and keep every marker through the shear."""
+    rest, r, speck, radius = _scene()
+    tracking = pc.TrackingParams(gate_fraction=1.0, use_velocity=False,
+                                 merge_needs_lost_neighbour=True)
+    pipe = pc.FeaturePipeline(_frame(rest, speck, radius, seed=0), expected_count=N,
+                              tracking=tracking, region=_disc(radius))
+    assert pipe.static_points.shape == (1, 2)
+    assert np.hypot(*(pipe.static_points[0] - speck)) < 0.25
+    assert len(pipe.rest_points) == N
+    order = np.argmin(np.hypot(*(pipe.rest_points[:, None, :] - rest[None, :, :])
+                               .transpose(2, 0, 1)), axis=1)
+    assert sorted(order.tolist()) == list(range(N))
+    for amount in (0.6, 0.8):
+        moved = _sheared(rest, r, amount)
+        pipe.reset()
+        f = pipe.process(_frame(moved, speck, radius, seed=5))
+        assert f.n_detected == N and f.n_lost == 0 and f.reliable
+        err = np.hypot(*(f.points - moved[order]).T)
+        assert np.sqrt(np.mean(err ** 2)) < 0.5 and err.max() < 1.0
+
+
+def test_caller_region_without_debris_drops_no_marker():
+    rest, r, _, radius = _scene()
+    grey = render_markers(rest, shape=(360, 360), diameter_px=DIAMETER, sensor_centre=CENTRE,
+                          sensor_radius_px=radius, noise_sigma=0.01, rng=0).image
+    pipe = pc.FeaturePipeline(grey, expected_count=N, region=_disc(radius))
+    assert pipe.static_points.shape == (0, 2)
+    assert len(pipe.rest_points) == N
