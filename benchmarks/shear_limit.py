@@ -13,7 +13,10 @@ under shear) is read alone with ``expected_count`` = 331 and the verdict at 2 % 
 * the *fixed debris*: rejected blobs at one pixel position (within 1.5 px) in at least
   ``--debris-share`` of the set's frames. Markers move with every tap's shear, debris on the
   lens or the lab's crop does not (found from the set, not listed by hand); and in how many
-  frames the detector accepted a marker at each of those positions;
+  frames the detector accepted a marker at each of those positions; and the markers it
+  accepted *on* the marker-sized ones (false markers: the blob's footprint, the pixels lit
+  in half the frames or more, is the debris; ``debris_markers``), with the reliable verdicts
+  they make false;
 * two ceilings for a reading of the frame's blobs: every rejected blob taken as a marker
   (debris included), and every rejected blob but the fixed debris (an oracle that knows the
   debris, which a frame read alone does not);
