@@ -167,8 +167,9 @@ surface tap here (``fast``, render included), 0.42 s an edge tap (rods on P2):
 - edge: 1 200, each tap turned 12 times in training (rods on P2): simulation's CV 0.76 mm /
   25.5 deg with 400 taps, 0.55 mm / 22.1 deg with 1 200 (18 min in all here, 8 of them
   simulating); more would need fewer turns (the kernel model keeps 12 rows a tap).
-- edge under shear: 600 (549 stay in contact), 0.5 s a tap: simulation's CV 1.66 mm / 53.7
-  deg with 200 (worse than the mean for the angle), 1.50 mm / 38.0 deg with 600."""
+- edge under shear: 600 (580 with a path in contact), 1.0 s a tap (rods on P2): simulation's
+  CV 1.07 mm / 32.1 deg with 600, 1.01 mm / 31.7 deg with 1 200 (flat: not worth twice the
+  time; with P1 embedded tips it had been 1.66 mm / 53.7 deg with 200, 1.50 / 38.0 with 600)."""
 COP_N = 300
 """Default simulated taps of ``--task surface --model cop``."""
 

@@ -365,18 +365,19 @@ def _run_tetwild(**kwargs: object) -> tuple[np.ndarray, np.ndarray]:
         np.savez(src, **{k: np.asarray(v) for k, v in kwargs.items()})
         # the clock shows on a terminal (a mesh can take minutes)
         with clock(f"meshing the pad (pytetwild, edge {kwargs['edge_length_abs']} mm)"):
-            proc = subprocess.Popen([sys.executable, "-m", "tactip_sim.mesh._tetwild",
-                                     str(src), str(dst)], cwd=tmp, env=env,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-            try:
-                _, err = proc.communicate()
-            except BaseException:
-                # interrupted (Ctrl-C, or SIGTERM as the commands handle it): the child is
-                # killed *and reaped* before its folder goes, so none outlives this process
-                # (subprocess.run kills it on an interrupt but does not wait for it)
-                proc.kill()
-                proc.wait()
-                raise
+            with subprocess.Popen([sys.executable, "-m", "tactip_sim.mesh._tetwild",
+                                   str(src), str(dst)], cwd=tmp, env=env,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                  text=True) as proc:
+                try:
+                    _, err = proc.communicate()
+                except BaseException:
+                    # interrupted (Ctrl-C, or SIGTERM as the commands handle it): the child
+                    # is killed *and reaped* before its folder goes, so none outlives this
+                    # process (subprocess.run kills it on an interrupt but does not wait)
+                    proc.kill()
+                    proc.wait()
+                    raise
         if proc.returncode != 0 or not dst.is_file():
             raise RuntimeError(f"pytetwild failed (exit status {proc.returncode}): "
                                f"{err.strip()[-2000:]}")
