@@ -153,7 +153,7 @@ TASK_SCENE_DEFAULTS: dict[str, dict[str, Any]] = {
 the skin (their tips swing with the skin's rotation) on P2 elements, the scenes' own FEM
 defaults (those of the calibration sweeps), not as material points of the gel on P1. Measured
 (docs/sim2real.md, "The pins at an edge"): at the block's corner the skin turns sharply, and the
-tip model decides the field: a model fitted on one pin model reads the other's taps 1.5-5 mm off
+tip model decides the field: a model fitted on one pin model reads the other's taps 1.8-5.2 mm off
 (same poses), while P2 rods on the 3 mm and the 1.5 mm mesh read each other's taps to 0.63-0.70
 mm, their own CV error (converged). The rods' field is the more one-sided beside the edge, as
 the real one is (the localisation benchmark). The surface tasks keep ``fast``: there the two pin
