@@ -20,7 +20,6 @@ task (docs/sim2real.md, "The pins at an edge"). Nothing is written.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 from pathlib import Path
@@ -28,12 +27,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _targets(out: Path, names: list[str]) -> np.ndarray:
-    with open(out / "sim" / "targets.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
-    return np.array([[float(r[t]) for t in names] for r in rows])
 
 
 def _mae(pred: np.ndarray, y: np.ndarray, names: list[str]) -> str:
@@ -53,13 +46,15 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     sys.path.insert(0, str(ROOT))
     from tactip_lab.fitting.field_model import fields_of, load_field_model
+    from tactip_lab.real.task_run import folder_columns
 
     runs: dict[str, Path] = {}
     for item in args.runs:
         name, sep, path = item.partition("=")
-        if not sep or not (Path(path) / "model.json").is_file():
-            p.error(f"{item!r}: give NAME=OUT with OUT a tactip sim2real output folder "
-                    "(holding model.json)")
+        need = ("model.json", "summary.json", "sim128_points.npz", "sim/targets.csv")
+        if not sep or not all((Path(path) / f).is_file() for f in need):
+            p.error(f"{item!r}: give NAME=OUT with OUT a finished tactip sim2real output "
+                    f"folder (holding {', '.join(need)})")
         runs[name] = Path(path)
     if len(runs) < 2:
         p.error("give two runs or more")
@@ -71,7 +66,8 @@ def main(argv: list[str] | None = None) -> int:
     sims = {}
     for n, o in runs.items():
         d = np.load(o / "sim128_points.npz")
-        sims[n] = (fields_of(d["rest"], d["pts"]), _targets(o, names))
+        cols = folder_columns(o / "sim")
+        sims[n] = (fields_of(d["rest"], d["pts"]), np.column_stack([cols[t] for t in names]))
     first = next(iter(runs.values()))
     real_files = sorted(first.glob("real_*_points.npz"))
     if args.real:
