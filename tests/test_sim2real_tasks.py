@@ -653,6 +653,7 @@ def test_sim2real_surface_field_command_end_to_end(tmp_path):
     scored on 30 real 128x128 taps: the contract's files, and ``tactip evaluate``'s
     ``targets`` giving the run's own zero-shot figures (a second computation through the
     command)."""
+    from tactip_lab.fitting.field_model import load_field_model
     from tactip_sim.commands import main
 
     from .conftest import ROOT
@@ -673,7 +674,10 @@ def test_sim2real_surface_field_command_end_to_end(tmp_path):
     assert main(["evaluate", str(out / "model.json"), str(sub), "--json", str(ev),
                  "--no-progress"]) == 0
     report = json.loads(ev.read_text())
-    assert report["datasets"][0]["reference"] == "shallowest"  # every surface tap presses
+    # every surface tap presses: the shallowest presses, with the scene's rest state the
+    # model carries (the simulated 128x128 rest frame's markers)
+    assert report["datasets"][0]["reference"] == "shallowest, with the scene's rest state"
+    assert len(load_field_model(out / "model.json").rest) == 331
     t = report["targets"]
     assert set(t) == {"pose_4", "pose_5"} and t["pose_4"]["unit"] == "deg"
     assert t["pose_4"]["mae"] == pytest.approx(z["pose_4"]["mae"], rel=1e-9)

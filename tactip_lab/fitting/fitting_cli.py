@@ -187,6 +187,7 @@ def _evaluate_field(args: argparse.Namespace) -> int:
     from tactip_lab.fitting.field_model import (
         folder_fields,
         load_field_model,
+        reference_label,
         reference_rule,
         target_scores,
     )
@@ -228,13 +229,14 @@ def _evaluate_field(args: argparse.Namespace) -> int:
                 "model.json for the 128x128 processed frames and model_raw.json for raw ones)")
         rule = reference_rule(model.task)
         x, _ = folder_fields(f, expected_count=args.expected_count,
-                             progress=not args.no_progress, reference=rule)
+                             progress=not args.no_progress, reference=rule, prior=model.rest)
         pred = model.predict(x)
         s = target_scores(y, pred, targets)
         rows.append({"dataset": str(d), "n_rows": len(y),
                      "n_used": int(np.all(np.isfinite(pred), axis=1).sum()),
                      "rest": str(f.rest), "rest_choice": f.rest_choice,
-                     "reference": rule if f.reference_is_a_press else "rest frame",
+                     "reference": (reference_label(rule, model.rest)
+                                   if f.reference_is_a_press else "rest frame"),
                      "targets": s})
         ys.append(y)
         ps.append(pred)

@@ -39,6 +39,7 @@ from tactip_lab.fitting.field_model import (
     deviation_from_mean,
     fields_of,
     folder_points,
+    reference_label,
     reference_rule,
     target_scores,
     task_targets,
@@ -124,12 +125,14 @@ def check_task_columns(path: Path, cols: dict[str, np.ndarray], targets: list[st
 
 
 def cached_points(folder: Path, cache: Path, *, key: str = "", expected_count: int = 331,
-                  progress: bool = False, reference: str = "shallowest"
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """(rest, tracked points) of a Bristol folder (:func:`folder_points`; ``reference`` its
-    rule for a folder without a frame free of contact), cached as npz (valid for the same
-    frame count, reference image and rule, ``key`` and perception's ``RESULTS_VERSION``:
-    points tracked by another detector are tracked again)."""
+                  progress: bool = False, reference: str = "shallowest",
+                  prior: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(rest, tracked points) of a Bristol folder (:func:`folder_points`; ``reference`` and
+    ``prior`` its rule for a folder without a frame free of contact), cached as npz (valid for
+    the same frame count, reference image, rule and prior, ``key`` and perception's
+    ``RESULTS_VERSION``: points tracked by another detector are tracked again)."""
+    import hashlib
+
     import perception
     from tactip_lab.fitting.bristol import BristolFolder
 
@@ -138,12 +141,15 @@ def cached_points(folder: Path, cache: Path, *, key: str = "", expected_count: i
            f"perception {perception.RESULTS_VERSION}")
     if reference != "shallowest":  # the tag of caches made before the rule was a choice
         tag += f"|reference {reference}"
+    if prior is not None:
+        tag += "|scene rest " + hashlib.sha256(
+            np.ascontiguousarray(prior, dtype=np.float64).tobytes()).hexdigest()[:16]
     if cache.is_file():
         z = np.load(cache, allow_pickle=False)
         if str(z["tag"]) == tag:
             return z["rest"], z["pts"]
     rest, pts, _ = folder_points(f, expected_count=expected_count, progress=progress,
-                                 reference=reference)
+                                 reference=reference, prior=prior)
     tmp = cache.with_name(cache.stem + ".tmp.npz")
     np.savez(tmp, rest=rest, pts=pts, tag=tag)
     tmp.replace(cache)
@@ -181,8 +187,8 @@ def fit_model(task: str, targets: list[str], size, rest, pts, y, fitted_on=None,
     ``n_components`` None: the model's default."""
     r = rows if rows is not None else training_rows(task, targets, rest, pts, y)
     kw = {} if n_components is None else {"n_components": int(n_components)}
-    return FieldModel(task, targets, tuple(size), fitted_on=fitted_on or {}, **kw).fit(
-        r.xa, r.ya)
+    return FieldModel(task, targets, tuple(size), fitted_on=fitted_on or {},
+                      rest=np.asarray(rest, dtype=float), **kw).fit(r.xa, r.ya)
 
 
 def few_shot(pred: np.ndarray, y: np.ndarray, targets: list[str], k: int, seed: int
@@ -437,7 +443,7 @@ def score_real(model: FieldModel, folder: Path, out: Path, cfg: TaskConfig, fmt:
     name = folder.name
     rule = reference_rule(model.task)
     rest, pts = cached_points(folder, out / f"real_{name}_points.npz", progress=progress,
-                              expected_count=331, reference=rule)
+                              expected_count=331, reference=rule, prior=model.rest)
     features = training_rows("", targets, rest, pts, y)  # the real taps as they are
     x = features.x
     zero = model.predict(x)
@@ -447,7 +453,7 @@ def score_real(model: FieldModel, folder: Path, out: Path, cfg: TaskConfig, fmt:
     naive = naive_cv(naive_pixels(folder), y, targets, seed=cfg.seed)
     np.savez(out / f"real_{name}.npz", truth=y, zero_shot=zero, few_shot_rows=rows,
              few_shot=few, real_cv=real_cv, naive_cv=naive, targets=np.array(targets))
-    res = {"format": fmt, "n": int(len(y)), "reference": rule,
+    res = {"format": fmt, "n": int(len(y)), "reference": reference_label(rule, model.rest),
            "frames_usable": int(np.all(np.isfinite(x), axis=1).sum()),
            "zero_shot": _short(target_scores(y, zero, targets)),
            "few_shot": {"k": cfg.k, "correction": corr,

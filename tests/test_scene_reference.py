@@ -1,0 +1,133 @@
+"""The reference of a folder without a frame free of contact, from the scene's rest state and
+the folder's shallowest presses (``field_model.scene_reference``): known answers on generated
+arrays, a camera that differs from the scene by an affine map, presses whose tilts and noise
+the truth is known under."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tactip_lab.fitting.field_model import (
+    FieldModel,
+    load_field_model,
+    marker_median_reference,
+    pair_markers,
+    scene_reference,
+)
+
+from .test_sim2real_tasks import _bump, _lattice
+
+
+def _affine(p: np.ndarray, turn_deg: float, scale: float, shear: float, shift) -> np.ndarray:
+    a = np.deg2rad(turn_deg)
+    m = scale * np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) \
+        @ np.array([[1.0, shear], [0.0, 1.0]])
+    c = p.mean(axis=0)
+    return (p - c) @ m.T + c + np.asarray(shift, dtype=float)
+
+
+def _rms(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+
+
+def test_pair_markers_recovers_an_affine_view_of_the_array():
+    """The real camera sees the scene's array turned 5 deg, scaled 1.3, sheared and shifted,
+    in another order, with two markers missing: every marker is paired with its own, and the
+    mapped scene lies on the view within its noise."""
+    rng = np.random.default_rng(3)
+    prior = _lattice(15, 6.0)
+    view = _affine(prior, 5.0, 1.3, 0.03, (20.0, -7.0)) + rng.normal(0, 0.05, prior.shape)
+    order = rng.permutation(len(prior))
+    target = view[order]
+    target[[4, 40]] = np.nan
+    pair, mapped = pair_markers(prior, target)
+    seen = np.all(np.isfinite(target), axis=1)
+    assert np.array_equal(pair[seen], order[seen])
+    assert np.all(pair[~seen] == -1)
+    assert _rms(mapped[order[seen]], target[seen]) < 0.1
+
+
+def test_scene_reference_prefers_the_scene_when_the_folder_has_few_presses():
+    """Seven shallow presses, each a bump somewhere off centre plus noise, on a sensor whose
+    rest state is the scene's seen through another camera (an affine map): their median keeps
+    the bumps; the scene mapped onto it does not, so the reference leans on the scene and is
+    closer to the truth than the median."""
+    rng = np.random.default_rng(5)
+    prior = _lattice(15, 6.0)
+    truth = _affine(prior, -3.0, 1.1, 0.0, (4.0, 2.0))
+    c = truth.mean(axis=0)
+    presses = []
+    for _ in range(7):
+        at = c + rng.uniform(-25, 25, 2)
+        presses.append(_bump(truth, at, amp=rng.uniform(0.4, 0.9), width=15.0)
+                       + rng.normal(0, 0.1, truth.shape))
+    pts = np.stack(presses)
+    shallow = np.arange(7)
+    median = np.median(pts, axis=0)
+    ref, info = scene_reference(prior, truth + 1.0, pts, shallow)
+    assert info["paired"] == len(truth)
+    assert info["weight"] < 0.5
+    assert _rms(ref, truth) < 0.5 * _rms(median, truth)
+
+
+def test_scene_reference_follows_the_folder_when_the_scene_is_wrong():
+    """Thirty presses that barely move the markers, on a sensor whose rest state differs from
+    the scene's by more than an affine map (a barrel distortion of 4 px at the rim): the
+    folder's median is the better estimate, and the weight goes to it."""
+    rng = np.random.default_rng(7)
+    prior = _lattice(15, 6.0)
+    c = prior.mean(axis=0)
+    v = prior - c
+    r = np.hypot(v[:, 0], v[:, 1])[:, None]
+    truth = prior + 4.0 * v / np.maximum(r, 1e-9) * (r / r.max()) ** 3
+    pts = truth + rng.normal(0, 0.02, (30, *truth.shape))
+    ref, info = scene_reference(prior, truth, pts, np.arange(30))
+    assert info["weight"] > 0.9
+    assert _rms(ref, truth) < 0.1
+    _, scene = pair_markers(prior, truth)  # the scene at its best affine view
+    assert _rms(scene, truth) > 0.5
+
+
+def test_scene_reference_of_another_array_is_the_folders_median():
+    """A scene whose array does not pair with the folder's (another pin count and spacing)
+    is not used: the reference is the shallowest presses' median."""
+    rng = np.random.default_rng(9)
+    truth = _lattice(15, 6.0)
+    other = _lattice(7, 17.0)
+    pts = truth + rng.normal(0, 0.05, (9, *truth.shape))
+    ref, info = scene_reference(other, truth, pts, np.arange(9))
+    assert info["paired"] < 0.5 * len(truth)
+    np.testing.assert_allclose(ref, np.median(pts, axis=0))
+
+
+def test_a_folder_with_a_rest_frame_keeps_it_whatever_the_scene():
+    truth = _lattice(9)
+    pts = np.stack([truth + 0.3] * 4)
+    folder = SimpleNamespace(depth_mm=np.arange(4.0), reference_is_a_press=False)
+    got = marker_median_reference(folder, truth, pts, prior=_affine(truth, 2, 1.0, 0, (1, 1)))
+    np.testing.assert_array_equal(got, truth)
+
+
+def test_field_model_saves_and_checks_its_scene_rest(tmp_path):
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(20, 6))
+    y = rng.uniform(-10, 10, (20, 2))
+    rest = _lattice(5)
+    m = FieldModel("surface", ["pose_4", "pose_5"], (128, 128), n_components=3,
+                   rest=rest).fit(x, y)
+    path = m.save(tmp_path / "model.json")
+    back = load_field_model(path)
+    np.testing.assert_array_equal(back.rest, rest)
+    np.testing.assert_allclose(back.predict(x), m.predict(x))
+    d = json.loads(path.read_text())
+    d["rest_px"] = None  # a model saved before the scene's rest was kept
+    (tmp_path / "old.json").write_text(json.dumps(d))
+    assert load_field_model(tmp_path / "old.json").rest is None
+    d["rest_px"] = [[1.0, 2.0, 3.0]]
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(ValueError, match="rest_px"):
+        load_field_model(tmp_path / "bad.json")
