@@ -309,8 +309,11 @@ def test_an_interrupt_while_drjit_loads_skips_pythons_finalisation(loaded):
     finalisation then aborted (SIGABRT, "Fatal Python error: PyThreadState_Get"; measured in 2
     of 15 runs interrupted 0.25-0.27 s into it). After such an interrupt the process ends at
     once with its status (no exit handler runs); otherwise Python finalises as usual."""
+    # SIGINT as at a terminal: a suite run in the background (`cmd &`) starts its children
+    # with it ignored, and the launcher then leaves SIGINT (and this check) alone
     proc = subprocess.run([sys.executable, "-c", _HALF_LOADED, loaded], capture_output=True,
-                          text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120)
+                          text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120,
+                          preexec_fn=sigint_as_at_a_terminal)
     assert proc.returncode == 130, proc.stderr
     assert proc.stderr.strip() == "tactip render: interrupted"
     assert ("finalised" in proc.stdout) == (loaded == "nothing")
