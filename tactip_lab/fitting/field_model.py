@@ -517,18 +517,11 @@ def scene_reference(prior: np.ndarray, rest: np.ndarray, pts: np.ndarray,
     median's variance (over :data:`SCENE_BOOTSTRAPS` resamples of the presses) and ``b``
     what the difference holds beyond it, both measured on the difference smoothed as the
     feature smooths it (:func:`field_features`), its shift removed."""
-    import warnings
-
     pts = np.asarray(pts, dtype=float)
     shallow = np.asarray(shallow, dtype=np.intp)
 
     def median_of(sel: np.ndarray) -> np.ndarray:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN markers: kept below
-            med = np.nanmedian(pts[sel], axis=0)
-        lost = ~np.all(np.isfinite(med), axis=1)
-        med[lost] = rest[lost]
-        return med
+        return _marker_median(pts, sel, rest)
 
     med = median_of(shallow)
     pair, mapped = pair_markers(prior, med)
@@ -597,14 +590,20 @@ def marker_median_reference(folder: Any, rest: np.ndarray, pts: np.ndarray, *,
     k = max(1, int(round(np.sqrt(len(depth)))))
     if k < 2:
         return rest
-    import warnings
-
     shallow = np.argsort(depth, kind="stable")[:k]
     if prior is not None:
         return scene_reference(prior, rest, pts, shallow)[0]
+    return _marker_median(pts, shallow, rest)
+
+
+def _marker_median(pts: np.ndarray, sel: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """(m, 2) the marker-by-marker median of the frames ``sel`` of ``pts`` (n, m, 2); a
+    marker none of them tracks keeps its position in ``rest``."""
+    import warnings
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN markers: kept below
-        med = np.nanmedian(pts[shallow], axis=0)
+        med = np.nanmedian(pts[sel], axis=0)
     lost = ~np.all(np.isfinite(med), axis=1)
     med[lost] = rest[lost]
     return med
