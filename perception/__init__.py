@@ -76,7 +76,11 @@ from .voronoi import ClippedVoronoi, cell_growth, voronoi_areas, voronoi_cells
 #: alone, blob areas of markers under 3 px, touching markers split in frames read enlarged):
 #: some frames read differently (27 of 3 000 simulated 128x128 taps tracked otherwise; the
 #: main job's R² tables are byte-identical).
-RESULTS_VERSION = 4
+#: 5 (2026-11-29): labelled taps tracked with ``TrackingParams(regrow=True)``
+#: (``tactip_lab.fitting.bristol.tap_pipeline``): deep taps whose skin moves by about a
+#: spacing keep their identities (docs/perception.md, "Deep taps"); sequences and the
+#: calibration sweeps (``regrow`` off) are unchanged.
+RESULTS_VERSION = 5
 
 __all__ = [
     "COP_WEIGHTINGS",

@@ -159,6 +159,17 @@ class TrackingParams:
         that, wave after wave from the seeds; a match that still disagrees with its
         neighbours' motion at the end is dropped (the track is lost, not given a wrong
         marker). Default False (the plain gated assignment).
+    regrow : bool
+        Repair an aliased assignment (for frames tracked straight from a reference in which
+        the skin may move by more than a spacing, e.g. deep or tilted taps): when the plain
+        gated assignment leaves tracks without a detection beside unmatched detections, or
+        gives markers a motion their rest neighbours do not share (by more than
+        :data:`COHERENT_TOLERANCE` of a spacing), the frame is grown again from each
+        coherent patch of its matches (each track predicted at its reference plus its matched
+        rest neighbours' median motion and matched within half a spacing of that, wave after
+        wave, as ``coherent`` does), and the outcome with the most matches is kept when it
+        has more than the plain assignment's coherent matches. A frame the plain assignment
+        tracks coherently is not touched. Not with ``coherent``. Default False.
     """
 
     gate_fraction: float = 0.5
@@ -168,6 +179,7 @@ class TrackingParams:
     merge_needs_lost_neighbour: bool = False
     merged_pairs_share: bool = False
     coherent: bool = False
+    regrow: bool = False
 
     def __post_init__(self) -> None:
         _check_range("gate_fraction", self.gate_fraction, 0, 2, lo_open=True)
@@ -175,6 +187,11 @@ class TrackingParams:
         _check_range("max_lost_fraction", self.max_lost_fraction, 0, 1)
         if not isinstance(self.coherent, bool):
             raise PerceptionError(f"coherent={self.coherent!r} must be True or False")
+        if not isinstance(self.regrow, bool):
+            raise PerceptionError(f"regrow={self.regrow!r} must be True or False")
+        if self.regrow and self.coherent:
+            raise PerceptionError("regrow=True and coherent=True are two assignments: choose "
+                                  "one")
         if self.merged_pairs_share and not self.merge_needs_lost_neighbour:
             raise PerceptionError("merged_pairs_share=True needs merge_needs_lost_neighbour="
                                   "True (the pair's other track is the lost neighbour)")

@@ -16,7 +16,12 @@ Each frame is matched to the tracks by an optimal one-to-one assignment
   they are re-acquired as soon as a detection reappears within the gate;
 * with blob areas given, a blob larger than ``merge_area_ratio`` times the median rest area is
   a merged pair: the track it is matched to is flagged ``MERGED`` (NaN) instead of taking a
-  position between two markers.
+  position between two markers;
+* optionally (``TrackingParams.regrow``, for frames tracked straight from a reference in
+  which the skin may move by more than a spacing), an assignment that leaves tracks without
+  a detection beside unmatched detections, or gives a marker a motion its neighbours do not
+  share, is grown again from each of its coherent patches; the outcome with the most
+  coherent matches is kept.
 """
 
 from __future__ import annotations
@@ -187,8 +192,12 @@ class MarkerTracker:
         merged_det = merged_det[keep]
 
         m = len(self.rest_points)
-        track, match = (self._assign_coherent(det) if self.params.coherent
-                        else self._assign(det))
+        if self.params.coherent:
+            track, match = self._assign_coherent(det)
+        elif self.params.regrow:
+            track, match = self._assign_regrow(det)
+        else:
+            track, match = self._assign(det)
         new_pos = np.full((m, 2), np.nan)
         status = np.full(m, LOST, dtype=np.int8)
         good = ~merged_det[match]
@@ -268,21 +277,26 @@ class MarkerTracker:
             self._nbrs = np.where(d <= 1.5 * self.spacing_px, i, -1)
         return self._nbrs
 
-    def _neighbour_motion(self, pred: np.ndarray, pos: np.ndarray, matched: np.ndarray
-                          ) -> tuple[np.ndarray, np.ndarray]:
+    def _neighbour_motion(self, pred: np.ndarray, pos: np.ndarray, matched: np.ndarray,
+                          rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Median displacement from prediction of each track's matched rest neighbours, and
-        how many there are: ((m, 2), (m,))."""
+        how many there are: ((m, 2), (m,)), or for the tracks ``rows`` only."""
         nb = self._rest_neighbours()
+        if rows is not None:
+            nb = nb[rows]
         valid = (nb >= 0) & matched[np.maximum(nb, 0)]
         disp = np.where(valid[:, :, None], pos[np.maximum(nb, 0)] - pred[np.maximum(nb, 0)],
                         np.nan)
         count = valid.sum(axis=1)
-        with np.errstate(all="ignore"):
-            import warnings
-
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                med = np.nanmedian(disp, axis=1)
+        # the median of the valid ones, as np.nanmedian gives it (NaN where none), without
+        # its masked-array path: sorted, NaNs go last; the middle one or the mean of the two
+        srt = np.sort(disp, axis=1)
+        k = count[:, None, None]
+        lo = np.take_along_axis(srt, np.broadcast_to(np.maximum((k - 1) // 2, 0),
+                                                     (len(srt), 1, 2)), axis=1)[:, 0]
+        hi = np.take_along_axis(srt, np.broadcast_to(np.maximum(k // 2, 0),
+                                                     (len(srt), 1, 2)), axis=1)[:, 0]
+        med = np.where(count[:, None] > 0, (lo + hi) / 2.0, np.nan)
         return med, count
 
     def _assign_coherent(self, det: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -342,16 +356,110 @@ class MarkerTracker:
         t = np.flatnonzero(matched)
         return t, of[t]
 
+    def _incoherent(self, pred: np.ndarray, pos: np.ndarray, matched: np.ndarray,
+                    tol: float) -> np.ndarray:
+        """(m,) bool: matched tracks whose motion differs by more than ``tol`` px from the
+        median motion of their (at least two) matched rest neighbours."""
+        med, count = self._neighbour_motion(pred, pos, matched)
+        return matched & (count >= 2) & (np.hypot(*(pos - pred - med).T) > tol)
+
+    def _grow(self, det: np.ndarray, pred: np.ndarray, of: np.ndarray, tol: float
+              ) -> np.ndarray:
+        """The tracks' detection rows (-1: none) grown from the matches in ``of`` wave by
+        wave at the matched neighbours' motion (:meth:`_waves`, half a spacing around it);
+        a match that disagrees with its neighbours at the end is dropped, and the dropped
+        tracks get one more round."""
+        m = len(self.rest_points)
+        of = of.copy()
+        matched = of >= 0
+        pos = np.full((m, 2), np.nan)
+        pos[matched] = det[of[matched]]
+        free = np.ones(len(det), dtype=bool)
+        free[of[matched]] = False
+        for _ in range(2):
+            of, pos, matched, free = self._waves(det, pred, of, pos, matched, free,
+                                                 0.5 * self.spacing_px,
+                                                 4 * int(np.sqrt(m)) + 4)
+            off = self._incoherent(pred, pos, matched, tol)
+            matched &= ~off
+            free[of[off]] = True
+            of[off], pos[off] = -1, np.nan
+        return of
+
+    def _assign_regrow(self, det: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gated assignment, grown again from its coherent patches when it shows aliasing
+        (``TrackingParams.regrow``).
+
+        A region of skin moved by about a spacing is matched one marker over by the gated
+        assignment: coherent inside, it is bounded by a band where the apparent motion jumps
+        by a spacing, with tracks left without a detection at one end and detections left
+        unmatched at the other. So when the plain assignment leaves both, or has matches
+        that disagree with their rest neighbours (:data:`~perception.params
+        .COHERENT_TOLERANCE`), its coherent matches are split into patches (rest neighbours
+        whose motions differ by less than the tolerance are joined), and the frame is grown
+        again from each patch of at least ``max(3, m // 20)`` markers alone
+        (:meth:`_grow`). Grown from the patch that is right, every marker of a smooth field
+        is reached (each predicted from its matched neighbours, within half a spacing);
+        grown from a patch matched one marker over, the shift carries on until it runs off
+        the array and leaves its edge row unmatched. The outcome with the most matches is
+        kept, if it has more than the plain assignment's coherent matches; otherwise the
+        plain assignment is returned unchanged.
+        """
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        from .params import COHERENT_TOLERANCE
+
+        track, match = self._assign(det)
+        m = len(self.rest_points)
+        if len(det) == 0 or len(track) == 0:
+            return track, match
+        pred = self.predicted()
+        tol = COHERENT_TOLERANCE * self.spacing_px
+        of = np.full(m, -1, dtype=np.intp)
+        of[track] = match
+        matched = of >= 0
+        pos = np.full((m, 2), np.nan)
+        pos[matched] = det[of[matched]]
+        ok = matched & ~self._incoherent(pred, pos, matched, tol)
+        if ok.sum() == matched.sum() and (matched.all() or len(match) == len(det)):
+            return track, match  # coherent, and nothing left on one side or the other
+        nb = self._rest_neighbours()
+        nbc = np.maximum(nb, 0)
+        motion = pos - pred
+        near = np.hypot(*(motion[:, None, :] - motion[nbc]).transpose(2, 0, 1)) <= tol
+        r, c = np.nonzero((nb >= 0) & ok[:, None] & ok[nbc] & near)
+        _, label = connected_components(coo_matrix((np.ones(len(r)), (r, nbc[r, c])),
+                                                   shape=(m, m)), directed=False)
+        label = np.where(ok, label, -1)
+        sizes = np.bincount(label[ok], minlength=m)
+        best, best_n = None, int(ok.sum())
+        for k in np.argsort(-sizes, kind="stable"):
+            if sizes[k] < max(3, m // 20):
+                break
+            grown = self._grow(det, pred, np.where(label == k, of, -1), tol)
+            n_grown = int((grown >= 0).sum())
+            if n_grown > best_n:
+                best, best_n = grown, n_grown
+                if best_n == min(m, len(det)):
+                    break  # every track or every detection matched: nothing can beat it
+        if best is None:
+            return track, match
+        t = np.flatnonzero(best >= 0)
+        return t, best[t]
+
     def _waves(self, det, pred, of, pos, matched, free, step, n_waves):
         """Match the unmatched tracks wave by wave at their matched neighbours' motion."""
         for _ in range(n_waves):
-            med, count = self._neighbour_motion(pred, pos, matched)
-            need = 1 if not (~matched & (count >= 2)).any() else 2
-            cand = np.flatnonzero(~matched & (count >= need))
+            open_ = np.flatnonzero(~matched)
+            med, count = self._neighbour_motion(pred, pos, matched, open_)
+            need = 1 if not (count >= 2).any() else 2
+            sel = count >= need
+            cand = open_[sel]
             fd = np.flatnonzero(free)
             if not len(cand) or not len(fd):
                 break
-            cost = cdist(pred[cand] + med[cand], det[fd])
+            cost = cdist(pred[cand] + med[sel], det[fd])
             ok = cost <= step
             if not ok.any():
                 break

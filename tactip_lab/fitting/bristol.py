@@ -507,12 +507,16 @@ def _check_same_sensor(folder: BristolFolder, rest_markers: int) -> None:
 def tap_pipeline(reference: np.ndarray | str, expected_count: int | None = None):
     """The feature pipeline a folder of taps is perceived with: each frame tracked straight
     from ``reference`` (no velocity) with a gate of :data:`TAP_GATE_FRACTION` spacings, an
-    oversized blob a merged pair only if a marker is missing next to it, and the search
-    reaching :data:`TAP_SEARCH_FRACTION` spacings beyond the Voronoi region."""
+    oversized blob a merged pair only if a marker is missing next to it, the search
+    reaching :data:`TAP_SEARCH_FRACTION` spacings beyond the Voronoi region, and an
+    assignment that shows aliasing (part of the skin moved by about a spacing and matched one
+    marker over) grown again from its coherent patches (``TrackingParams(regrow=True)``; a
+    deep or tilted tap moves the skin by up to 1.4 spacings against the shallowest press,
+    docs/perception.md)."""
     import perception as pc
 
     tracking = pc.TrackingParams(gate_fraction=TAP_GATE_FRACTION, use_velocity=False,
-                                 merge_needs_lost_neighbour=True)
+                                 merge_needs_lost_neighbour=True, regrow=True)
     pipe = pc.FeaturePipeline(reference, expected_count=expected_count, tracking=tracking)
     if TAP_SEARCH_FRACTION > 0:  # the spacing is known once the rest frame is detected
         pipe = pc.FeaturePipeline(reference, expected_count=expected_count, tracking=tracking,
