@@ -284,19 +284,18 @@ class MarkerTracker:
         nb = self._rest_neighbours()
         if rows is not None:
             nb = nb[rows]
-        valid = (nb >= 0) & matched[np.maximum(nb, 0)]
-        disp = np.where(valid[:, :, None], pos[np.maximum(nb, 0)] - pred[np.maximum(nb, 0)],
-                        np.nan)
+        nbc = np.maximum(nb, 0)
+        valid = (nb >= 0) & matched[nbc]
         count = valid.sum(axis=1)
         # the median of the valid ones, as np.nanmedian gives it (NaN where none), without
-        # its masked-array path: sorted, NaNs go last; the middle one or the mean of the two
+        # its masked-array path: the others sorted last (inf), then the middle one or the
+        # mean of the two middle ones
+        disp = pos[nbc] - pred[nbc]
+        disp[~valid] = np.inf
         srt = np.sort(disp, axis=1)
-        k = count[:, None, None]
-        lo = np.take_along_axis(srt, np.broadcast_to(np.maximum((k - 1) // 2, 0),
-                                                     (len(srt), 1, 2)), axis=1)[:, 0]
-        hi = np.take_along_axis(srt, np.broadcast_to(np.maximum(k // 2, 0),
-                                                     (len(srt), 1, 2)), axis=1)[:, 0]
-        med = np.where(count[:, None] > 0, (lo + hi) / 2.0, np.nan)
+        r = np.arange(len(nb))
+        med = (srt[r, np.maximum((count - 1) // 2, 0)] + srt[r, count // 2]) / 2.0
+        med[count == 0] = np.nan
         return med, count
 
     def _assign_coherent(self, det: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
