@@ -13,6 +13,8 @@ import pytest
 
 from tactip_lab.fitting.field_model import (
     FieldModel,
+    densest_reference,
+    least_spread_frames,
     load_field_model,
     marker_median_reference,
     pair_markers,
@@ -131,3 +133,43 @@ def test_field_model_saves_and_checks_its_scene_rest(tmp_path):
     (tmp_path / "bad.json").write_text(json.dumps(d))
     with pytest.raises(ValueError, match="rest_px"):
         load_field_model(tmp_path / "bad.json")
+
+
+def test_least_spread_finds_the_few_misses_where_a_cluster_of_shallow_presses_is_denser():
+    """An edge folder of 198 taps: 8 miss the object (the rest state, 0.05 px of noise), 40
+    barely press it at one place (alike to 0.02 px: a denser cluster than the misses) and 150
+    press deeper anywhere on one side. A press pushes the pins under the contact toward the
+    lens, so they are seen further from the optical axis (perspective), and the skin there
+    moves away from the contact. The densest-cluster rule takes the shallow presses; the
+    least spread frames are misses, and their median is the rest within the noise."""
+
+    def press(at, amp):
+        v = rest - np.asarray(at, dtype=float)
+        near = np.exp(-np.sum(v ** 2, axis=1) / 30.0 ** 2)[:, None]
+        return _bump(rest, at, amp=amp, width=30.0) + 0.02 * amp * (rest - 64.0) * near
+
+    rng = np.random.default_rng(13)
+    rest = _lattice(15)
+    frames, miss = [], []
+    for i in range(198):
+        if i < 8:
+            f = rest + rng.normal(0, 0.05, rest.shape)
+        elif i < 48:
+            f = press((90.0, 64.0), 0.3) + rng.normal(0, 0.02, rest.shape)
+        else:
+            at = (rng.uniform(75.0, 100.0), rng.uniform(30.0, 98.0))
+            f = press(at, rng.uniform(0.5, 2.0)) + rng.normal(0, 0.05, rest.shape)
+        frames.append(f)
+        miss.append(i < 8)
+    order = rng.permutation(198)
+    pts, miss = np.stack(frames)[order], np.array(miss)[order]
+    pts[rng.permutation(198)[:6], 5] = np.nan  # a few lost markers
+    _, members = densest_reference(pts, 7)  # round(sqrt(198) / 2)
+    assert not miss[members].any()
+    sel = least_spread_frames(pts, 4)  # round(sqrt(198) / 4)
+    assert miss[sel].all()
+    folder = SimpleNamespace(depth_mm=None, reference_is_a_press=True)
+    got = marker_median_reference(folder, pts[0], pts, rule="least_spread")
+    assert _rms(got, rest) < 0.05
+    with pytest.raises(ValueError, match="k = 500"):
+        least_spread_frames(pts, 500)

@@ -364,7 +364,8 @@ def test_sim2real_edge_command_end_to_end(tmp_path):
     assert main(["evaluate", str(out / "model.json"), str(sub), "--json", str(ev),
                  "--no-progress"]) == 0
     report = json.loads(ev.read_text())
-    assert report["datasets"][0]["reference"] == "densest"  # the edge folder's rest state
+    # the edge folder's rest state: its least spread frames, with the scene's rest state
+    assert report["datasets"][0]["reference"] == "least_spread, with the scene's rest state"
     t = report["targets"]
     assert t["pose_6"]["unit"] == "deg" and t["pose_6"]["wrapped"]
     assert t["pose_2"]["mae"] == pytest.approx(z["pose_2"]["mae"], rel=1e-9)
@@ -455,7 +456,7 @@ def test_reference_rule_of_each_task():
     from tactip_lab.fitting.field_model import reference_rule
 
     assert [reference_rule(t) for t in ("edge", "edge+shear", "surface", "surface+shear")] \
-        == ["densest", "densest", "shallowest", "shallowest"]
+        == ["least_spread", "least_spread", "shallowest", "shallowest"]
 
 
 def test_few_shot_draw_skips_taps_without_a_prediction():
