@@ -129,6 +129,7 @@ def chained_identities(dets: list[np.ndarray], ref: int, spacing: float,
 
     complete = (gap == 0).astype(float)
     near = (gap <= CHECK_GAP).astype(float)
+    disagree = [0, 0]
     out = []
     for t in range(n):
         if t == ref:
@@ -147,7 +148,12 @@ def chained_identities(dets: list[np.ndarray], ref: int, spacing: float,
         if alt is None:
             out.append(np.full(len(dets[ref]), -1))
             continue
+        known = (idx >= 0) & (alt >= 0)
+        disagree[0] += int((known & (idx != alt)).sum())
+        disagree[1] += int(known.sum())
         out.append(np.where(idx == alt, idx, -1))
+    print(f"(chained identities: the two chains disagree on {disagree[0]} of the "
+          f"{disagree[1]} markers both reach)")
     return out
 
 
