@@ -380,6 +380,8 @@ class MarkerTracker:
                                                  0.5 * self.spacing_px,
                                                  4 * int(np.sqrt(m)) + 4)
             off = self._incoherent(pred, pos, matched, tol)
+            if not off.any():
+                break  # nothing dropped: no track for another round
             matched &= ~off
             free[of[off]] = True
             of[off], pos[off] = -1, np.nan
