@@ -1,19 +1,25 @@
 """Zero-shot error against the size of a real folder without a rest frame, by reference rule.
 
     python benchmarks/sim2real_reference_size.py OUT [--folder NAME] [--raw]
-        [--sizes 25,50,100,300] [--draws 20] [--png PATH]
+        [--sizes 25,50,100,300] [--draws 20] [--rules RULE,RULE] [--png PATH]
 
-A real folder of surface taps has no frame free of contact: its reference is read from its
-shallowest presses (``field_model.marker_median_reference``). With few taps their tilts and
-noise stay in it. This draws ``--draws`` random subsets of each size from the real folder
+The lab's folders have no frame free of contact: their reference is read from their own
+frames (``field_model.marker_median_reference``), and with few taps what it is read from
+stays in it. This draws ``--draws`` random subsets of each size from the real folder
 ``NAME`` that the ``tactip sim2real`` output ``OUT`` scored (its tracked points cached as
 ``OUT/real_NAME_points.npz``, the labels from ``../shared/real/NAME``), references each
-subset by itself, by the two rules, and scores the shipped model (``OUT/model.json``, or
-``model_raw.json`` with ``--raw``) zero-shot on it:
+subset by itself, by each rule, and scores the shipped model (``OUT/model.json``, or
+``model_raw.json`` with ``--raw``) zero-shot on it. Rules (``--rules``; default: the task's
+rule before and since 2026-11-29):
 
-- ``shallowest``: the marker-wise median of the subset's round(sqrt(n)) shallowest presses;
-- ``+ scene``: that median combined with the scene's rest state the model carries
-  (``field_model.scene_reference``; the default since 2026-11-29).
+- ``shallowest``: the marker-wise median of the subset's round(sqrt(n)) shallowest presses
+  (the surface tasks' rule before);
+- ``shallowest+scene``: that median combined with the scene's rest state the model carries
+  (``field_model.scene_reference``; the surface tasks' rule since);
+- ``densest``: the densest cluster of round(sqrt(n) / 2) + 1 frames (the edge tasks' rule
+  before);
+- ``least_spread``, ``least_spread+scene``: the round(sqrt(n) / 4) frames of the least spread
+  field, without and with the scene (the edge tasks' rule since).
 
 Prints MAE per target (mean over the draws) and the spread over draws; the whole folder is
 the last row. Nothing is written unless ``--png``.
@@ -29,6 +35,7 @@ from types import SimpleNamespace
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+RULES = ("shallowest", "shallowest+scene", "densest", "least_spread", "least_spread+scene")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,6 +48,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="subset sizes, comma-separated (default %(default)s)")
     p.add_argument("--draws", type=int, default=20, help="subsets per size (default 20)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--rules", default=None,
+                   help="rules to compare, comma-separated (default: the task's before and "
+                   f"since): {', '.join(RULES)}")
     p.add_argument("--png", default=None, help="write a chart of MAE against size here")
     args = p.parse_args(argv)
     sys.path.insert(0, str(ROOT))
@@ -70,6 +80,12 @@ def main(argv: list[str] | None = None) -> int:
     if model.rest is None:
         p.error(f"{model_path} carries no scene rest state (saved before 2026-11-29): rerun "
                 "tactip sim2real")
+    edge = model.task.startswith("edge")
+    names = (args.rules.split(",") if args.rules else
+             ["densest", "least_spread+scene"] if edge else ["shallowest", "shallowest+scene"])
+    bad = [r for r in names if r not in RULES]
+    if bad:
+        p.error(f"--rules: {bad[0]!r} is not one of {', '.join(RULES)}")
     targets = model.targets
     cols = folder_columns(real)
     y = np.stack([cols[t] for t in targets], axis=1)
@@ -81,18 +97,19 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"{cache} holds {len(pts)} frames, {real} {n_all}: rerun the sim2real scoring")
     if max(sizes) > n_all or min(sizes) < 4:
         p.error(f"--sizes must lie in 4..{n_all} (the folder's taps)")
-    rules = {"shallowest": None, "+ scene": model.rest}
+    rules = {r: (r.split("+")[0], model.rest if r.endswith("+scene") else None) for r in names}
     rng = np.random.default_rng(args.seed)
     rows = []
     for n in [*sizes, n_all]:
         draws = [np.arange(n_all)] if n == n_all else [
             rng.choice(n_all, n, replace=False) for _ in range(args.draws)]
         res = {}
-        for name, prior in rules.items():
+        for name, (rule, prior) in rules.items():
             maes = []
             for idx in draws:
                 folder = SimpleNamespace(depth_mm=depth[idx], reference_is_a_press=True)
-                ref = marker_median_reference(folder, fallback, pts[idx], prior=prior)
+                ref = marker_median_reference(folder, fallback, pts[idx], rule=rule,
+                                              prior=prior)
                 s = target_scores(y[idx], model.predict(fields_of(ref, pts[idx])), targets)
                 maes.append([s[t]["mae"] for t in targets])
             res[name] = np.array(maes)

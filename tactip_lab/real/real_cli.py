@@ -199,7 +199,8 @@ def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
                              f"{args.task}{' --shear' if args.shear else ''} --model field fits "
                              "a field model on the lab's protocol (docs/sim2real.md)")
     cfg = TaskConfig(task=task, n=args.n or TASK_N[task], seed=args.seed, k=args.k,
-                     shear_steps=args.shear_steps, depth_range_mm=depth)
+                     shear_steps=args.shear_steps, depth_range_mm=depth,
+                     friction=args.friction)
     cfg.check()
     for d in [*(args.real or []), *(args.real_raw or [])]:
         if not Path(d).is_dir():
@@ -239,6 +240,9 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
         raise ValueError(f"--model cop is the surface taps' CoP polynomial (the paper's "
                          f"protocol); --task {args.task}{' --shear' if args.shear else ''} has "
                          "field models only (--model field)")
+    if args.friction is not None:
+        raise ValueError("--friction is for the tasks pressed with friction (--task edge, "
+                         "--shear): the surface taps are frictionless")
     for opt, v in (("--real", args.real), ("--real-raw", args.real_raw)):
         if v and len(v) > 1:
             raise ValueError(f"{opt} given {len(v)} times: the surface taps' run scores one "
@@ -344,6 +348,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "uniform in +-5), with Coulomb friction; field models")
     p.add_argument("--shear-steps", type=int, default=4,
                    help="load steps of the move in contact (--shear; default 4)")
+    p.add_argument("--friction", type=float, default=None, metavar="MU",
+                   help="Coulomb coefficient between skin and object for the taps pressed "
+                   "with friction (--task edge, --shear), (0, 3]; default 1.0, assumed "
+                   "(tactip_lab/real/tasks.py FRICTION_ASSUMED)")
     p.add_argument("--real", metavar="DIR", action="append",
                    help="real labelled taps, 128x128 processed frames in the Bristol layout "
                    "(e.g. ../shared/real/tactip331_tap128); --task edge / --shear: may be "
@@ -356,7 +364,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    f"600 edge --shear; {COP_N} with --model cop)")
     p.add_argument("--depth-range", default=None, metavar="LOW,HIGH",
                    help="simulated depths of the surface taps, mm: with --model field the "
-                   "indentation beyond first contact (default 0.5,5; 0.5,5.5 with --shear: "
+                   "indentation beyond first contact (default 0.5,4; 0.5,5.5 with --shear: "
                    "every depth the lab's 2..5 mm label may mean, tactip_lab/real/tasks.py "
                    "SURFACE_CONTACT_MM); with --model cop the labelled depth (default 2,5)")
     p.add_argument("--feature", default="growth", help="CoP feature of the saved models "

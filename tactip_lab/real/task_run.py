@@ -68,6 +68,7 @@ class TaskConfig:
     k: int = 20
     shear_steps: int = 4
     depth_range_mm: tuple[float, float] | None = None  # surface tasks: simulated indentation
+    friction: float | None = None  # Coulomb coefficient, skin on object; None: FRICTION_ASSUMED
 
     def check(self) -> None:
         if self.task not in ("surface", "edge", "edge+shear", "surface+shear"):
@@ -84,6 +85,12 @@ class TaskConfig:
                                  "tasks' simulated indentation, 0 < LOW < HIGH <= 10 mm")
         if not 1 <= self.shear_steps <= 100:
             raise ValueError(f"--shear-steps={self.shear_steps} is out of range: [1, 100]")
+        if self.friction is not None:
+            if self.task == "surface":
+                raise ValueError("--friction is for the tasks pressed with friction (--task "
+                                 "edge, --shear): the surface taps are frictionless")
+            if not (np.isfinite(self.friction) and 0.0 < self.friction <= 3.0):
+                raise ValueError(f"--friction={self.friction:g} is out of range: (0, 3]")
 
 
 def folder_columns(root: Path) -> dict[str, np.ndarray]:
@@ -378,9 +385,10 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
     for d in [*real, *real_raw]:  # refuse a folder of another task before any simulation
         check_task_columns(Path(d) / "targets.csv", folder_columns(Path(d)), targets, cfg.task)
     t0 = time.perf_counter()
+    mu = {} if cfg.friction is None else {"friction": float(cfg.friction)}
     sim = simulate_task(scene, out / "sim", cfg.task, cfg.n, seed=cfg.seed,
                         shear_steps=cfg.shear_steps, depth_mm=cfg.depth_range_mm,
-                        progress=progress)
+                        progress=progress, **mu)
     t_sim = time.perf_counter() - t0
     sim128 = convert_128(sim, out / "sim128", count)
     cols = folder_columns(sim)
