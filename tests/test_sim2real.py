@@ -239,6 +239,9 @@ def test_task_friction_is_checked_and_only_for_the_tasks_pressed_with_friction(t
 
     TaskConfig(task="surface+shear", friction=0.5).check()
     TaskConfig(task="edge", friction=3.0).check()
+    TaskConfig(task="surface+shear", friction=(0.5, 1.0)).check()  # a range each tap draws
+    with pytest.raises(ValueError, match="--friction=1,0.5 is out of range"):
+        TaskConfig(task="edge+shear", friction=(1.0, 0.5)).check()
     for kw, msg in (({"task": "edge", "friction": 0.0}, "--friction=0 is out of range"),
                     ({"task": "edge+shear", "friction": 3.5}, "--friction=3.5 is out of range"),
                     ({"task": "edge", "friction": float("nan")}, "--friction=nan is out of"),
@@ -250,3 +253,7 @@ def test_task_friction_is_checked_and_only_for_the_tasks_pressed_with_friction(t
         assert main(["sim2real", str(SCENES / "tactip_331.toml"), "--out", str(out),
                      *extra]) != 0
         assert not out.exists()
+    with pytest.raises(SystemExit):  # argparse's refusal of a value that is not numbers
+        main(["sim2real", str(SCENES / "tactip_331.toml"), "--out", str(tmp_path / "o9"),
+              "--task", "edge", "--friction", "0.5,x"])
+    assert not (tmp_path / "o9").exists()

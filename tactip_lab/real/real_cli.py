@@ -174,6 +174,17 @@ COP_N = 300
 """Default simulated taps of ``--task surface --model cop``."""
 
 
+def _friction(text: str) -> float | tuple[float, float]:
+    """``--friction``: ``MU`` or ``LOW,HIGH`` (checked by ``TaskConfig.check``)."""
+    try:
+        v = [float(t) for t in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: MU or LOW,HIGH (numbers)") from None
+    if len(v) not in (1, 2):
+        raise argparse.ArgumentTypeError(f"{text!r}: MU or LOW,HIGH (numbers)")
+    return v[0] if len(v) == 1 else (v[0], v[1])
+
+
 def _depth_range(text: str) -> tuple[float, float]:
     try:
         lo, hi = (float(v) for v in text.split(","))
@@ -348,10 +359,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "uniform in +-5), with Coulomb friction; field models")
     p.add_argument("--shear-steps", type=int, default=4,
                    help="load steps of the move in contact (--shear; default 4)")
-    p.add_argument("--friction", type=float, default=None, metavar="MU",
+    p.add_argument("--friction", type=_friction, default=None, metavar="MU|LOW,HIGH",
                    help="Coulomb coefficient between skin and object for the taps pressed "
-                   "with friction (--task edge, --shear), (0, 3]; default 1.0, assumed "
-                   "(tactip_lab/real/tasks.py FRICTION_ASSUMED)")
+                   "with friction (--task edge, --shear), in (0, 3]: one value, or a range "
+                   "each tap draws from; default 1.0 for the edge tasks (assumed), 0.5,1 for "
+                   "the surface taps under shear (tactip_lab/real/tasks.py TASK_FRICTION)")
     p.add_argument("--real", metavar="DIR", action="append",
                    help="real labelled taps, 128x128 processed frames in the Bristol layout "
                    "(e.g. ../shared/real/tactip331_tap128); --task edge / --shear: may be "

@@ -68,7 +68,9 @@ class TaskConfig:
     k: int = 20
     shear_steps: int = 4
     depth_range_mm: tuple[float, float] | None = None  # surface tasks: simulated indentation
-    friction: float | None = None  # Coulomb coefficient, skin on object; None: FRICTION_ASSUMED
+    # Coulomb coefficient, skin on object: one value or a (low, high) range each tap draws
+    # from; None: the task's default (tactip_lab/real/tasks.py TASK_FRICTION)
+    friction: float | tuple[float, float] | None = None
 
     def check(self) -> None:
         if self.task not in ("surface", "edge", "edge+shear", "surface+shear"):
@@ -89,8 +91,12 @@ class TaskConfig:
             if self.task == "surface":
                 raise ValueError("--friction is for the tasks pressed with friction (--task "
                                  "edge, --shear): the surface taps are frictionless")
-            if not (np.isfinite(self.friction) and 0.0 < self.friction <= 3.0):
-                raise ValueError(f"--friction={self.friction:g} is out of range: (0, 3]")
+            mus = self.friction if isinstance(self.friction, tuple) else (self.friction,)
+            text = ",".join(f"{v:g}" for v in mus)
+            if not (all(np.isfinite(v) and 0.0 < v <= 3.0 for v in mus)
+                    and (len(mus) == 1 or (len(mus) == 2 and mus[0] < mus[1]))):
+                raise ValueError(f"--friction={text} is out of range: MU or LOW,HIGH with "
+                                 "0 < LOW < HIGH <= 3")
 
 
 def folder_columns(root: Path) -> dict[str, np.ndarray]:
@@ -385,7 +391,9 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
     for d in [*real, *real_raw]:  # refuse a folder of another task before any simulation
         check_task_columns(Path(d) / "targets.csv", folder_columns(Path(d)), targets, cfg.task)
     t0 = time.perf_counter()
-    mu = {} if cfg.friction is None else {"friction": float(cfg.friction)}
+    mu = {} if cfg.friction is None else {"friction": (
+        tuple(map(float, cfg.friction)) if isinstance(cfg.friction, tuple)
+        else float(cfg.friction))}
     sim = simulate_task(scene, out / "sim", cfg.task, cfg.n, seed=cfg.seed,
                         shear_steps=cfg.shear_steps, depth_mm=cfg.depth_range_mm,
                         progress=progress, **mu)
