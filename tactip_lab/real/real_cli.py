@@ -376,9 +376,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    f"600 edge --shear; {COP_N} with --model cop)")
     p.add_argument("--depth-range", default=None, metavar="LOW,HIGH",
                    help="simulated depths of the surface taps, mm: with --model field the "
-                   "indentation beyond first contact (default 0.5,4; 0.5,5.5 with --shear: "
-                   "every depth the lab's 2..5 mm label may mean, tactip_lab/real/tasks.py "
-                   "SURFACE_CONTACT_MM); with --model cop the labelled depth (default 2,5)")
+                   "indentation beyond first contact (default 0.5,4: the real folders' field "
+                   "sizes; 0.5,5.5 with --shear: every depth the lab's label may mean; "
+                   "tactip_lab/real/tasks.py SURFACE_CONTACT_MM); with --model cop the "
+                   "labelled depth (default 2,5)")
     p.add_argument("--feature", default="growth", help="CoP feature of the saved models "
                    "(growth, area, hull; default growth)")
     p.add_argument("--order", type=int, default=2, help="polynomial order of the saved models "
