@@ -423,9 +423,10 @@ def least_spread_frames(pts: np.ndarray, k: int) -> np.ndarray:
     """Indices of the ``k`` frames of ``pts`` (n, m, 2; NaN: lost) whose marker field has the
     smallest RMS radius about its own centroid: the least deformed, read without a label.
 
-    A press pushes the markers outward from the contact, so the field's RMS radius grows with
-    the depth (its correlation with the depth label is 0.93 on the 1 000 real surface taps);
-    taps that miss the object have the smallest. The radius is taken over the markers tracked
+    A press pushes the pins under the contact toward the lens, where the camera sees them
+    further from its axis, so the field's RMS radius in the image grows with the press (its
+    correlation with the depth label is 0.93 on the 1 000 real surface taps); taps that miss
+    the object have the smallest. The radius is taken over the markers tracked
     in at least 95 % of the frames, in the frames that track all of them."""
     pts = np.asarray(pts, dtype=float)
     ok = np.all(np.isfinite(pts), axis=2)
@@ -557,9 +558,9 @@ def scene_reference(prior: np.ndarray, rest: np.ndarray, pts: np.ndarray,
     scene = med.copy()
     scene[paired] = mapped[pair[paired]]
     c = scene.mean(axis=0)
-    r = (scene - c) / float(np.sqrt(np.mean(np.sum((scene - c) ** 2, axis=1))))
-    nodes = grid_nodes()
     s = float(np.sqrt(np.mean(np.sum((scene - c) ** 2, axis=1))))
+    r = (scene - c) / s
+    nodes = grid_nodes()
 
     def smoothed(e: np.ndarray) -> np.ndarray:
         g = _smooth(nodes, r, e / s)
