@@ -232,23 +232,23 @@ def test_tip_depth_offset_against_closed_forms():
 
 
 def test_task_friction_is_checked_and_only_for_the_tasks_pressed_with_friction(tmp_path):
-    """``--friction`` (the assumed Coulomb coefficient made a choice): refused out of (0, 3],
-    on the frictionless surface taps (field or CoP model), and before anything is written."""
+    """``--friction`` (the assumed Coulomb coefficient made a choice): refused out of (0, 3]
+    and with the surface taps' CoP model (frictionless presses), before anything is written."""
     from tactip_lab.real.task_run import TaskConfig
     from tactip_sim.commands import main
 
     TaskConfig(task="surface+shear", friction=0.5).check()
     TaskConfig(task="edge", friction=3.0).check()
     TaskConfig(task="surface+shear", friction=(0.5, 1.0)).check()  # a range each tap draws
+    TaskConfig(task="surface", friction=(0.5, 1.0)).check()  # surface taps pressed with it
     with pytest.raises(ValueError, match="--friction=1,0.5 is out of range"):
         TaskConfig(task="edge+shear", friction=(1.0, 0.5)).check()
     for kw, msg in (({"task": "edge", "friction": 0.0}, "--friction=0 is out of range"),
                     ({"task": "edge+shear", "friction": 3.5}, "--friction=3.5 is out of range"),
-                    ({"task": "edge", "friction": float("nan")}, "--friction=nan is out of"),
-                    ({"task": "surface", "friction": 0.5}, "surface taps are frictionless")):
+                    ({"task": "edge", "friction": float("nan")}, "--friction=nan is out of")):
         with pytest.raises(ValueError, match=msg.replace("(", r"\(")):
             TaskConfig(**kw).check()
-    for extra in (["--friction", "0.5"], ["--model", "cop", "--friction", "0.5"]):
+    for extra in (["--friction", "5"], ["--model", "cop", "--friction", "0.5"]):
         out = tmp_path / ("o" + str(len(extra)))
         assert main(["sim2real", str(SCENES / "tactip_331.toml"), "--out", str(out),
                      *extra]) != 0

@@ -847,3 +847,47 @@ def test_surface_taps_under_shear_draw_their_friction_per_tap(tmp_path, monkeypa
     assert used[16:] == [0.7] * 3
     with pytest.raises(ValueError, match="another protocol.*friction"):  # not mixed on resume
         tasks.simulate_task(scene, tmp_path / "c", "surface+shear", 3, progress=False)
+
+
+def test_surface_taps_are_frictionless_unless_a_friction_is_given(tmp_path, monkeypatch):
+    """The surface taps are plain presses by default; given ``friction`` (a value or a range)
+    each is pressed in steps with it, the folder's record saying which, and a folder of one
+    kind is not resumed as the other."""
+    from pathlib import Path
+
+    import tactip_sim as ts
+    from tactip_lab.real import tasks
+    from tactip_lab.sampling import chain
+
+    calls: list[object] = []
+
+    class FakeSim:
+        def press(self, pose, indenter, surface=True):
+            calls.append("press")
+            return SimpleNamespace()
+
+        def continue_path(self, poses, friction, indenter):
+            calls.append(friction)
+            return [SimpleNamespace()], None
+
+    class FakeChain:
+        def __init__(self, scene, frames=1):
+            self.sim = FakeSim()
+            self.sim.indenter = None
+            self.rest_image = np.zeros((8, 8), np.uint8)
+
+        def render(self, state, *key, frames=1):
+            return SimpleNamespace(images=[np.full((8, 8), 7, np.uint8)])
+
+    monkeypatch.setattr(chain, "Chain", FakeChain)
+    monkeypatch.setattr(tasks, "sim_pose", lambda *a, **k: ts.Pose(depth_mm=1.0))
+    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
+                          "tactip_331_identified.toml")
+    tasks.simulate_task(scene, tmp_path / "a", "surface", 3, progress=False)
+    assert calls == ["press"] * 3
+    assert json.loads((tmp_path / "a" / "timing.json").read_text())["friction"] == 0.0
+    tasks.simulate_task(scene, tmp_path / "b", "surface", 4, friction=(0.5, 1.0),
+                        progress=False)
+    assert len(calls) == 7 and all(0.5 <= m <= 1.0 for m in calls[3:])
+    with pytest.raises(ValueError, match="another protocol.*friction"):
+        tasks.simulate_task(scene, tmp_path / "a", "surface", 3, friction=0.7, progress=False)

@@ -252,8 +252,8 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
                          f"protocol); --task {args.task}{' --shear' if args.shear else ''} has "
                          "field models only (--model field)")
     if args.friction is not None:
-        raise ValueError("--friction is for the tasks pressed with friction (--task edge, "
-                         "--shear): the surface taps are frictionless")
+        raise ValueError("--friction is for the field models' taps (--model field): the "
+                         "surface taps' CoP model presses without friction")
     for opt, v in (("--real", args.real), ("--real-raw", args.real_raw)):
         if v and len(v) > 1:
             raise ValueError(f"{opt} given {len(v)} times: the surface taps' run scores one "
@@ -360,10 +360,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--shear-steps", type=int, default=4,
                    help="load steps of the move in contact (--shear; default 4)")
     p.add_argument("--friction", type=_friction, default=None, metavar="MU|LOW,HIGH",
-                   help="Coulomb coefficient between skin and object for the taps pressed "
-                   "with friction (--task edge, --shear), in (0, 3]: one value, or a range "
-                   "each tap draws from; default 1.0 for the edge tasks (assumed), 0.5,1 for "
-                   "the surface taps under shear (tactip_lab/real/tasks.py TASK_FRICTION)")
+                   help="Coulomb coefficient between skin and object, in (0, 3]: one value, "
+                   "or a range each tap draws from; default 1.0 for the edge tasks (assumed), "
+                   "0.5,1 for the surface taps under shear, none (frictionless presses) for "
+                   "the surface taps (tactip_lab/real/tasks.py TASK_FRICTION)")
     p.add_argument("--real", metavar="DIR", action="append",
                    help="real labelled taps, 128x128 processed frames in the Bristol layout "
                    "(e.g. ../shared/real/tactip331_tap128); --task edge / --shear: may be "

@@ -88,9 +88,6 @@ class TaskConfig:
         if not 1 <= self.shear_steps <= 100:
             raise ValueError(f"--shear-steps={self.shear_steps} is out of range: [1, 100]")
         if self.friction is not None:
-            if self.task == "surface":
-                raise ValueError("--friction is for the tasks pressed with friction (--task "
-                                 "edge, --shear): the surface taps are frictionless")
             mus = self.friction if isinstance(self.friction, tuple) else (self.friction,)
             text = ",".join(f"{v:g}" for v in mus)
             if not (all(np.isfinite(v) and 0.0 < v <= 3.0 for v in mus)

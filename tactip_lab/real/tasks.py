@@ -387,7 +387,7 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
 
     out = Path(out)
     if friction is None:
-        friction = TASK_FRICTION.get(task, FRICTION_ASSUMED)  # unused by the surface taps
+        friction = TASK_FRICTION.get(task, 0.0)  # the surface taps: frictionless
     (out / "images").mkdir(parents=True, exist_ok=True)
     _claim_protocol(out, {
         "task": task, "n": n, "seed": seed, "scene_hash": scene_hash(scene),
@@ -438,6 +438,12 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
                 else:  # the tap misses the block (beside it, shallow): the rest state, as
                     state = None  # the lab's folders hold such taps (MISSED_TAPS_NOTE)
                     missed.append(i + 1)
+            elif isinstance(friction, tuple) or friction > 0:  # a surface tap with friction
+                pose = sim_pose(task, rows[i], sim=chain.sim, indenter=indenter,
+                                convention=convention, axes=axes)
+                states, _ = chain.sim.continue_path(tap_poses(pose, tap_steps),
+                                                    friction=float(mus[i]), indenter=indenter)
+                state = states[-1]
             else:
                 pose = sim_pose(task, rows[i], sim=chain.sim, indenter=indenter,
                                 convention=convention, axes=axes)
@@ -461,9 +467,9 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
             "edge_depth_offset_mm": list(EDGE_DEPTH_OFFSET_MM) if task.startswith("edge")
             else None,
             "axes": axes, "friction": (list(friction) if isinstance(friction, tuple)
-                                       else friction) if task != "surface" else 0.0,
+                                       else friction),
             "shear_steps": shear_steps if shear else 0,
-            "tap_steps": tap_steps if task != "surface" else 0,
+            "tap_steps": tap_steps if task != "surface" or friction else 0,
             "failed": failed}
     old = out / "timing.json"
     prev = json.loads(old.read_text()) if old.is_file() else {}
