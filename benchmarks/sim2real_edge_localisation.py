@@ -53,14 +53,27 @@ VARIANTS = {
 }
 
 
-def localisation(rest: np.ndarray, points: np.ndarray) -> tuple[float, float]:
-    """(offset, far) of one frame: ``rest``, ``points`` (m, 2) px, NaN rows lost."""
+def _weighted(rest: np.ndarray, points: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rest positions in RMS field radii from the centre, displacement magnitudes, their
+    weighted centroid (2,)) of one frame's tracked markers; NaN rows dropped."""
     ok = np.all(np.isfinite(rest), axis=1) & np.all(np.isfinite(points), axis=1)
     rest, points = rest[ok], points[ok]
     c = rest.mean(axis=0)
     r = (rest - c) / np.sqrt(np.mean(np.sum((rest - c) ** 2, axis=1)))
     d = np.linalg.norm(points - rest, axis=1)
-    cen = (d[:, None] * r).sum(axis=0) / d.sum()
+    return r, d, (d[:, None] * r).sum(axis=0) / d.sum()
+
+
+def weighted_centroid(rest: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(2,) the centroid of the markers' rest positions weighted by their displacement
+    magnitudes, RMS field radii from the array's centre."""
+    return _weighted(rest, points)[2]
+
+
+def localisation(rest: np.ndarray, points: np.ndarray) -> tuple[float, float]:
+    """(offset, far) of one frame: ``rest``, ``points`` (m, 2) px, NaN rows lost."""
+    r, d, cen = _weighted(rest, points)
     far = (r @ cen) < 0
     return float(np.linalg.norm(cen)), float(d[far].sum() / d.sum())
 

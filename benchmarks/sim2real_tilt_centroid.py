@@ -27,17 +27,10 @@ REAL_BINS_MM = ((2.0, 2.5), (2.5, 3.0), (3.0, 4.0), (4.0, 5.1))
 SIM_BINS_MM = ((0.5, 1.0), (1.0, 1.5), (1.5, 2.5), (2.5, 4.0))
 
 
-def centroid(rest: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(2,) the displacement-weighted centroid of ``rest`` (m, 2), RMS field radii."""
-    ok = np.all(np.isfinite(points), axis=1) & np.all(np.isfinite(rest), axis=1)
-    c = rest[ok].mean(axis=0)
-    r = (rest[ok] - c) / np.sqrt(np.mean(np.sum((rest[ok] - c) ** 2, axis=1)))
-    d = np.linalg.norm(points[ok] - rest[ok], axis=1)
-    return (d[:, None] * r).sum(axis=0) / d.sum()
-
-
 def slopes(rest: np.ndarray, pts: np.ndarray, tilt: np.ndarray, sel: np.ndarray) -> str:
-    c = np.array([centroid(rest, pts[i]) for i in np.flatnonzero(sel)])
+    from sim2real_edge_localisation import weighted_centroid
+
+    c = np.array([weighted_centroid(rest, pts[i]) for i in np.flatnonzero(sel)])
     x = np.c_[np.ones(int(sel.sum())), tilt[sel]]
     coef, *_ = np.linalg.lstsq(x, c, rcond=None)
     # the slopes that carry the tilt: y per degree of roll, x per degree of pitch

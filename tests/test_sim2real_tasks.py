@@ -805,36 +805,54 @@ def test_naive_baseline_is_the_same_on_a_rerun():
     np.testing.assert_array_equal(a, b)
 
 
-def test_surface_taps_under_shear_draw_their_friction_per_tap(tmp_path, monkeypatch):
-    """The surface taps under shear draw each tap's friction over the cited 0.5-1 (seeded: the
-    same draw in another folder), a single value given is every tap's, and the folder's
-    record says which (tasks.TASK_FRICTION)."""
-    from pathlib import Path
-
-    import tactip_sim as ts
-    from tactip_lab.real import tasks
+def _record_presses(monkeypatch) -> list[object]:
+    """Replace the simulation chain by one that records how each tap is pressed ("press", or
+    its friction when pressed in steps with friction) and renders a blank frame."""
     from tactip_lab.sampling import chain
 
-    used: list[float] = []
+    calls: list[object] = []
 
     class FakeSim:
+        indenter = None
+
+        def press(self, pose, indenter, surface=True):
+            calls.append("press")
+            return SimpleNamespace()
+
         def continue_path(self, poses, friction, indenter):
-            used.append(friction)
+            calls.append(friction)
             return [SimpleNamespace()], None
 
     class FakeChain:
         def __init__(self, scene, frames=1):
             self.sim = FakeSim()
             self.rest_image = np.zeros((8, 8), np.uint8)
-            self.sim.indenter = None
 
         def render(self, state, *key, frames=1):
             return SimpleNamespace(images=[np.full((8, 8), 7, np.uint8)])
 
     monkeypatch.setattr(chain, "Chain", FakeChain)
+    return calls
+
+
+def _identified_scene():
+    import tactip_sim as ts
+
+    from .conftest import ROOT
+
+    return ts.load_scene(ROOT / "scenes" / "tactip_331_identified.toml")
+
+
+def test_surface_taps_under_shear_draw_their_friction_per_tap(tmp_path, monkeypatch):
+    """The surface taps under shear draw each tap's friction over the cited 0.5-1 (seeded: the
+    same draw in another folder), a single value given is every tap's, and the folder's
+    record says which (tasks.TASK_FRICTION)."""
+    import tactip_sim as ts
+    from tactip_lab.real import tasks
+
+    used = _record_presses(monkeypatch)
     monkeypatch.setattr(tasks, "shear_path", lambda *a, **k: [ts.Pose(depth_mm=1.0)] * 3)
-    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
-                          "tactip_331_identified.toml")
+    scene = _identified_scene()
     tasks.simulate_task(scene, tmp_path / "a", "surface+shear", 8, progress=False)
     first = list(used)
     assert len(first) == 8 and all(0.5 <= m <= 1.0 for m in first)
@@ -853,36 +871,12 @@ def test_surface_taps_are_frictionless_unless_a_friction_is_given(tmp_path, monk
     """The surface taps are plain presses by default; given ``friction`` (a value or a range)
     each is pressed in steps with it, the folder's record saying which, and a folder of one
     kind is not resumed as the other."""
-    from pathlib import Path
-
     import tactip_sim as ts
     from tactip_lab.real import tasks
-    from tactip_lab.sampling import chain
 
-    calls: list[object] = []
-
-    class FakeSim:
-        def press(self, pose, indenter, surface=True):
-            calls.append("press")
-            return SimpleNamespace()
-
-        def continue_path(self, poses, friction, indenter):
-            calls.append(friction)
-            return [SimpleNamespace()], None
-
-    class FakeChain:
-        def __init__(self, scene, frames=1):
-            self.sim = FakeSim()
-            self.sim.indenter = None
-            self.rest_image = np.zeros((8, 8), np.uint8)
-
-        def render(self, state, *key, frames=1):
-            return SimpleNamespace(images=[np.full((8, 8), 7, np.uint8)])
-
-    monkeypatch.setattr(chain, "Chain", FakeChain)
+    calls = _record_presses(monkeypatch)
     monkeypatch.setattr(tasks, "sim_pose", lambda *a, **k: ts.Pose(depth_mm=1.0))
-    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
-                          "tactip_331_identified.toml")
+    scene = _identified_scene()
     tasks.simulate_task(scene, tmp_path / "a", "surface", 3, progress=False)
     assert calls == ["press"] * 3
     assert json.loads((tmp_path / "a" / "timing.json").read_text())["friction"] == 0.0

@@ -399,15 +399,15 @@ REFERENCE_RULES = ("shallowest", "densest", "least_spread")
 (:func:`marker_median_reference`)."""
 
 
+SCENE_RULES = ("shallowest", "least_spread")
+"""The rules whose frames are combined with the scene's rest state when a model carries it
+(:func:`scene_reference`)."""
+
+
 def reference_label(rule: str, prior: np.ndarray | None) -> str:
     """How a folder without a frame free of contact is referenced, in words for a report."""
     return f"{rule}, with the scene's rest state" if (
         prior is not None and rule in SCENE_RULES) else rule
-
-
-SCENE_RULES = ("shallowest", "least_spread")
-"""The rules whose frames are combined with the scene's rest state when a model carries it
-(:func:`scene_reference`)."""
 
 
 def reference_rule(task: str) -> str:

@@ -198,9 +198,12 @@ TASK_FRICTION: dict[str, float | tuple[float, float]] = {
 seeded). The edge tasks keep :data:`FRICTION_ASSUMED`, for the measured reason in its note
 (the real edge taps show no sideways slide at the block's corner, which 0.5 gives). The
 surface taps under shear have no such measurement: since 2026-11-29 (fifth session) they
-draw it over the range :data:`FRICTION_ASSUMED`'s note cites for rubber on rigid plastic,
+draw it over the range :data:`FRICTION_ASSUMED`'s note gives for rubber on rigid plastic,
 0.5-1 (issue 52: what identification cannot fix is randomised over cited ranges;
-docs/sim2real.md, "The friction under shear", measures both ends)."""
+docs/sim2real.md, "The friction under shear", measures both ends). Published dry values for
+soft elastomers on hard surfaces lie around and above it (above 1 for a silicone skin
+simulant, L7350, on dry coated polymers: Tribology Transactions 53 (2010) 1-6); the lab's
+printed skin and plate were not measured, so the range is not narrowed."""
 
 
 def block_indenter():
