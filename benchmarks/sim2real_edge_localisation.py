@@ -80,7 +80,7 @@ def localisation(rest: np.ndarray, points: np.ndarray) -> tuple[float, float]:
 
 def real_rows(folder: Path) -> list[str]:
     from tactip_lab.fitting.bristol import BristolFolder
-    from tactip_lab.fitting.field_model import folder_points, reference_rule
+    from tactip_lab.fitting.references import folder_points, reference_rule
     from tactip_lab.real.task_run import folder_columns
 
     cols = folder_columns(folder)

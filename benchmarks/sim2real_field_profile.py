@@ -61,7 +61,7 @@ def profile(rest: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def real_profile(folder: Path) -> tuple[np.ndarray, int]:
     from tactip_lab.fitting.bristol import BristolFolder
-    from tactip_lab.fitting.field_model import folder_points
+    from tactip_lab.fitting.references import folder_points
     from tactip_lab.real.task_run import folder_columns
 
     cols = folder_columns(folder)

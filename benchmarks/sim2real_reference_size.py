@@ -4,7 +4,7 @@
         [--sizes 25,50,100,300] [--draws 20] [--rules RULE,RULE] [--png PATH]
 
 The lab's folders have no frame free of contact: their reference is read from their own
-frames (``field_model.marker_median_reference``), and with few taps what it is read from
+frames (``references.marker_median_reference``), and with few taps what it is read from
 stays in it. This draws ``--draws`` random subsets of each size from the real folder
 ``NAME`` that the ``tactip sim2real`` output ``OUT`` scored (its tracked points cached as
 ``OUT/real_NAME_points.npz``, the labels from ``../shared/real/NAME``), references each
@@ -15,7 +15,7 @@ rule before and since 2026-11-29):
 - ``shallowest``: the marker-wise median of the subset's round(sqrt(n)) shallowest presses
   (the surface tasks' rule before);
 - ``shallowest+scene``: that median combined with the scene's rest state the model carries
-  (``field_model.scene_reference``; the surface tasks' rule since);
+  (``references.scene_reference``; the surface tasks' rule since);
 - ``densest``: the densest cluster of round(sqrt(n) / 2) + 1 frames (the edge tasks' rule
   before);
 - ``least_spread``, ``least_spread+scene``: the round(sqrt(n) / 4) frames of the least spread
@@ -54,12 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--png", default=None, help="write a chart of MAE against size here")
     args = p.parse_args(argv)
     sys.path.insert(0, str(ROOT))
-    from tactip_lab.fitting.field_model import (
-        fields_of,
-        load_field_model,
-        marker_median_reference,
-        target_scores,
-    )
+    from tactip_lab.fitting.field_model import fields_of, load_field_model, target_scores
+    from tactip_lab.fitting.references import marker_median_reference
     from tactip_lab.real.task_run import folder_columns
 
     out = Path(args.out)

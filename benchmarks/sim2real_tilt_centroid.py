@@ -45,7 +45,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="the real folder's name under ../shared/real (default %(default)s)")
     args = p.parse_args(argv)
     sys.path.insert(0, str(ROOT))
-    from tactip_lab.fitting.field_model import load_field_model, marker_median_reference
+    from tactip_lab.fitting.field_model import load_field_model
+    from tactip_lab.fitting.references import marker_median_reference
     from tactip_lab.real.task_run import folder_columns
 
     real = ROOT.parent / "shared" / "real" / args.folder

@@ -1,5 +1,5 @@
 """The reference of a folder without a frame free of contact, from the scene's rest state and
-the folder's shallowest presses (``field_model.scene_reference``): known answers on generated
+the folder's shallowest presses (``references.scene_reference``): known answers on generated
 arrays, a camera that differs from the scene by an affine map, presses whose tilts and noise
 the truth is known under."""
 
@@ -11,11 +11,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tactip_lab.fitting.field_model import (
-    FieldModel,
+from tactip_lab.fitting.field_model import FieldModel, load_field_model
+from tactip_lab.fitting.references import (
     densest_reference,
     least_spread_frames,
-    load_field_model,
     marker_median_reference,
     pair_markers,
     scene_reference,

@@ -390,7 +390,7 @@ def test_marker_median_reference_averages_the_tilts_of_the_shallowest_presses():
     """A folder without a rest frame: its reference image is a tilted press. The reference
     becomes the marker-wise median of the round(sqrt(N)) shallowest presses, whose shifts
     (+a, 0, -a, ...) cancel; a folder with a rest frame keeps it."""
-    from tactip_lab.fitting.field_model import marker_median_reference
+    from tactip_lab.fitting.references import marker_median_reference
 
     rest = _lattice(9)
     depth = np.array([2.0, 2.1, 2.2, 2.3] + [4.0] * 12)  # 16 presses: the 4 shallowest
@@ -417,7 +417,7 @@ def test_densest_reference_finds_the_rest_among_taps_that_miss_without_labels():
     plus noise. Among presses (a radial field about a point on one side, 0.3-1.5 px), 20 such
     frames are found without labels and their median is the generated rest within the noise;
     the shallowest-label rule, whose shallowest taps here all press, is off by a press."""
-    from tactip_lab.fitting.field_model import densest_reference, marker_median_reference
+    from tactip_lab.fitting.references import densest_reference, marker_median_reference
 
     rng = np.random.default_rng(11)
     rest = _lattice(15)
@@ -453,7 +453,7 @@ def test_densest_reference_finds_the_rest_among_taps_that_miss_without_labels():
 
 
 def test_reference_rule_of_each_task():
-    from tactip_lab.fitting.field_model import reference_rule
+    from tactip_lab.fitting.references import reference_rule
 
     assert [reference_rule(t) for t in ("edge", "edge+shear", "surface", "surface+shear")] \
         == ["least_spread", "least_spread", "shallowest", "shallowest"]

@@ -184,13 +184,8 @@ def _evaluate_field(args: argparse.Namespace) -> int:
     import csv
 
     from tactip_lab.fitting.bristol import BristolFolder
-    from tactip_lab.fitting.field_model import (
-        folder_fields,
-        load_field_model,
-        reference_label,
-        reference_rule,
-        target_scores,
-    )
+    from tactip_lab.fitting.field_model import load_field_model, target_scores
+    from tactip_lab.fitting.references import folder_fields, reference_label, reference_rule
 
     model = load_field_model(args.model)
     if args.feature not in (None, "field"):

@@ -38,19 +38,17 @@ from tactip_lab.fitting.field_model import (
     augment,
     deviation_from_mean,
     fields_of,
-    folder_points,
-    reference_label,
-    reference_rule,
     target_scores,
     task_targets,
 )
+from tactip_lab.fitting.references import folder_points, reference_label, reference_rule
 from tactip_lab.sampling.dataset import atomic_write_text
 
 from .tasks import EDGE_CONVENTION, convert_128, label_turn, simulate_task
 
 POINTS_VERSION = 2
 """Version of the cached tracked points (2: the marker-wise median reference of a folder
-without a rest frame, :func:`~tactip_lab.fitting.field_model.marker_median_reference`)."""
+without a rest frame, :func:`~tactip_lab.fitting.references.marker_median_reference`)."""
 FOLDS = 5
 COMPONENT_GRID = (20, 40, 80, 160)
 """PCA components :func:`choose_components` tries (doubling from 20; the field feature has 299

@@ -29,7 +29,7 @@ edge sets' ``meta.json``), with the tool centre point at the sensor's tip (``rob
 So the tip is pushed about 2 mm less than ``pose_3`` past the top face. On the real edge taps
 the marker field's size grows linearly with ``pose_3`` and extrapolates to zero at 2.44 mm
 (taps with the centre over the block, measured from the rest state the taps beside the edge
-give, :func:`~tactip_lab.fitting.field_model.densest_reference`; 2.86 mm from the shallowest
+give, :func:`~tactip_lab.fitting.references.densest_reference`; 2.86 mm from the shallowest
 presses, a reference that is itself pressed; docs/sim2real.md), so the offset is randomised per
 simulated tap, uniform in :data:`EDGE_DEPTH_OFFSET_MM` (the cited 2 mm to the measured onset,
 rounded up). With the sensor's centre beside the block the first contact is lower on the
@@ -147,7 +147,7 @@ EDGE_DEPTH_OFFSET_MM = (2.0, 2.5)
 """Range (uniform, per simulated tap) of the edge sets' ``pose_3`` less the tip's depth past
 the block's top face: from the lab's ``work_frame`` z 54 mm against its stated edge height
 52 mm (read from its code) to the real taps' measured onset of contact, 2.44 mm (from the
-folder's rest state, :func:`~tactip_lab.fitting.field_model.densest_reference`), rounded up.
+folder's rest state, :func:`~tactip_lab.fitting.references.densest_reference`), rounded up.
 It was (2.0, 3.0) while the onset was measured against the shallowest presses (2.86 mm), a
 reference that is itself pressed. Randomised, not fitted: no value inside it was chosen by a
 score."""
@@ -178,7 +178,7 @@ MISSED_TAPS_NOTE = """An edge tap whose pose leaves the pad clear of the block (
 and shallow: the dome's drop at the edge exceeds the tip's depth) is kept, rendered as the
 rest state with its own camera noise, not dropped: the lab's edge folders hold such taps (on
 ``tactip331_edge128`` 57 of 1 000 have a field under three times the tracking noise: the
-frames :func:`~tactip_lab.fitting.field_model.densest_reference` reads the rest state from),
+frames :func:`~tactip_lab.fitting.references.densest_reference` reads the rest state from),
 and a model should have seen them. Their rows are listed in ``timing.json`` under ``missed``.
 Under shear the same holds for a tap whose whole path (the tap and every step of the move)
 misses; a path partly out of contact is still refused (a move made partly out of contact is
