@@ -339,6 +339,11 @@ def _cross_checks(scene: Scene, *, base_dir: Path) -> None:
                 f"(0, {gel - pins.clearance_mm:g}) = gel thickness {gel:g} mm at the apex minus "
                 f"pins.clearance_mm={pins.clearance_mm:g}"
             )
+        if pins.count and pins.model == "beam" and scene.fidelity.material_model != "linear":
+            raise SceneError(
+                f"pins.model='beam' needs fidelity.material_model='linear' (got "
+                f"{scene.fidelity.material_model!r}): the finite-strain solve turns the pins "
+                "with the skin alone; use pins.model='rod' there")
         if pins.count and pins.diameter_mm >= pins.pitch_mm:
             raise SceneError(
                 f"pins.diameter_mm={pins.diameter_mm:g} must be below "

@@ -13,7 +13,7 @@ from ._spec import nonneg, poisson, positive, spec
 PAD_SHAPES = ("dome", "block")
 LENS_MODELS = ("equidistant", "equisolid", "stereographic", "rectilinear", "kannala_brandt")
 INDENTERS = ("plate", "sphere", "cylinder", "edge", "mesh")
-PIN_MODELS = ("embedded", "rod")
+PIN_MODELS = ("embedded", "rod", "beam")
 PIN_LAYOUTS = ("lattice", "hex_rings", "circle_rings")
 PIN_MAPPINGS = ("arc", "vertical")
 FRAME_AVERAGES = ("features", "image")
@@ -84,7 +84,10 @@ class Pins:
     diameter_mm: float = positive(2.0, "pin diameter", hi=100)
     marker_diameter_mm: float = positive(1.6, "white marker cap diameter (assumed)", hi=100)
     clearance_mm: float = nonneg(0.5, "least gap between a pin tip and the window", hi=100)
-    model: str = spec("rod", "str", "how a tip follows the skin", choices=PIN_MODELS)
+    model: str = spec(
+        "rod", "str", "how a tip follows the skin: embedded, a material point of the gel; rod, "
+        "a rigid rod turning with the skin under its base; beam, an elastic rod bonded to the "
+        "skin and held by the gel (linear material only)", choices=PIN_MODELS)
     layout: str = spec(
         "lattice", "str", "lattice: the triangular lattice clipped to the footprint; hex_rings: "
         "the lattice's hexagonal rings about the apex; circle_rings: concentric rings of 6k pins "

@@ -14,12 +14,23 @@ from ...geometry import Pad
 from ...mesh import TetMesh
 from ...scene import Scene
 from ..discretisation.space import Space, build_space
+from ..markers.beam import Coupling, gel_coupling
 from ..markers.kinematics import Markers, build_markers
 from ..tolerances import TOL, Tolerances
 from .elasticity import Factor, element_moduli, stiffness
 
 FEM_VERSION = 1  # bump when the discretisation or the cached quantities change
 log = logging.getLogger(__name__)
+
+
+def pin_coupling(scene: Scene) -> Coupling | None:
+    """The pins' stiffnesses against the gel for ``pins.model = 'beam'`` (the pins printed in
+    the skin's material, :mod:`~tactip_sim.fem.markers.beam`); None for the other models."""
+    if scene.pins.model != "beam" or scene.is_block:
+        return None
+    return gel_coupling(scene.pins.diameter_mm, scene.pins.length_mm,
+                        scene.skin.youngs_modulus_kpa, scene.gel.youngs_modulus_kpa,
+                        scene.gel.poisson_ratio)
 
 
 def _digest(*parts: object) -> str:
@@ -64,7 +75,8 @@ class ElasticBody:
             skin_thickness_mm=self.skin_thickness_mm or 1.0,
             footprint_radius_mm=0.0 if scene.is_block else 0.5 * scene.pins.diameter_mm,
             end_radius_mm=0.0 if scene.is_block else 0.5 * max(scene.pins.diameter_mm,
-                                                               scene.pins.marker_diameter_mm))
+                                                               scene.pins.marker_diameter_mm),
+            coupling=pin_coupling(scene))
         self.key = _digest(FEM_VERSION, mesh.nodes, mesh.tets, mesh.regions, self.order,
                            self.lam, self.mu, tol.window_rel, self.space.candidates)
         m = self.markers

@@ -43,6 +43,7 @@ from ..discretisation.space import (
     interpolation_operator,
     locate,
 )
+from .beam import SAMPLES, Coupling, beam_operator, tip_weights
 
 END_ANGLES = 64
 """Vertices of the polygon that stands for a rod's flat end where it meets the window: the true
@@ -324,23 +325,30 @@ def _point_gradient(space: Space, points: np.ndarray) -> sp.csr_matrix:
 
 
 def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: float,
-                  footprint_radius_mm: float = 0.0, end_radius_mm: float = 0.0) -> Markers:
+                  footprint_radius_mm: float = 0.0, end_radius_mm: float = 0.0,
+                  coupling: Coupling | None = None) -> Markers:
     """Locate the pins of ``pad`` in ``space`` and build the marker operators.
 
     Parameters
     ----------
     space : the discretisation
     pad : the pad (its pins give roots, directions and tips)
-    model : "embedded" or "rod"
+    model : "embedded", "rod" or "beam" (a rod held by the gel, :mod:`.beam`: returned as a
+        ``rod`` whose anchor shift and turn carry the tip where the beam's is)
     skin_thickness_mm : the skin's thickness, through which a rod's base is averaged (or, at a
         single point, the rotation is taken half this far outside the root)
     footprint_radius_mm : the radius of a rod's base, over which the skin's displacement and
         rotation are averaged (0: the root's displacement, the rotation at the point under
         it; embedded tips, whose direction is their chord, ignore it)
     end_radius_mm : the radius of a rod's flat end, whose rim meets the window (rods only)
+    coupling : the pins' stiffnesses against the gel (:func:`.beam.gel_coupling`), needed by
+        ``beam``
     """
-    if model not in ("embedded", "rod"):
-        raise ValueError(f"pins.model={model!r} is not allowed: 'embedded' or 'rod'")
+    if model not in ("embedded", "rod", "beam"):
+        raise ValueError(f"pins.model={model!r} is not allowed: 'embedded', 'rod' or 'beam'")
+    if model == "beam" and coupling is None:
+        raise ValueError("pins.model='beam' needs the pins' coupling to the gel "
+                         "(build_markers(coupling=gel_coupling(...)))")
     pins = pad.pins
     p = len(pins.tips)
     if p == 0:
@@ -362,8 +370,18 @@ def build_markers(space: Space, pad: Pad, *, model: str, skin_thickness_mm: floa
                                                       skin_thickness_mm)
     else:  # at the root, turned at the point under it in the middle of the skin
         grad = _point_gradient(space, pins.roots - 0.5 * skin_thickness_mm * pins.directions)
-    return Markers(model, pins.tips.copy(), pins.roots.copy(), pins.directions.copy(), length,
-                   rod_operator(root_op, grad), grad, end_radius_mm, *base, anchors)
+    operator = rod_operator(root_op, grad)
+    if model == "beam":
+        centre = pins.roots if anchors is None else anchors
+        s = np.linspace(0.0, 1.0, SAMPLES + 1)[None, :, None]
+        points = pins.roots[:, None, :] + s * (pins.tips - pins.roots)[:, None, :]
+        el, lam, _ = locate(space, points.reshape(-1, 3))
+        transverse, axial = tip_weights(length, coupling)
+        operator = _interleave(*beam_operator(
+            operator, interpolation_operator(space, el, lam), centre, points,
+            pins.tips - centre, pins.directions, transverse, axial))
+    return Markers("rod", pins.tips.copy(), pins.roots.copy(), pins.directions.copy(), length,
+                   operator, grad, end_radius_mm, *base, anchors)
 
 
 def rod_operator(shift: sp.csr_matrix, grad: sp.csr_matrix) -> sp.csr_matrix:
