@@ -46,6 +46,7 @@ VARIANTS = {
     "P2, skin 0.5 mm": {"fidelity": {"element_order": 2}, "skin": {"thickness_mm": 0.5}},
     "rod pins": {"pins": {"model": "rod"}},
     "P2, rod pins": {"fidelity": {"element_order": 2}, "pins": {"model": "rod"}},
+    "P2, beam pins": {"fidelity": {"element_order": 2}, "pins": {"model": "beam"}},
     "P2, neo-Hookean": {"fidelity": {"element_order": 2, "material_model": "neo_hookean"}},
     "P2, rod pins, neo-Hookean": {"fidelity": {"element_order": 2,
                                                "material_model": "neo_hookean"},

@@ -39,6 +39,7 @@ VARIANTS = {
     "mesh 1.5 mm P2 neo-Hookean": {"fidelity": {"element_order": 2, "mesh_edge_mm": 1.5,
                                                 "material_model": "neo_hookean"}},
     "P2, rod pins": {"fidelity": {"element_order": 2}, "pins": {"model": "rod"}},
+    "P2, beam pins": {"fidelity": {"element_order": 2}, "pins": {"model": "beam"}},
 }
 
 
