@@ -339,9 +339,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "naive pixel baseline. --model cop (surface only): the paper's CoP polynomials on "
         "N flat-plate taps (depth in --depth-range), every feature and order scored. "
         "Resumable (the simulated taps are kept in OUT/sim). Without --fidelity the scene's "
-        "'fast' preset is used, and the edge tasks set pins.model=rod and "
-        "fidelity.element_order=2 over it (tactip_lab/real/tasks.py TASK_SCENE_DEFAULTS; "
-        "--set wins).")
+        "'fast' preset is used, with P2 elements and the task's pin model over it "
+        "(surface taps: pins.model=beam; edge taps: rod; tactip_lab/real/tasks.py "
+        "TASK_SCENE_DEFAULTS; --set wins).")
     add_scene_argument(p)
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--task", default="surface", choices=("surface", "edge"),
