@@ -625,8 +625,7 @@ def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path
 
 def test_tasks_simulate_their_pins_on_p2_unless_told_otherwise(tmp_path, monkeypatch):
     """Without --fidelity the edge tasks take rods on P2 over the 'fast' preset, the surface
-    taps beams on P2, the surface taps under shear the preset itself; --set and --fidelity
-    win over the task's keys."""
+    tasks beams on P2; --set and --fidelity win over the task's keys."""
     import tactip_lab.real.task_run as task_run
     from tactip_sim.commands import main
 
@@ -648,7 +647,7 @@ def test_tasks_simulate_their_pins_on_p2_unless_told_otherwise(tmp_path, monkeyp
                      *argv]) == 0
     # the identified scene's own file says rod and P2; its 'fast' preset embedded and P1
     assert seen == [("edge", "rod", 2), ("edge+shear", "rod", 2), ("surface", "beam", 2),
-                    ("surface+shear", "embedded", 1), ("edge", "embedded", 2),
+                    ("surface+shear", "beam", 2), ("edge", "embedded", 2),
                     ("edge", "embedded", 1)]
 
 
