@@ -89,7 +89,7 @@ class Simulator:
         if solver is None:
             f = scene.fidelity
             solver = "neo_hookean" if f.material_model == "neo_hookean" else f.contact_solver
-        self.solver = _check_solver(solver)
+        self.solver = _check_solver(solver, scene)
         self.tol = tol
         self.use_cache = use_cache
         self.body = ElasticBody(scene, self.mesh, self.pad, order=element_order, tol=tol)
@@ -244,7 +244,7 @@ class Simulator:
         guess of the neo-Hookean answer (:func:`~.fem.neohookean.solver.solve_neo_hookean`'s)."""
         t0 = time.perf_counter()
         indenter = self.indenter if indenter is None else indenter
-        solver = self.solver if solver is None else _check_solver(solver)
+        solver = self.solver if solver is None else _check_solver(solver, self.scene)
         placement = place(indenter, pose, self._cand_rest,
                           skin_thickness_mm=self.body.skin_thickness_mm)
         if pose.depth_mm < 0:
@@ -407,7 +407,7 @@ class Simulator:
         from .fem.linear.loadpath import about_pivot, check_friction, run_path
 
         indenter = self.indenter if indenter is None else indenter
-        solver = self.solver if solver is None else _check_solver(solver)
+        solver = self.solver if solver is None else _check_solver(solver, self.scene)
         mu = check_friction(self.scene.indenter.friction_coefficient if friction is None
                             else friction, "friction" if friction is not None
                             else "indenter.friction_coefficient")
@@ -582,8 +582,12 @@ class Simulator:
             marker_errors_mm=errors, field_mm=u if keep_field else None)
 
 
-def _check_solver(solver: str) -> str:
+def _check_solver(solver: str, scene: Scene) -> str:
     if solver not in SOLVERS:
         raise ValueError(f"solver={solver!r} is not allowed: one of {', '.join(SOLVERS)}")
+    if solver == "neo_hookean" and scene.pins.model == "beam" and scene.pins.count:
+        raise ValueError("solver='neo_hookean' cannot move pins.model='beam' pins (the "
+                         "finite-strain solve turns pins with the skin alone): use a linear "
+                         "solver, or pins.model='rod'")
     return solver
 

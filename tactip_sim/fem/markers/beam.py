@@ -80,21 +80,22 @@ def gel_coupling(diameter_mm: float, length_mm: float, pin_youngs_kpa: float,
     Raises
     ------
     ValueError
-        a size or modulus that is not positive, or a Poisson ratio outside [0, 0.5).
+        a size or modulus that is not positive, or a Poisson ratio outside (-1, 0.5).
     """
     for name, v in (("pins.diameter_mm", diameter_mm), ("pins.length_mm", length_mm),
                     ("skin.youngs_modulus_kpa", pin_youngs_kpa),
                     ("gel.youngs_modulus_kpa", gel_youngs_kpa)):
         if not np.isfinite(v) or v <= 0.0:
             raise ValueError(f"{name}={v!r} must be a positive number for pins.model='beam'")
-    if not 0.0 <= gel_poisson < 0.5:
-        raise ValueError(f"gel.poisson_ratio={gel_poisson!r} is out of range: allowed [0, 0.5)")
+    if not -1.0 < gel_poisson < 0.5:
+        raise ValueError(f"gel.poisson_ratio={gel_poisson!r} is out of range: allowed (-1, 0.5)")
     d, e_p, e_g = float(diameter_mm), float(pin_youngs_kpa), float(gel_youngs_kpa)
     inertia = np.pi * d**4 / 64.0
     lateral = 0.65 * (e_g * d**4 / (e_p * inertia)) ** (1.0 / 12.0) * e_g / (1.0 - gel_poisson**2)
     shear = e_g / (2.0 * (1.0 + gel_poisson))
     reach = 2.5 * length_mm * (1.0 - gel_poisson)
-    # a pile shorter than its influence radius needs r_m > r_0 for a positive stiffness
+    # r_m floored at 2 d (r_m / r_0 >= 4): a stubby pin keeps a finite, positive shaft
+    # stiffness; inactive on the scenes' pins (r_m = 3.4 mm against 2.4 mm)
     zeta = np.log(max(reach, 2.0 * d) / (0.5 * d))
     return Coupling(bending=e_p * inertia, lateral=lateral, stretch=e_p * np.pi * d**2 / 4.0,
                     axial=2.0 * np.pi * shear / zeta)
