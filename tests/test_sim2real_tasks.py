@@ -624,8 +624,9 @@ def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path
 
 
 def test_tasks_simulate_their_pins_on_p2_unless_told_otherwise(tmp_path, monkeypatch):
-    """Without --fidelity the edge tasks take rods on P2 over the 'fast' preset, the surface
-    tasks beams on P2; --set and --fidelity win over the task's keys."""
+    """Without --fidelity every task takes P2 over the 'fast' preset, with its pin model (edge
+    tasks rods, surface taps embedded tips, surface taps under shear beams); --set and
+    --fidelity win over the task's keys."""
     import tactip_lab.real.task_run as task_run
     from tactip_sim.commands import main
 
@@ -646,7 +647,7 @@ def test_tasks_simulate_their_pins_on_p2_unless_told_otherwise(tmp_path, monkeyp
         assert main(["sim2real", scene, "--out", str(tmp_path / str(i)), "--no-progress",
                      *argv]) == 0
     # the identified scene's own file says rod and P2; its 'fast' preset embedded and P1
-    assert seen == [("edge", "rod", 2), ("edge+shear", "rod", 2), ("surface", "beam", 2),
+    assert seen == [("edge", "rod", 2), ("edge+shear", "rod", 2), ("surface", "embedded", 2),
                     ("surface+shear", "beam", 2), ("edge", "embedded", 2),
                     ("edge", "embedded", 1)]
 

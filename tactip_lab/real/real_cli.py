@@ -340,7 +340,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "N flat-plate taps (depth in --depth-range), every feature and order scored. "
         "Resumable (the simulated taps are kept in OUT/sim). Without --fidelity the scene's "
         "'fast' preset is used, with P2 elements and the task's pin model over it "
-        "(surface tasks: pins.model=beam; edge tasks: rod; tactip_lab/real/tasks.py "
+        "(surface taps: embedded; under shear: beam; edge tasks: rod; tactip_lab/real/tasks.py "
         "TASK_SCENE_DEFAULTS; --set wins).")
     add_scene_argument(p)
     p.add_argument("--out", required=True, help="output folder")

@@ -152,31 +152,31 @@ It was (2.0, 3.0) while the onset was measured against the shallowest presses (2
 reference that is itself pressed. Randomised, not fitted: no value inside it was chosen by a
 score."""
 TASK_SCENE_DEFAULTS: dict[str, dict[str, Any]] = {
-    "surface": {"fidelity.element_order": 2, "pins.model": "beam"},
+    "surface": {"fidelity.element_order": 2, "pins.model": "embedded"},
     "surface+shear": {"fidelity.element_order": 2, "pins.model": "beam"},
     "edge": {"fidelity.element_order": 2, "pins.model": "rod"},
     "edge+shear": {"fidelity.element_order": 2, "pins.model": "rod"},
 }
 """Scene keys a task sets over the ``fast`` preset when ``tactip sim2real`` is given no
-``--fidelity`` (``--set`` still wins), all on P2 elements (the scenes' own FEM default, that of
-the calibration sweeps). The pins' coupling decides the marker field (docs/sim2real.md, "The
-pins held by the gel" and "The pins at an edge"):
+``--fidelity`` (``--set`` still wins): every task on P2 elements (the scenes' own FEM default,
+that of the calibration sweeps), each with the pin model that transfers best on its task
+(docs/sim2real.md, "The pins held by the gel" and "The pins at an edge"; measured on the
+shared real folders, two draws where the margin was small):
 
-- the surface taps simulate the pins as elastic beams held by the gel (``beam``,
-  :mod:`tactip_sim.fem.markers.beam`, every coefficient from the scene's moduli): of the pin
-  models it is the only one whose square-on field runs through the real taps' family of
-  shapes as the press deepens (``benchmarks/sim2real_field_profile.py --by-depth``: mean
-  distance 0.13 against 0.52 for the embedded tips of ``fast`` and 0.16 for rigid rods), and
-  it reads the shallowest real taps with a gain of 1.05 where the embedded tips read them with
-  0.56; zero-shot over two draws of 1 000 taps, 128x128 1.08 / 1.31 deg against 1.08 / 1.20,
-  raw 1.44 / 0.99 against 1.71 / 1.44; under shear (3 000 taps, friction 0.5-1) 1.72 / 2.22
-  deg against 2.30 / 2.84, at 0.44 s a tap against 0.064;
-- the edge tasks keep rigid rods: beside the block the real field is more one-sided than any
-  pin model makes it, and rods the most (the localisation benchmark); with beams the lateral
-  position is read 3.7 mm off (few-shot offset) and zero-shot 2.25 mm against 1.03 mm (the
-  angle 10.0 deg against 13.2). That one sensor's two tasks still prefer different pin models
-  is the measure of what the pin model lacks (the pins' push back on the gel, the skin at the
-  corner)."""
+- surface taps: tips embedded in the gel. On P2 instead of ``fast``'s P1 (the same pins) the
+  zero-shot error falls from 1.08 / 1.20 to 0.76 / 1.05 deg (128x128) and 1.71 / 1.44 to
+  1.48 / 1.16 deg (raw; two draws of 1 000 taps): the P1 field was the unconverged one.
+  Elastic beams held by the gel (``beam``) give the real field's family of shapes best
+  (``benchmarks/sim2real_field_profile.py --by-depth``) but transfer worse here (1.08 / 1.31,
+  1.44 / 0.99);
+- surface taps under shear: beams (1.72 / 2.22 deg zero-shot against 2.30 / 2.84 for
+  ``fast``, 3 000 taps each);
+- edge taps, with and without shear: rigid rods, whose field beside the block is the most
+  one-sided, as the real one is (the localisation benchmark); with beams the lateral position
+  is read 3.7 mm off (few-shot offset), zero-shot 2.25 mm against 1.03 mm.
+
+That one sensor's tasks prefer different pin models is the measure of what the pin model
+still lacks (the pins' push back on the gel, the skin at the corner)."""
 EDGE_TAP_NOTE = """Edge taps are pressed with friction (:data:`FRICTION_ASSUMED`, ``tap_steps``
 load steps), not frictionless: at the block's corner the contact pushes the skin away from the
 block, and without friction on the top face the whole skin slides sideways. Measured on the
