@@ -169,8 +169,8 @@ shared real folders, two draws where the margin was small):
   Elastic beams held by the gel (``beam``) give the real field's family of shapes best
   (``benchmarks/sim2real_field_profile.py --by-depth``) but transfer worse here (1.08 / 1.31,
   1.44 / 0.99);
-- surface taps under shear: beams (1.72 / 2.22 deg zero-shot against 2.30 / 2.84 for
-  ``fast``, 3 000 taps each);
+- surface taps under shear: beams (1.72 / 2.22 deg zero-shot against 1.93 / 2.65 for
+  embedded tips on P2 and 2.30 / 2.84 for ``fast``, 3 000 taps each);
 - edge taps, with and without shear: rigid rods, whose field beside the block is the most
   one-sided, as the real one is (the localisation benchmark); with beams the lateral position
   is read 3.7 mm off (few-shot offset), zero-shot 2.25 mm against 1.03 mm.
