@@ -16,43 +16,23 @@ Nothing is written.
 
 from __future__ import annotations
 
-import argparse
-import sys
-from pathlib import Path
-from types import SimpleNamespace
-
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
 PERCENTILES = (1, 50, 95, 99, 100)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("runs", nargs="+", metavar="OUT",
-                   help="finished tactip sim2real --task surface output folders")
-    p.add_argument("--folder", default="tactip331_tap128",
-                   help="the real folder's name under ../shared/real (default %(default)s)")
-    args = p.parse_args(argv)
-    sys.path.insert(0, str(ROOT))
-    from tactip_lab.fitting.field_model import field_features, load_field_model
-    from tactip_lab.fitting.references import marker_median_reference
+    import surface_runs
+
+    args = surface_runs.parse(__doc__.split("\n\n")[0], argv)
+    from tactip_lab.fitting.field_model import field_features
     from tactip_lab.real.task_run import folder_columns
 
-    real = ROOT.parent / "shared" / "real" / args.folder
-    for out in map(Path, args.runs):
-        need = [out / "model.json", out / "sim128_points.npz", out / "sim" / "targets.csv",
-                out / f"real_{args.folder}_points.npz"]
-        missing = [str(f) for f in need if not f.is_file()]
-        if missing:
-            p.error(f"{out}: not a finished tactip sim2real surface run that scored "
-                    f"{args.folder} ({missing[0]} is missing)")
-    depth_label = folder_columns(real)["pose_3"]
+    depth_label = folder_columns(args.real)["pose_3"]
     print("| run | simulated depth (mm) of the real sizes' percentiles "
           + " / ".join(map(str, PERCENTILES)) + " |")
     print("|---|---|")
-    for out in map(Path, args.runs):
-        model = load_field_model(out / "model.json")
+    for out in args.runs:
         sim = np.load(out / "sim128_points.npz")
         depth = folder_columns(out / "sim")["pose_3"]
         size = np.array([field_features(sim["rest"], q)[-1] for q in sim["pts"]])
@@ -60,11 +40,8 @@ def main(argv: list[str] | None = None) -> int:
         mid = 0.5 * (edges[1:] + edges[:-1])
         med = np.array([np.nanmedian(size[(depth >= a) & (depth <= b)])
                         for a, b in zip(edges[:-1], edges[1:], strict=True)])
-        z = np.load(out / f"real_{args.folder}_points.npz")
-        ref = marker_median_reference(
-            SimpleNamespace(depth_mm=depth_label, reference_is_a_press=True), z["rest"], z["pts"],
-            prior=model.rest)
-        real_size = np.array([field_features(ref, q)[-1] for q in z["pts"]])
+        ref, pts = surface_runs.real_points(out, args.folder, depth_label)
+        real_size = np.array([field_features(ref, q)[-1] for q in pts])
         pct = np.nanpercentile(real_size, PERCENTILES)
         at = np.interp(pct, med, mid)  # the median size rises with depth
         print(f"| {out.name} | " + " / ".join(f"{d:.2f}" for d in at) + " |", flush=True)

@@ -15,14 +15,8 @@ against their rest frame, binned by the simulated indentation. Nothing is writte
 
 from __future__ import annotations
 
-import argparse
-import sys
-from pathlib import Path
-from types import SimpleNamespace
-
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
 REAL_BINS_MM = ((2.0, 2.5), (2.5, 3.0), (3.0, 4.0), (4.0, 5.1))
 SIM_BINS_MM = ((0.5, 1.0), (1.0, 1.5), (1.5, 2.5), (2.5, 4.0))
 
@@ -38,39 +32,21 @@ def slopes(rest: np.ndarray, pts: np.ndarray, tilt: np.ndarray, sel: np.ndarray)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("runs", nargs="+", metavar="OUT",
-                   help="finished tactip sim2real --task surface output folders")
-    p.add_argument("--folder", default="tactip331_tap128",
-                   help="the real folder's name under ../shared/real (default %(default)s)")
-    args = p.parse_args(argv)
-    sys.path.insert(0, str(ROOT))
-    from tactip_lab.fitting.field_model import load_field_model
-    from tactip_lab.fitting.references import marker_median_reference
+    import surface_runs
+
+    args = surface_runs.parse(__doc__.split("\n\n")[0], argv)
     from tactip_lab.real.task_run import folder_columns
 
-    real = ROOT.parent / "shared" / "real" / args.folder
-    for out in map(Path, args.runs):
-        need = [out / "model.json", out / "sim128_points.npz", out / "sim" / "targets.csv",
-                out / f"real_{args.folder}_points.npz"]
-        missing = [str(f) for f in need if not f.is_file()]
-        if missing:
-            p.error(f"{out}: not a finished tactip sim2real surface run that scored "
-                    f"{args.folder} ({missing[0]} is missing)")
     print("| taps (bin) | centroid y per deg roll / x per deg pitch (field radii) |")
     print("|---|---|")
-    cols = folder_columns(real)
+    cols = folder_columns(args.real)
     y = np.stack([cols["pose_4"], cols["pose_5"]], axis=1)
     depth = cols["pose_3"]
-    first = Path(args.runs[0])
-    model = load_field_model(first / "model.json")
-    z = np.load(first / f"real_{args.folder}_points.npz")
-    ref = marker_median_reference(SimpleNamespace(depth_mm=depth, reference_is_a_press=True),
-                                  z["rest"], z["pts"], prior=model.rest)
+    ref, pts = surface_runs.real_points(args.runs[0], args.folder, depth)
     for lo, hi in REAL_BINS_MM:
         sel = (depth >= lo) & (depth < hi)
-        print(f"| real {args.folder}, label {lo}-{hi} mm | {slopes(ref, z['pts'], y, sel)} |")
-    for out in map(Path, args.runs):
+        print(f"| real {args.folder}, label {lo}-{hi} mm | {slopes(ref, pts, y, sel)} |")
+    for out in args.runs:
         s = np.load(out / "sim128_points.npz")
         sc = folder_columns(out / "sim")
         ys = np.stack([sc["pose_4"], sc["pose_5"]], axis=1)
