@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--png", default=None, help="write a chart of MAE against size here")
     args = p.parse_args(argv)
     sys.path.insert(0, str(ROOT))
-    from tactip_lab.fitting.field_model import fields_of, load_field_model, target_scores
+    from tactip_lab.fitting.field_model import load_field_model, target_scores
     from tactip_lab.fitting.references import marker_median_reference
     from tactip_lab.real.task_run import folder_columns
 
@@ -106,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
                 folder = SimpleNamespace(depth_mm=depth[idx], reference_is_a_press=True)
                 ref = marker_median_reference(folder, fallback, pts[idx], rule=rule,
                                               prior=prior)
-                s = target_scores(y[idx], model.predict(fields_of(ref, pts[idx])), targets)
+                s = target_scores(y[idx], model.predict_points(ref, pts[idx]), targets)
                 maes.append([s[t]["mae"] for t in targets])
             res[name] = np.array(maes)
         rows.append((n, len(draws), res))

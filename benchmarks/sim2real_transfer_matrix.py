@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
                    "the first run's only real_*_points.npz)")
     args = p.parse_args(argv)
     sys.path.insert(0, str(ROOT))
-    from tactip_lab.fitting.field_model import fields_of, load_field_model
+    from tactip_lab.fitting.field_model import load_field_model
     from tactip_lab.real.task_run import folder_columns
 
     runs: dict[str, Path] = {}
@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     for n, o in runs.items():
         d = np.load(o / "sim128_points.npz")
         cols = folder_columns(o / "sim")
-        sims[n] = (fields_of(d["rest"], d["pts"]), np.column_stack([cols[t] for t in names]))
+        sims[n] = ((d["rest"], d["pts"]), np.column_stack([cols[t] for t in names]))
     first = next(iter(runs.values()))
     real_files = sorted(first.glob("real_*_points.npz"))
     if args.real:
@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     if len(real_files) == 1:
         stem = real_files[0].name[len("real_"):-len("_points.npz")]
         rp = np.load(real_files[0])
-        real = (stem, fields_of(rp["rest"], rp["pts"]),
+        real = (stem, (rp["rest"], rp["pts"]),
                 np.load(first / f"real_{stem}.npz")["truth"])
     lengths = {len(y) for _, y in sims.values()}
     if len(lengths) > 1:
@@ -97,9 +97,9 @@ def main(argv: list[str] | None = None) -> int:
                 cv = s["formats"]["128x128"]["predicted_by_simulation"]
                 cells.append("(" + " / ".join(f"{cv[t]['mae']:.2f}" for t in names) + ")")
             else:
-                cells.append(_mae(m.predict(x), y, names))
+                cells.append(_mae(m.predict_points(*x), y, names))
         if real:
-            cells.append(_mae(m.predict(real[1]), real[2], names))
+            cells.append(_mae(m.predict_points(*real[1]), real[2], names))
         print(f"| {a} | " + " | ".join(cells) + " |", flush=True)
     return 0
 

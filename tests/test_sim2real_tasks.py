@@ -340,6 +340,72 @@ def test_turned_frames_move_the_press_and_the_label():
     np.testing.assert_allclose(xs[1], f, atol=1e-12)
 
 
+def _presses_round_the_circle(n: int, seed: int):
+    """Frames of the lattice pressed at ``r`` px from its centre and image angle ``phi``
+    (labels: ``pose_2`` = r / 6, ``pose_6`` = -phi, which turns by -1 deg per image degree)."""
+    rest = _lattice()
+    c = rest.mean(axis=0)
+    rng = np.random.default_rng(seed)
+    r, phi = rng.uniform(6.0, 36.0, n), rng.uniform(-180.0, 180.0, n)
+    at = c + np.stack([r * np.cos(np.deg2rad(phi)), r * np.sin(np.deg2rad(phi))], axis=1)
+    pts = np.stack([_bump(rest, a, width=12.0) for a in at])
+    return rest, pts, np.stack([r / 6.0, -phi], axis=1)
+
+
+def _turned_model(steps: int = 6) -> FieldModel:
+    from tactip_lab.fitting.field_model import augment
+
+    rest, pts, y = _presses_round_the_circle(60, 0)
+    turn = {"pose_6": -1.0}
+    xa, ya = augment(rest, pts, y, ["pose_2", "pose_6"], turn, steps=steps)
+    return FieldModel("edge", ["pose_2", "pose_6"], (128, 128), n_components=15,
+                      label_turn=turn, turn_steps=steps).fit(xa, ya)
+
+
+def test_a_model_averaged_over_its_turns_is_exactly_equivariant_and_reads_new_angles(tmp_path):
+    """Turning a whole frame by one of the model's turns turns its predicted angle by exactly
+    that turn times the label's turn and leaves the lateral position; the mean over the turns
+    reads presses at angles it was not fitted on; the turns survive the JSON."""
+    from tactip_lab.fitting.field_model import rotate
+
+    m = _turned_model(steps=6)
+    assert m.turns_deg() == [0.0, 60.0, 120.0, 180.0, 240.0, 300.0]
+    rest, pts, y = _presses_round_the_circle(30, 1)  # other angles and distances
+    pred = m.predict_points(rest, pts)
+    s = target_scores(y, pred, ["pose_2", "pose_6"])
+    assert s["pose_6"]["mae"] < 4.0 and s["pose_2"]["mae"] < 0.5
+    c = rest.mean(axis=0)
+    for turn in (60.0, -120.0):  # the image turned: rest and frame alike
+        rt = c + rotate(rest - c, turn)
+        pt = np.stack([c + rotate(p - c, turn) for p in pts])
+        moved = m.predict_points(rt, pt)
+        np.testing.assert_allclose(moved[:, 0], pred[:, 0], atol=1e-6)
+        dev = (moved[:, 1] - (pred[:, 1] - turn) + 180.0) % 360.0 - 180.0
+        np.testing.assert_allclose(dev, 0.0, atol=1e-6)
+    back = load_field_model(m.save(tmp_path / "model.json"))
+    assert back.label_turn == {"pose_6": -1.0} and back.turn_steps == 6
+    np.testing.assert_allclose(back.predict_points(rest, pts), pred, atol=1e-9)
+
+
+def test_turns_are_only_for_wrapping_targets_and_a_model_without_them_reads_the_frame(tmp_path):
+    with pytest.raises(ValueError, match="label_turn"):
+        FieldModel("edge", ["pose_2", "pose_6"], (128, 128), label_turn={"pose_2": 1.0},
+                   turn_steps=4)
+    with pytest.raises(ValueError, match="turn_steps"):
+        FieldModel("edge", ["pose_2", "pose_6"], (128, 128), turn_steps=4)
+    m = _turned_model(steps=4)
+    d = m.to_json()
+    for key in ("label_turn", "turn_steps"):  # a model saved before the turns
+        d.pop(key)
+    (tmp_path / "old.json").write_text(json.dumps(d))
+    old = load_field_model(tmp_path / "old.json")
+    assert old.turn_steps == 0 and old.turns_deg() == [0.0]
+    rest, pts, _ = _presses_round_the_circle(5, 2)
+    np.testing.assert_allclose(old.predict_points(rest, pts),
+                               m.predict(np.stack([field_features(rest, p) for p in pts])),
+                               atol=1e-9)
+
+
 @pytest.mark.slow
 def test_sim2real_edge_command_end_to_end(tmp_path):
     """``tactip sim2real --task edge`` on 20 simulated taps, scored on 40 real edge taps:

@@ -15,6 +15,11 @@ the full circle (``pose_6``, deg), under shear too. This module holds what ``tac
 - **The regressor** (:class:`FieldModel`): scikit-learn's standardisation, PCA and kernel ridge
   regression (RBF kernel), one output per target; a target that wraps (an angle over the full
   circle, :data:`TARGETS`) is predicted as its sine and cosine and read back with ``atan2``.
+  For a task whose pose turns with the sensor (the edge) the model is trained on every tap
+  turned by each of :data:`AUGMENT_STEPS` turns (:func:`augment`) and predicts a frame as the
+  mean of its predictions turned back from the same turns
+  (:meth:`FieldModel.predict_points`): the regression function averaged over the turns, so
+  exactly equivariant to them, whatever the fit leaves of the camera's asymmetry.
 - **Scores** (:func:`target_scores`): MAE, RMSE and R² per target; for a wrapping angle the
   error is wrapped to [-180, 180) and R² is taken about the circular mean.
 
@@ -222,6 +227,12 @@ class FieldModel:
         saved before 2026-11-29): what a real folder without a frame free of contact takes
         its reference from, with its shallowest presses
         (:func:`~tactip_lab.fitting.references.scene_reference`)
+    label_turn : degrees each wrapping target turns per degree the frame is turned in the
+        image (the edge's ``pose_6``: ``tasks.label_turn``); empty for a task whose targets do
+        not turn with the frame (the surface's)
+    turn_steps : with ``label_turn``, :meth:`predict_points` averages the predictions of the
+        frame turned by ``k * 360 / turn_steps`` degrees (k = 0..turn_steps-1), each turned
+        back; 0 (models saved before 2026-11-29's seventh session): the frame as seen
     """
 
     task: str
@@ -232,6 +243,8 @@ class FieldModel:
     gamma: float | None = None
     fitted_on: dict[str, Any] = field(default_factory=dict)
     rest: np.ndarray | None = None
+    label_turn: dict[str, float] = field(default_factory=dict)
+    turn_steps: int = 0
     _scaler: Any = None
     _pca: Any = None
     _krr: Any = None
@@ -240,6 +253,12 @@ class FieldModel:
         unknown = [t for t in self.targets if t not in TARGETS]
         if unknown:
             raise ValueError(f"targets {unknown} are not known: allowed {', '.join(TARGETS)}")
+        bad = [t for t in self.label_turn if t not in self.targets or not TARGETS[t]["wraps"]]
+        if bad:
+            raise ValueError(f"label_turn {bad}: only a wrapping target the model predicts "
+                             f"turns with the frame ({', '.join(self.targets)})")
+        if int(self.turn_steps) < 0 or (self.turn_steps and not self.label_turn):
+            raise ValueError(f"turn_steps={self.turn_steps}: 0, or >= 1 with a label_turn")
 
     def fit(self, x: np.ndarray, y: np.ndarray) -> FieldModel:
         from sklearn.decomposition import PCA
@@ -263,17 +282,59 @@ class FieldModel:
             xp, encode(y, self.targets))
         return self
 
-    def predict(self, x: np.ndarray) -> np.ndarray:
-        """(n, t) predicted targets; NaN rows where the features are not finite."""
+    def _outputs(self, x: np.ndarray) -> np.ndarray:
+        """(n, outputs) the regression's outputs (:func:`encode`'s columns); NaN rows where
+        the features are not finite."""
         if self._krr is None:
             raise ValueError("the model is not fitted")
         x = np.asarray(x, dtype=float)
-        out = np.full((len(x), len(self.targets)), np.nan)
+        width = sum(2 if TARGETS[t]["wraps"] else 1 for t in self.targets)
+        out = np.full((len(x), width), np.nan)
         ok = np.all(np.isfinite(x), axis=1)
         if ok.any():
-            z = self._krr.predict(self._pca.transform(self._scaler.transform(x[ok])))
-            out[ok] = decode(np.atleast_2d(z), self.targets)
+            out[ok] = np.atleast_2d(
+                self._krr.predict(self._pca.transform(self._scaler.transform(x[ok]))))
         return out
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        """(n, t) predicted targets of features ``x`` as seen (no turns); NaN rows where the
+        features are not finite."""
+        return decode(self._outputs(x), self.targets)
+
+    def turns_deg(self) -> list[float]:
+        """The image turns :meth:`predict_points` averages over ([0] without them)."""
+        if not (self.turn_steps and self.label_turn):
+            return [0.0]
+        return [360.0 * k / self.turn_steps for k in range(self.turn_steps)]
+
+    def predict_turned(self, xs: list[np.ndarray]) -> np.ndarray:
+        """(n, t) predictions from ``xs[k]``, the features of the same frames turned by
+        ``turns_deg()[k]``: each turn's outputs turned back (a wrapping target's sine and
+        cosine rotated by ``-label_turn * turn``), averaged, decoded."""
+        turns = self.turns_deg()
+        if len(xs) != len(turns):
+            raise ValueError(f"{len(xs)} turned feature sets for {len(turns)} turns")
+        acc = None
+        for d, x in zip(turns, xs, strict=True):
+            z = self._outputs(x)
+            k = 0
+            for t in self.targets:
+                if TARGETS[t]["wraps"]:
+                    a = np.deg2rad(self.label_turn.get(t, 0.0) * d)
+                    s, c = z[:, k].copy(), z[:, k + 1].copy()
+                    z[:, k] = s * np.cos(a) - c * np.sin(a)  # sin(angle - a)
+                    z[:, k + 1] = c * np.cos(a) + s * np.sin(a)  # cos(angle - a)
+                    k += 2
+                else:
+                    k += 1
+            acc = z if acc is None else acc + z
+        return decode(acc / len(turns), self.targets)
+
+    def predict_points(self, rest: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """(n, t) predictions of frames ``pts`` (n, m, 2) tracked from ``rest`` (m, 2): the
+        mean over :meth:`turns_deg` (:meth:`predict_turned`), or the frames as seen."""
+        return self.predict_turned([fields_of(rest, pts, rotation_deg=d)
+                                    for d in self.turns_deg()])
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -284,6 +345,7 @@ class FieldModel:
             "grid": {"n": GRID, "extent": GRID_EXTENT, "bandwidth": BANDWIDTH},
             "fitted_on": self.fitted_on,
             "rest_px": None if self.rest is None else np.asarray(self.rest).tolist(),
+            "label_turn": dict(self.label_turn), "turn_steps": int(self.turn_steps),
             "scaler": {"mean": self._scaler.mean_.tolist(), "scale": self._scaler.scale_.tolist()},
             "pca": {"mean": self._pca.mean_.tolist(), "components": self._pca.components_.tolist()},
             "krr": {"x_fit": self._krr.X_fit_.tolist(),
@@ -314,7 +376,9 @@ class FieldModel:
             raise ValueError(f"{source}: fitted on another feature grid ({g}); refit it")
         m = cls(task=d["task"], targets=list(d["targets"]), image_size=tuple(d["image_size"]),
                 n_components=int(d["n_components"]), alpha=float(d["alpha"]),
-                gamma=float(d["gamma"]), fitted_on=d.get("fitted_on", {}))
+                gamma=float(d["gamma"]), fitted_on=d.get("fitted_on", {}),
+                label_turn={str(k): float(v) for k, v in d.get("label_turn", {}).items()},
+                turn_steps=int(d.get("turn_steps", 0)))
         if d.get("rest_px") is not None:
             rest = np.asarray(d["rest_px"], dtype=float)
             if rest.ndim != 2 or rest.shape[1] != 2 or not np.all(np.isfinite(rest)):

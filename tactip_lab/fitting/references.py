@@ -30,7 +30,7 @@ the folder (docs/sim2real.md, "A folder without a rest frame").
 
 Used by ``tactip sim2real`` on the real folders (:mod:`tactip_lab.real.task_run`:
 :func:`folder_points`, :func:`reference_rule`, :func:`reference_label`) and ``tactip
-evaluate`` (:mod:`tactip_lab.fitting.fitting_cli`: :func:`folder_fields`), which apply the
+evaluate`` (:mod:`tactip_lab.fitting.fitting_cli`: :func:`folder_points`), which apply the
 same rule; and by the benchmarks ``sim2real_reference_size.py`` (the rules against the
 folder's size), ``sim2real_edge_localisation.py``, ``sim2real_field_profile.py`` and
 ``sim2real_tilt_centroid.py``.
@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from tactip_lab.fitting.field_model import fields_of, grid_nodes, smooth_field
+from tactip_lab.fitting.field_model import grid_nodes, smooth_field
 
 
 def folder_points(folder: Any, *, expected_count: int | None = None, progress: bool = False,
@@ -76,18 +76,6 @@ def folder_points(folder: Any, *, expected_count: int | None = None, progress: b
         reliable[i] = bool(f.reliable)
     return (marker_median_reference(folder, rest, pts, rule=reference, prior=prior), pts,
             reliable)
-
-
-def folder_fields(folder: Any, *, expected_count: int | None = None, progress: bool = False,
-                  reference: str = "shallowest", prior: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """(features (n, 2k+1), reliable (n,)) of every frame of a folder (:func:`folder_points`,
-    :func:`~tactip_lab.fitting.field_model.fields_of`).
-    Frames perception flags keep their features when at least half the markers are tracked
-    (``reliable`` says which)."""
-    rest, pts, reliable = folder_points(folder, expected_count=expected_count,
-                                        progress=progress, reference=reference, prior=prior)
-    return fields_of(rest, pts), reliable
 
 
 REFERENCE_RULES = ("shallowest", "densest", "least_spread")
@@ -346,5 +334,5 @@ def _marker_median(pts: np.ndarray, sel: np.ndarray, rest: np.ndarray) -> np.nda
 
 
 __all__ = ["REFERENCE_RULES", "SCENE_BOOTSTRAPS", "SCENE_RULES", "densest_reference",
-           "folder_fields", "folder_points", "least_spread_frames", "marker_median_reference",
+           "folder_points", "least_spread_frames", "marker_median_reference",
            "pair_markers", "reference_label", "reference_rule", "scene_reference"]

@@ -196,7 +196,16 @@ def fit_model(task: str, targets: list[str], size, rest, pts, y, fitted_on=None,
     r = rows if rows is not None else training_rows(task, targets, rest, pts, y)
     kw = {} if n_components is None else {"n_components": int(n_components)}
     return FieldModel(task, targets, tuple(size), fitted_on=fitted_on or {},
-                      rest=np.asarray(rest, dtype=float), **kw).fit(r.xa, r.ya)
+                      rest=np.asarray(rest, dtype=float), **kw,
+                      **_turns(task, r)).fit(r.xa, r.ya)
+
+
+def _turns(task: str, rows: Rows) -> dict[str, Any]:
+    """The :class:`FieldModel` keys that make a model trained on turned copies predict as the
+    mean over the same turns (``label_turn``, ``turn_steps``); none for one copy."""
+    if rows.copies <= 1 or not task:
+        return {}
+    return {"label_turn": label_turn(task), "turn_steps": rows.copies}
 
 
 def few_shot(pred: np.ndarray, y: np.ndarray, targets: list[str], k: int, seed: int
@@ -230,7 +239,8 @@ def cv_predict_rows(rows: Rows, y: np.ndarray, targets: list[str], image_size, *
                     ) -> np.ndarray:
     """5-fold cross-validated predictions of the task's model on taps whose features are
     ``rows`` (:func:`training_rows`): folds of taps, shuffled, seeded; with ``task`` the
-    training folds hold every tap's turned copies, the held-out fold the taps as seen."""
+    training folds hold every tap's turned copies, and the held-out fold is predicted as the
+    saved model predicts (the mean over the same turns, from its own turned copies)."""
     from sklearn.model_selection import KFold
 
     n = len(rows.x)
@@ -238,9 +248,12 @@ def cv_predict_rows(rows: Rows, y: np.ndarray, targets: list[str], image_size, *
     pred = np.full(np.shape(y), np.nan)
     for tr, te in KFold(FOLDS, shuffle=True, random_state=seed).split(rows.x):
         r = (np.arange(rows.copies)[:, None] * n + tr[None, :]).ravel()
-        m = FieldModel(task or "cv", targets, tuple(image_size), **kw).fit(rows.xa[r],
-                                                                         rows.ya[r])
-        pred[te] = m.predict(rows.x[te])
+        m = FieldModel(task or "cv", targets, tuple(image_size), **kw,
+                       **_turns(task, rows)).fit(rows.xa[r], rows.ya[r])
+        if m.turn_steps:  # copy c of tap i is row c * n + i, turned by 360 c / copies
+            pred[te] = m.predict_turned([rows.xa[c * n + te] for c in range(rows.copies)])
+        else:
+            pred[te] = m.predict(rows.x[te])
     return pred
 
 
@@ -457,7 +470,7 @@ def score_real(model: FieldModel, folder: Path, out: Path, cfg: TaskConfig, fmt:
                               expected_count=331, reference=rule, prior=model.rest)
     features = training_rows("", targets, rest, pts, y)  # the real taps as they are
     x = features.x
-    zero = model.predict(x)
+    zero = model.predict_points(rest, pts)
     rows, few, corr = few_shot(zero, y, targets, cfg.k, cfg.seed)
     k_real, real_cv, _ = choose_components_rows(features, y, targets, model.image_size,
                                                 seed=cfg.seed)
