@@ -22,6 +22,15 @@ field stays on that side, each independent of the frame's scale and of the field
   lateral positions (edge yaw 0, 40 and 80 deg, averaged), with the edge taps' friction, the
   FEM's marker caps through the camera model (no render), for the nominal scene and variants
   of its discretisation and *assumed* values.
+
+``--centre``: instead, where the press is centred with the sensor's centre over the block
+(``pose_2`` +1, +3, +5 mm): each tap's feature field (``field_model.field_features``) turned so
+that the edge's normal toward the block points along +x (real taps by their label ``pose_6``,
+simulated ones by their yaw, through ``tasks.EDGE_CONVENTION`` and the contact side's image
+angle :data:`CONTACT_SIDE_DEG`), averaged over the taps, and the point on the normal through
+the centre where the field's normal component turns from pointing away from the block to
+pointing toward it: the press's centre, in field radii toward the block (0: at the sensor's
+centre, as a flat tap's).
 """
 
 from __future__ import annotations
@@ -52,6 +61,38 @@ VARIANTS = {
                                                "material_model": "neo_hookean"},
                                   "pins": {"model": "rod"}},
 }
+
+
+CENTRE_POSITIONS_MM = (1.0, 3.0, 5.0)
+CONTACT_SIDE_DEG = -90.1
+"""Image angle of the contact side less the block's yaw (the first simulated edge set;
+docs/sim2real.md, "Edge conventions"): with ``EDGE_CONVENTION`` the real taps' contact side is
+at ``84.4 - pose_6``."""
+
+
+def press_centre(rest: np.ndarray, pts: np.ndarray, side_deg: np.ndarray) -> float:
+    """Field radii from the array's centre toward the block at which the mean field of the
+    taps ``pts`` (n, m, 2; each turned by minus its contact side's image angle ``side_deg``)
+    changes the sign of its component along the normal, from -0.7 to +0.8; NaN if it does
+    not."""
+    from tactip_lab.fitting.field_model import field_features, grid_nodes
+
+    nodes = grid_nodes()
+    k = len(nodes)
+    fields = [field_features(rest, p, nodes=nodes, rotation_deg=-a) for p, a in
+              zip(pts, side_deg, strict=True)]
+    fields = [f for f in fields if np.all(np.isfinite(f))]
+    if not fields:
+        return float("nan")
+    f = np.mean([g[:k] * 10 ** g[-1] for g in fields], axis=0)  # x components, with size
+    on = np.abs(nodes[:, 1]) < 1e-6
+    x, fx = nodes[on, 0], f[on]
+    order = np.argsort(x)
+    x, fx = x[order], fx[order]
+    for i in range(len(x) - 1):
+        if -0.7 < x[i] < 0.8 and fx[i] < 0 <= fx[i + 1]:
+            return float(x[i] + (x[i + 1] - x[i]) * -fx[i] / (fx[i + 1] - fx[i]))
+    return float("nan")
 
 
 def _weighted(rest: np.ndarray, points: np.ndarray
@@ -96,6 +137,49 @@ def real_rows(folder: Path) -> list[str]:
     return out
 
 
+def real_centres(folder: Path) -> list[str]:
+    from tactip_lab.fitting.bristol import BristolFolder
+    from tactip_lab.fitting.references import folder_points, reference_rule
+    from tactip_lab.real.task_run import folder_columns
+    from tactip_lab.real.tasks import EDGE_CONVENTION
+
+    cols = folder_columns(folder)
+    rest, pts, _ = folder_points(BristolFolder.open(folder), expected_count=331, progress=True,
+                                 reference=reference_rule("edge"))
+    side = EDGE_CONVENTION.yaw(cols["pose_6"]) + CONTACT_SIDE_DEG
+    out = []
+    for p2 in CENTRE_POSITIONS_MM:
+        sel = (np.abs(cols["pose_2"] - p2) <= 1.0) & (cols["pose_3"] >= 4.0)
+        out.append(f"{press_centre(rest, pts[sel], side[sel]):+.3f} (n {int(sel.sum())})")
+    return out
+
+
+def sim_centres(scene) -> list[str]:
+    import tactip_sim as ts
+    from tactip_lab.real import tasks
+    from tactip_sim.render import Renderer
+
+    sim = ts.Simulator(scene)
+    ren = Renderer(scene, ts.build_pad(scene))
+    block = tasks.block_indenter()
+    r0 = sim.rest_state()
+    _, vis0, rest = ren.ground_truth(r0.markers_mm, r0.marker_directions)
+    out = []
+    for p2 in CENTRE_POSITIONS_MM:
+        frames, sides = [], []
+        for yaw in YAWS_DEG:
+            depth = tasks.edge_contact_depth(sim, block, p2, yaw, TIP_DEPTH_MM)
+            states, _ = sim.continue_path(tasks.tap_poses(tasks.edge_pose(p2, yaw, depth), 2),
+                                          friction=tasks.FRICTION_ASSUMED, indenter=block)
+            with np.errstate(invalid="ignore"):
+                _, vis, pts = ren.ground_truth(states[-1].markers_mm,
+                                               states[-1].marker_directions)
+            frames.append(np.where((vis0 & vis)[:, None], pts, np.nan))
+            sides.append(yaw + CONTACT_SIDE_DEG)
+        out.append(f"{press_centre(rest, np.stack(frames), np.array(sides)):+.3f}")
+    return out
+
+
 def sim_rows(scene) -> list[str]:
     import tactip_sim as ts
     from tactip_lab.real import tasks
@@ -127,7 +211,20 @@ def main(argv: list[str] | None = None) -> int:
     import scene_variants
 
     args = scene_variants.parse(__doc__.split("\n\n")[0], VARIANTS, "tactip331_edge128",
-                                "real edge taps (Bristol layout, 128x128)", argv)
+                                "real edge taps (Bristol layout, 128x128)", argv,
+                                flags={"--centre": "where the press is centred over the block "
+                                       "(field radii toward it) instead"})
+    if args.centre:
+        print("| taps (press centre, field radii toward the block) | "
+              + " | ".join(f"pose_2 {v:+g} mm" for v in CENTRE_POSITIONS_MM) + " |")
+        print("|---|" + "---:|" * len(CENTRE_POSITIONS_MM))
+        if not args.no_real:
+            print(f"| real {args.real.name}, pose_3 >= 4 mm, pose_2 +-1 mm | "
+                  + " | ".join(real_centres(args.real)) + " |", flush=True)
+        for name, scene in scene_variants.scenes(args.variants, VARIANTS):
+            print(f"| simulated, {name}, {TIP_DEPTH_MM:g} mm | "
+                  + " | ".join(sim_centres(scene)) + " |", flush=True)
+        return 0
     print("| taps (offset / far) | " + " | ".join(f"pose_2 {v:+g} mm" for v in POSITIONS_MM)
           + " |")
     print("|---|" + "---:|" * len(POSITIONS_MM))

@@ -172,3 +172,66 @@ def test_least_spread_finds_the_few_misses_where_a_cluster_of_shallow_presses_is
     assert _rms(got, rest) < 0.05
     with pytest.raises(ValueError, match="k = 500"):
         least_spread_frames(pts, 500)
+
+
+def _pressed_folder(n: int, seed: int):
+    """``n`` presses of a lattice at random places, each as deep as its bump is high (0.5..4),
+    with tracking noise: the simulated taps of a folder whose true rest state is known."""
+    rng = np.random.default_rng(seed)
+    rest = _lattice(15, 6.0)
+    c = rest.mean(axis=0)
+    depth = rng.uniform(0.5, 4.0, n)
+    pts = np.stack([_bump(rest, c + rng.uniform(-20, 20, 2), amp=0.6 * d, width=15.0)
+                    + rng.normal(0, 0.05, rest.shape) for d in depth])
+    return rest, pts, depth
+
+
+def test_simulated_folders_give_references_as_good_as_their_size():
+    """References the surface rule gives on simulated folders: a folder of every tap gives the
+    same reference as the real folder's rule on those taps; smaller folders give references
+    further from the true rest state and more spread among themselves; the draw is seeded."""
+    from tactip_lab.fitting.references import simulated_folder_references
+
+    rest, pts, depth = _pressed_folder(400, 3)
+    whole = simulated_folder_references(rest, pts, depth, rule="shallowest", folder_size=400,
+                                        count=3, seed=0)
+    ref = marker_median_reference(SimpleNamespace(depth_mm=depth, reference_is_a_press=True),
+                                  rest, pts, rule="shallowest", prior=rest)
+    np.testing.assert_allclose(whole, np.stack([ref] * 3), atol=1e-12)
+    err, spread = {}, {}
+    for size in (25, 400 // 2):
+        refs = simulated_folder_references(rest, pts, depth, rule="shallowest",
+                                           folder_size=size, count=12, seed=1)
+        err[size] = np.mean([_rms(r, rest) for r in refs])
+        spread[size] = np.mean([_rms(r, refs.mean(axis=0)) for r in refs])
+    assert err[25] > err[200] and spread[25] > 1.5 * spread[200]
+    again = simulated_folder_references(rest, pts, depth, rule="shallowest", folder_size=25,
+                                        count=4, seed=1)
+    other = simulated_folder_references(rest, pts, depth, rule="shallowest", folder_size=25,
+                                        count=4, seed=2)
+    np.testing.assert_array_equal(again, simulated_folder_references(
+        rest, pts, depth, rule="shallowest", folder_size=25, count=4, seed=1))
+    assert _rms(again[0], other[0]) > 0
+    with pytest.raises(ValueError, match="folder_size=2"):
+        simulated_folder_references(rest, pts, depth, rule="shallowest", folder_size=2,
+                                    count=4, seed=0)
+    with pytest.raises(ValueError, match="depths"):
+        simulated_folder_references(rest, pts, depth[:-1], rule="shallowest", folder_size=25,
+                                    count=4, seed=0)
+
+
+def test_each_simulated_tap_is_measured_from_one_of_the_drawn_references():
+    from tactip_lab.fitting.field_model import field_features, fields_of
+    from tactip_lab.real.task_run import REFERENCE_DRAWS, tap_references
+
+    rest, pts, depth = _pressed_folder(120, 4)
+    refs, drawn = tap_references(rest, pts, depth, "surface", 30, seed=0)
+    assert refs.shape == pts.shape
+    assert drawn == {"rule": "shallowest", "with_scene": True, "folder_size": 30,
+                     "draws": REFERENCE_DRAWS}
+    distinct = {r.tobytes() for r in refs}
+    assert 1 < len(distinct) <= REFERENCE_DRAWS
+    x = fields_of(refs, pts)
+    np.testing.assert_allclose(x[7], field_features(refs[7], pts[7]), atol=1e-12)
+    with pytest.raises(ValueError, match="references for"):
+        fields_of(refs[:5], pts)

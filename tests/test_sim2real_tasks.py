@@ -682,7 +682,12 @@ def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path
     scene = str(ROOT / "scenes" / "tactip_331_identified.toml")
     for argv, msg in ((["--axes", "xy"], "--axes is for the surface taps' CoP models"),
                       (["--order", "1"], "--order is for the surface taps' CoP models"),
-                      (["--task", "edge", "--model", "cop"], "--model cop is the surface")):
+                      (["--task", "edge", "--model", "cop"], "--model cop is the surface"),
+                      (["--folder-size", "2"], "--folder-size=2 is out of range"),
+                      (["--task", "edge", "--folder-size", "300"],
+                       "--folder-size is for the surface tasks"),
+                      (["--model", "cop", "--folder-size", "300"],
+                       "--folder-size is for the field models")):
         out = tmp_path / f"o{len(argv)}{argv[-1]}"
         assert main(["sim2real", scene, "--out", str(out), "--no-progress", *argv]) != 0
         assert msg in capsys.readouterr().err
@@ -748,6 +753,11 @@ def test_sim2real_surface_field_command_end_to_end(tmp_path):
     # model carries (the simulated 128x128 rest frame's markers)
     assert report["datasets"][0]["reference"] == "shallowest, with the scene's rest state"
     assert len(load_field_model(out / "model.json").rest) == 331
+    # the simulated taps were measured from references of simulated folders of the size the
+    # model is made for, per format
+    for name, size in (("model.json", 300), ("model_raw.json", 50)):
+        drawn = load_field_model(out / name).fitted_on["references"]
+        assert drawn["rule"] == "shallowest" and drawn["folder_size"] == size
     t = report["targets"]
     assert set(t) == {"pose_4", "pose_5"} and t["pose_4"]["unit"] == "deg"
     assert t["pose_4"]["mae"] == pytest.approx(z["pose_4"]["mae"], rel=1e-9)

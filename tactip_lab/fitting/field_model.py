@@ -435,10 +435,16 @@ def task_targets(task: str) -> list[str]:
 
 
 def fields_of(rest: np.ndarray, pts: np.ndarray, rotation_deg: float = 0.0) -> np.ndarray:
-    """(n, 2k+1) :func:`field_features` of every frame's tracked points (n, m, 2)."""
+    """(n, 2k+1) :func:`field_features` of every frame's tracked points (n, m, 2), against one
+    reference ``rest`` (m, 2) or each frame against its own (n, m, 2)."""
     nodes = grid_nodes()
-    return np.stack([field_features(rest, p, nodes=nodes, rotation_deg=rotation_deg)
-                     for p in pts]) if len(pts) else np.zeros((0, 2 * len(nodes) + 1))
+    rest = np.asarray(rest, dtype=float)
+    if rest.ndim == 3 and len(rest) != len(pts):
+        raise ValueError(f"{len(rest)} references for {len(pts)} frames")
+    refs = rest if rest.ndim == 3 else [rest] * len(pts)
+    return np.stack([field_features(r, p, nodes=nodes, rotation_deg=rotation_deg)
+                     for r, p in zip(refs, pts, strict=True)]) if len(pts) else np.zeros(
+        (0, 2 * len(nodes) + 1))
 
 
 AUGMENT_STEPS = 12

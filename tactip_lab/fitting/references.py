@@ -28,6 +28,12 @@ shift, scale, turn and shear), and the reference is the mapped scene moved towar
 median by an empirical-Bayes weight, so that a few noisy frames lean on the scene and many on
 the folder (docs/sim2real.md, "A folder without a rest frame").
 
+A model trained on simulated taps measured from the simulated rest state meets real taps
+measured from such a reference, with its error. :func:`simulated_folder_references` draws
+the references the same rule gives on simulated folders of a real folder's size, so that the
+training taps carry the error the real ones will (``tactip sim2real``,
+:mod:`tactip_lab.real.task_run`).
+
 Used by ``tactip sim2real`` on the real folders (:mod:`tactip_lab.real.task_run`:
 :func:`folder_points`, :func:`reference_rule`, :func:`reference_label`) and ``tactip
 evaluate`` (:mod:`tactip_lab.fitting.fitting_cli`: :func:`folder_points`), which apply the
@@ -41,6 +47,7 @@ The imports run one way: this module uses the field model's grid and smoothing
 
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -320,6 +327,32 @@ def marker_median_reference(folder: Any, rest: np.ndarray, pts: np.ndarray, *,
     return _marker_median(pts, shallow, rest)
 
 
+def simulated_folder_references(rest: np.ndarray, pts: np.ndarray, depth: np.ndarray, *,
+                                rule: str, folder_size: int, count: int, seed: int
+                                ) -> np.ndarray:
+    """(count, m, 2) the references ``rule`` gives on ``count`` simulated folders of
+    ``folder_size`` taps each (a seeded draw without replacement from the simulated taps
+    ``pts`` (n, m, 2), ``depth`` (n,) their depths), each combined with the simulated rest
+    state ``rest`` as a real folder's is with the model's (:func:`marker_median_reference`
+    with ``prior=rest``). A folder of every simulated tap (``folder_size >= n``) gives one
+    reference, repeated."""
+    pts = np.asarray(pts, dtype=float)
+    depth = np.asarray(depth, dtype=float)
+    n = len(pts)
+    if n < 3 or len(depth) != n:
+        raise ValueError(f"{n} simulated taps and {len(depth)} depths: at least 3, one each")
+    if not 3 <= int(folder_size):
+        raise ValueError(f"folder_size={folder_size}: at least 3 taps")
+    rng = np.random.default_rng([seed, 5207])
+    out = []
+    for _ in range(int(count)):
+        idx = (np.arange(n) if folder_size >= n
+               else np.sort(rng.choice(n, int(folder_size), replace=False)))
+        folder = SimpleNamespace(depth_mm=depth[idx], reference_is_a_press=True)
+        out.append(marker_median_reference(folder, rest, pts[idx], rule=rule, prior=rest))
+    return np.stack(out)
+
+
 def _marker_median(pts: np.ndarray, sel: np.ndarray, rest: np.ndarray) -> np.ndarray:
     """(m, 2) the marker-by-marker median of the frames ``sel`` of ``pts`` (n, m, 2); a
     marker none of them tracks keeps its position in ``rest``."""
@@ -334,5 +367,5 @@ def _marker_median(pts: np.ndarray, sel: np.ndarray, rest: np.ndarray) -> np.nda
 
 
 __all__ = ["REFERENCE_RULES", "SCENE_BOOTSTRAPS", "SCENE_RULES", "densest_reference",
-           "folder_points", "least_spread_frames", "marker_median_reference",
-           "pair_markers", "reference_label", "reference_rule", "scene_reference"]
+           "folder_points", "least_spread_frames", "marker_median_reference", "pair_markers",
+           "reference_label", "reference_rule", "scene_reference", "simulated_folder_references"]

@@ -211,7 +211,7 @@ def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
                              "a field model on the lab's protocol (docs/sim2real.md)")
     cfg = TaskConfig(task=task, n=args.n or TASK_N[task], seed=args.seed, k=args.k,
                      shear_steps=args.shear_steps, depth_range_mm=depth,
-                     friction=args.friction)
+                     friction=args.friction, folder_size=args.folder_size)
     cfg.check()
     for d in [*(args.real or []), *(args.real_raw or [])]:
         if not Path(d).is_dir():
@@ -254,6 +254,9 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
     if args.friction is not None:
         raise ValueError("--friction is for the field models' taps (--model field): the "
                          "surface taps' CoP model presses without friction")
+    if args.folder_size is not None:
+        raise ValueError("--folder-size is for the field models (--model field): the CoP "
+                         "model's taps are measured from the simulated rest frame")
     for opt, v in (("--real", args.real), ("--real-raw", args.real_raw)):
         if v and len(v) > 1:
             raise ValueError(f"{opt} given {len(v)} times: the surface taps' run scores one "
@@ -364,6 +367,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "or a range each tap draws from; default 1.0 for the edge tasks (assumed), "
                    "0.5,1 for the surface taps under shear, none (frictionless presses) for "
                    "the surface taps (tactip_lab/real/tasks.py TASK_FRICTION)")
+    p.add_argument("--folder-size", type=int, default=None, metavar="N",
+                   help="surface tasks: taps in the real folders the field models will read "
+                   "(3..100000); the simulated taps are measured from the references the "
+                   "folders' rule gives on simulated folders of N taps; default 300 for the "
+                   "128x128 model, 50 for the raw one (tactip_lab/real/task_run.py "
+                   "FOLDER_SIZE)")
     p.add_argument("--real", metavar="DIR", action="append",
                    help="real labelled taps, 128x128 processed frames in the Bristol layout "
                    "(e.g. ../shared/real/tactip331_tap128); --task edge / --shear: may be "
