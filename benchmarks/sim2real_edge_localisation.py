@@ -120,14 +120,46 @@ def localisation(rest: np.ndarray, points: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(cen)), float(d[far].sum() / d.sum())
 
 
-def real_rows(folder: Path) -> list[str]:
+def _real_taps(folder: Path) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    """(label columns, reference (m, 2), tracked points (n, m, 2)) of a real edge folder,
+    referenced by the edge tasks' rule."""
     from tactip_lab.fitting.bristol import BristolFolder
     from tactip_lab.fitting.references import folder_points, reference_rule
     from tactip_lab.real.task_run import folder_columns
 
-    cols = folder_columns(folder)
     rest, pts, _ = folder_points(BristolFolder.open(folder), expected_count=331, progress=True,
                                  reference=reference_rule("edge"))
+    return folder_columns(folder), rest, pts
+
+
+def _simulated_taps(scene, positions: tuple[float, ...]):
+    """Per lateral position: (its rest markers (m, 2) px, the frames (len(YAWS_DEG), m, 2) px
+    of the block pressed TIP_DEPTH_MM past its top face at each yaw, NaN where a marker is
+    hidden), through the camera model (no render)."""
+    import tactip_sim as ts
+    from tactip_lab.real import tasks
+    from tactip_sim.render import Renderer
+
+    sim = ts.Simulator(scene)
+    ren = Renderer(scene, ts.build_pad(scene))
+    block = tasks.block_indenter()
+    r0 = sim.rest_state()
+    _, vis0, rest = ren.ground_truth(r0.markers_mm, r0.marker_directions)
+    for p2 in positions:
+        frames = []
+        for yaw in YAWS_DEG:
+            depth = tasks.edge_contact_depth(sim, block, p2, yaw, TIP_DEPTH_MM)
+            states, _ = sim.continue_path(tasks.tap_poses(tasks.edge_pose(p2, yaw, depth), 2),
+                                          friction=tasks.FRICTION_ASSUMED, indenter=block)
+            with np.errstate(invalid="ignore"):
+                _, vis, pts = ren.ground_truth(states[-1].markers_mm,
+                                               states[-1].marker_directions)
+            frames.append(np.where((vis0 & vis)[:, None], pts, np.nan))
+        yield rest, np.stack(frames)
+
+
+def real_rows(folder: Path) -> list[str]:
+    cols, rest, pts = _real_taps(folder)
     out = []
     for p2 in POSITIONS_MM:
         sel = (np.abs(cols["pose_2"] - p2) <= 0.5) & (cols["pose_3"] >= REAL_DEPTH_MM[0]) \
@@ -138,14 +170,9 @@ def real_rows(folder: Path) -> list[str]:
 
 
 def real_centres(folder: Path) -> list[str]:
-    from tactip_lab.fitting.bristol import BristolFolder
-    from tactip_lab.fitting.references import folder_points, reference_rule
-    from tactip_lab.real.task_run import folder_columns
     from tactip_lab.real.tasks import EDGE_CONVENTION
 
-    cols = folder_columns(folder)
-    rest, pts, _ = folder_points(BristolFolder.open(folder), expected_count=331, progress=True,
-                                 reference=reference_rule("edge"))
+    cols, rest, pts = _real_taps(folder)
     side = EDGE_CONVENTION.yaw(cols["pose_6"]) + CONTACT_SIDE_DEG
     out = []
     for p2 in CENTRE_POSITIONS_MM:
@@ -155,54 +182,15 @@ def real_centres(folder: Path) -> list[str]:
 
 
 def sim_centres(scene) -> list[str]:
-    import tactip_sim as ts
-    from tactip_lab.real import tasks
-    from tactip_sim.render import Renderer
-
-    sim = ts.Simulator(scene)
-    ren = Renderer(scene, ts.build_pad(scene))
-    block = tasks.block_indenter()
-    r0 = sim.rest_state()
-    _, vis0, rest = ren.ground_truth(r0.markers_mm, r0.marker_directions)
-    out = []
-    for p2 in CENTRE_POSITIONS_MM:
-        frames, sides = [], []
-        for yaw in YAWS_DEG:
-            depth = tasks.edge_contact_depth(sim, block, p2, yaw, TIP_DEPTH_MM)
-            states, _ = sim.continue_path(tasks.tap_poses(tasks.edge_pose(p2, yaw, depth), 2),
-                                          friction=tasks.FRICTION_ASSUMED, indenter=block)
-            with np.errstate(invalid="ignore"):
-                _, vis, pts = ren.ground_truth(states[-1].markers_mm,
-                                               states[-1].marker_directions)
-            frames.append(np.where((vis0 & vis)[:, None], pts, np.nan))
-            sides.append(yaw + CONTACT_SIDE_DEG)
-        out.append(f"{press_centre(rest, np.stack(frames), np.array(sides)):+.3f}")
-    return out
+    sides = np.array(YAWS_DEG) + CONTACT_SIDE_DEG
+    return [f"{press_centre(rest, frames, sides):+.3f}"
+            for rest, frames in _simulated_taps(scene, CENTRE_POSITIONS_MM)]
 
 
 def sim_rows(scene) -> list[str]:
-    import tactip_sim as ts
-    from tactip_lab.real import tasks
-    from tactip_sim.render import Renderer
-
-    sim = ts.Simulator(scene)
-    ren = Renderer(scene, ts.build_pad(scene))
-    block = tasks.block_indenter()
-    r0 = sim.rest_state()
-    _, vis0, rest = ren.ground_truth(r0.markers_mm, r0.marker_directions)
     out = []
-    for p2 in POSITIONS_MM:
-        vals = []
-        for yaw in YAWS_DEG:
-            depth = tasks.edge_contact_depth(sim, block, p2, yaw, TIP_DEPTH_MM)
-            states, _ = sim.continue_path(tasks.tap_poses(tasks.edge_pose(p2, yaw, depth), 2),
-                                          friction=tasks.FRICTION_ASSUMED, indenter=block)
-            st = states[-1]
-            with np.errstate(invalid="ignore"):
-                _, vis, pts = ren.ground_truth(st.markers_mm, st.marker_directions)
-            ok = vis0 & vis
-            vals.append(localisation(np.where(ok[:, None], rest, np.nan), pts))
-        v = np.mean(vals, axis=0)
+    for rest, frames in _simulated_taps(scene, POSITIONS_MM):
+        v = np.mean([localisation(rest, f) for f in frames], axis=0)
         out.append(f"{v[0]:.2f} / {v[1]:.2f}")
     return out
 
