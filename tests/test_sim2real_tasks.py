@@ -161,6 +161,34 @@ def test_field_model_learns_a_full_circle_and_survives_json(tmp_path):
     assert np.all(np.isnan(back.predict(xt[:1])))
 
 
+def test_a_model_with_members_predicts_their_mean_and_survives_json(tmp_path):
+    """A member fitted on the same features with the lateral position 2 mm further predicts
+    ~2 mm more: the model with it as its member predicts the mean of the two (~1 mm more than
+    alone); the angle, the same in both, is unchanged; the members survive the JSON, and a
+    member with members of its own is refused."""
+    x, y = _synthetic(300, 0)
+    targets = ["pose_2", "pose_6"]
+    alone = FieldModel("edge", targets, (128, 128), n_components=10).fit(x, y)
+    shifted = FieldModel("edge", targets, (128, 128), n_components=10).fit(
+        x, y + np.array([2.0, 0.0]))
+    xt, _ = _synthetic(50, 1)
+    both = FieldModel("edge", targets, (128, 128), n_components=10).fit(x, y)
+    both.members.append(shifted)
+    pa, pb = alone.predict(xt), both.predict(xt)
+    np.testing.assert_allclose(pb[:, 0], (pa[:, 0] + shifted.predict(xt)[:, 0]) / 2,
+                               atol=1e-9)
+    np.testing.assert_allclose(pb[:, 0] - pa[:, 0], 1.0, atol=0.05)  # no intercept: ~1
+    np.testing.assert_allclose((pb[:, 1] - pa[:, 1] + 180) % 360 - 180, 0.0, atol=1e-6)
+    back = load_field_model(both.save(tmp_path / "m.json"))
+    assert len(back.members) == 1
+    np.testing.assert_allclose(back.predict(xt), pb, atol=1e-9)
+    d = both.to_json()
+    d["members"][0]["members"] = [alone.to_json()]
+    (tmp_path / "nested.json").write_text(json.dumps(d))
+    with pytest.raises(ValueError, match="member 0 has members of its own"):
+        load_field_model(tmp_path / "nested.json")
+
+
 def test_field_model_refuses_another_file(tmp_path):
     p = tmp_path / "m.json"
     p.write_text(json.dumps({"format": "perception.PoseRegressor"}))
@@ -755,9 +783,13 @@ def test_sim2real_surface_field_command_end_to_end(tmp_path):
     assert len(load_field_model(out / "model.json").rest) == 331
     # the simulated taps were measured from references of simulated folders of the size the
     # model is made for, per format
+    from tactip_lab.real.task_run import REFERENCE_MEMBERS
+
     for name, size in (("model.json", 300), ("model_raw.json", 50)):
-        drawn = load_field_model(out / name).fitted_on["references"]
+        m = load_field_model(out / name)
+        drawn = m.fitted_on["references"]
         assert drawn["rule"] == "shallowest" and drawn["folder_size"] == size
+        assert drawn["members"] == REFERENCE_MEMBERS == len(m.members) + 1
     t = report["targets"]
     assert set(t) == {"pose_4", "pose_5"} and t["pose_4"]["unit"] == "deg"
     assert t["pose_4"]["mae"] == pytest.approx(z["pose_4"]["mae"], rel=1e-9)

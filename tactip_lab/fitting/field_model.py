@@ -233,6 +233,9 @@ class FieldModel:
     turn_steps : with ``label_turn``, :meth:`predict_points` averages the predictions of the
         frame turned by ``k * 360 / turn_steps`` degrees (k = 0..turn_steps-1), each turned
         back; 0 (models saved before 2026-11-29's seventh session): the frame as seen
+    members : other fitted models of the same targets (without members of their own) whose
+        regression outputs are averaged with this one's: the same simulated taps measured
+        from other draws of references (``tactip sim2real``'s surface tasks)
     """
 
     task: str
@@ -245,6 +248,7 @@ class FieldModel:
     rest: np.ndarray | None = None
     label_turn: dict[str, float] = field(default_factory=dict)
     turn_steps: int = 0
+    members: list[FieldModel] = field(default_factory=list)
     _scaler: Any = None
     _pca: Any = None
     _krr: Any = None
@@ -294,7 +298,9 @@ class FieldModel:
         if ok.any():
             out[ok] = np.atleast_2d(
                 self._krr.predict(self._pca.transform(self._scaler.transform(x[ok]))))
-        return out
+        for m in self.members:  # the mean over the members (the same rows are NaN)
+            out += m._outputs(x)
+        return out / (1 + len(self.members))
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         """(n, t) predicted targets of features ``x`` as seen (no turns); NaN rows where the
@@ -350,6 +356,7 @@ class FieldModel:
             "pca": {"mean": self._pca.mean_.tolist(), "components": self._pca.components_.tolist()},
             "krr": {"x_fit": self._krr.X_fit_.tolist(),
                     "dual_coef": np.asarray(self._krr.dual_coef_).tolist()},
+            "members": [m.to_json() for m in self.members],
         }
 
     def save(self, path: str | Path) -> Path:
@@ -401,6 +408,14 @@ class FieldModel:
         krr.dual_coef_ = np.asarray(d["krr"]["dual_coef"])
         krr.n_features_in_ = krr.X_fit_.shape[1]
         m._scaler, m._pca, m._krr = sc, pca, krr
+        for j, md in enumerate(d.get("members", [])):
+            if md.get("members"):
+                raise ValueError(f"{source}: member {j} has members of its own")
+            member = cls.from_json(md, f"{source} (member {j})")
+            if member.targets != m.targets:
+                raise ValueError(f"{source}: member {j} predicts {member.targets}, the model "
+                                 f"{m.targets}")
+            m.members.append(member)
         return m
 
 

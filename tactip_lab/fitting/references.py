@@ -328,8 +328,8 @@ def marker_median_reference(folder: Any, rest: np.ndarray, pts: np.ndarray, *,
 
 
 def simulated_folder_references(rest: np.ndarray, pts: np.ndarray, depth: np.ndarray, *,
-                                rule: str, folder_size: int, count: int, seed: int
-                                ) -> np.ndarray:
+                                rule: str, folder_size: int, count: int,
+                                seed: int | tuple[int, ...]) -> np.ndarray:
     """(count, m, 2) the references ``rule`` gives on ``count`` simulated folders of
     ``folder_size`` taps each (a seeded draw without replacement from the simulated taps
     ``pts`` (n, m, 2), ``depth`` (n,) their depths), each combined with the simulated rest
@@ -343,7 +343,7 @@ def simulated_folder_references(rest: np.ndarray, pts: np.ndarray, depth: np.nda
         raise ValueError(f"{n} simulated taps and {len(depth)} depths: at least 3, one each")
     if not 3 <= int(folder_size):
         raise ValueError(f"folder_size={folder_size}: at least 3 taps")
-    rng = np.random.default_rng([seed, 5207])
+    rng = np.random.default_rng([*np.atleast_1d(seed).tolist(), 5207])
     out = []
     for _ in range(int(count)):
         idx = (np.arange(n) if folder_size >= n
