@@ -497,6 +497,7 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
         if reference_rule(cfg.task) in DRAWN_REFERENCE_RULES:
             refs, drawn = tap_references(rest, pts, cols["pose_3"], cfg.task,
                                          cfg.folder_size or FOLDER_SIZE[fmt], cfg.seed)
+            drawn["members"] = REFERENCE_MEMBERS
         k, pred, tried, rows = choose_components(refs, pts, y_sim, targets, size,
                                                  task=cfg.task, seed=cfg.seed)
         m = fit_model(cfg.task, targets, size, rest, pts, y_sim, fitted_on={
@@ -512,7 +513,6 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
                 xj = training_rows(cfg.task, targets, rj, pts, y_sim)
                 m.members.append(FieldModel(cfg.task, targets, tuple(size), n_components=k,
                                             **_turns(cfg.task, xj)).fit(xj.xa, xj.ya))
-            m.fitted_on["references"]["members"] = REFERENCE_MEMBERS
         m.save(out / name)
         models[fmt] = m
         summary["formats"][fmt] = {"model": str(out / name), "frames_usable": int(
