@@ -31,6 +31,13 @@ angle :data:`CONTACT_SIDE_DEG`), averaged over the taps, and the point on the no
 the centre where the field's normal component turns from pointing away from the block to
 pointing toward it: the press's centre, in field radii toward the block (0: at the sensor's
 centre, as a flat tap's).
+
+``--tilt``: identifies the block's top face's tilt about its edge
+(``tasks.EdgeConvention.top_tilt_deg``) from that press centre where the sensor's centre is
+well over the block (``pose_2`` +3, +5 mm: a nearly flat tap, the edge clipping only its rim;
+the real centre there does not move with the depth or ``pose_6``): the simulated centre at
+tilts :data:`TILTS_DEG` and the real folder's own yaws, the tilt at which it meets the real
+one, interpolated per position. No model and no score enters.
 """
 
 from __future__ import annotations
@@ -64,6 +71,10 @@ VARIANTS = {
 
 
 CENTRE_POSITIONS_MM = (1.0, 3.0, 5.0)
+TILT_POSITIONS_MM = (3.0, 5.0)
+TILTS_DEG = (0.0, 2.0, 4.0)
+TILT_VARIANT = "P2, rod pins"
+"""The edge task's default pins (``task_run``: rods on P2)."""
 CONTACT_SIDE_DEG = -90.1
 """Image angle of the contact side less the block's yaw (the first simulated edge set;
 docs/sim2real.md, "Edge conventions"): with ``EDGE_CONVENTION`` the real taps' contact side is
@@ -132,10 +143,12 @@ def _real_taps(folder: Path) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndar
     return folder_columns(folder), rest, pts
 
 
-def _simulated_taps(scene, positions: tuple[float, ...]):
-    """Per lateral position: (its rest markers (m, 2) px, the frames (len(YAWS_DEG), m, 2) px
-    of the block pressed TIP_DEPTH_MM past its top face at each yaw, NaN where a marker is
-    hidden), through the camera model (no render)."""
+def _simulated_taps(scene, positions: tuple[float, ...], yaws: tuple[float, ...] = YAWS_DEG,
+                    tilt_deg: float = 0.0):
+    """Per lateral position: (its rest markers (m, 2) px, the frames (len(yaws), m, 2) px
+    of the block (its top face tilted by ``tilt_deg`` about the edge) pressed TIP_DEPTH_MM past
+    its top face at each yaw, NaN where a marker is hidden), through the camera model (no
+    render)."""
     import tactip_sim as ts
     from tactip_lab.real import tasks
     from tactip_sim.render import Renderer
@@ -147,9 +160,10 @@ def _simulated_taps(scene, positions: tuple[float, ...]):
     _, vis0, rest = ren.ground_truth(r0.markers_mm, r0.marker_directions)
     for p2 in positions:
         frames = []
-        for yaw in YAWS_DEG:
-            depth = tasks.edge_contact_depth(sim, block, p2, yaw, TIP_DEPTH_MM)
-            states, _ = sim.continue_path(tasks.tap_poses(tasks.edge_pose(p2, yaw, depth), 2),
+        for yaw in yaws:
+            depth = tasks.edge_contact_depth(sim, block, p2, yaw, TIP_DEPTH_MM, tilt_deg=tilt_deg)
+            pose = tasks.edge_pose(p2, yaw, depth, tilt_deg=tilt_deg)
+            states, _ = sim.continue_path(tasks.tap_poses(pose, 2),
                                           friction=tasks.FRICTION_ASSUMED, indenter=block)
             with np.errstate(invalid="ignore"):
                 _, vis, pts = ren.ground_truth(states[-1].markers_mm,
@@ -169,16 +183,75 @@ def real_rows(folder: Path) -> list[str]:
     return out
 
 
-def real_centres(folder: Path) -> list[str]:
+def _real_centres(folder: Path, positions: tuple[float, ...]
+                  ) -> tuple[list[float], list[int], np.ndarray]:
+    """(press centre per lateral position, taps per position, the taps' block yaws) of a
+    real edge folder: ``pose_2`` within 1 mm of each position, ``pose_3`` >= 4 mm."""
     from tactip_lab.real.tasks import EDGE_CONVENTION
 
     cols, rest, pts = _real_taps(folder)
-    side = EDGE_CONVENTION.yaw(cols["pose_6"]) + CONTACT_SIDE_DEG
-    out = []
-    for p2 in CENTRE_POSITIONS_MM:
+    yaw = EDGE_CONVENTION.yaw(cols["pose_6"])
+    side = yaw + CONTACT_SIDE_DEG
+    centres, counts = [], []
+    for p2 in positions:
         sel = (np.abs(cols["pose_2"] - p2) <= 1.0) & (cols["pose_3"] >= 4.0)
-        out.append(f"{press_centre(rest, pts[sel], side[sel]):+.3f} (n {int(sel.sum())})")
+        centres.append(press_centre(rest, pts[sel], side[sel]))
+        counts.append(int(sel.sum()))
+    return centres, counts, yaw
+
+
+def real_centres(folder: Path) -> list[str]:
+    centres, counts, _ = _real_centres(folder, CENTRE_POSITIONS_MM)
+    return [f"{c:+.3f} (n {n})" for c, n in zip(centres, counts, strict=True)]
+
+
+def folder_yaws(yaw: np.ndarray) -> tuple[float, ...]:
+    """Three block yaws spanning a folder's (its 1/6, 1/2 and 5/6 quantiles about the
+    circular mean), in [-180, 180]."""
+    mean = np.degrees(np.angle(np.mean(np.exp(1j * np.radians(yaw)))))
+    rel = (np.asarray(yaw) - mean + 180) % 360 - 180
+    return tuple(float((mean + q + 180) % 360 - 180)
+                 for q in np.quantile(rel, [1 / 6, 1 / 2, 5 / 6]))
+
+
+def identify_tilt(real: list[float], simulated: np.ndarray, tilts: tuple[float, ...]
+                  ) -> list[float]:
+    """Per position, the tilt at which the simulated press centre (``simulated``:
+    (len(tilts), positions)) meets the real one, linearly interpolated between the tilts
+    (extrapolated from the nearest two outside them); NaN where the centre does not grow with
+    the tilt."""
+    out = []
+    t = np.asarray(tilts, dtype=float)
+    for j, target in enumerate(real):
+        c = simulated[:, j]
+        if not np.all(np.diff(c) > 0):
+            out.append(float("nan"))
+            continue
+        i = int(np.clip(np.searchsorted(c, target) - 1, 0, len(t) - 2))
+        out.append(float(t[i] + (target - c[i]) * (t[i + 1] - t[i]) / (c[i + 1] - c[i])))
     return out
+
+
+def tilt_rows(folder: Path, scene) -> list[str]:
+    """The ``--tilt`` table: the real folder's press centres, the simulated ones at each tilt
+    (the folder's own yaws), and the tilt each position identifies."""
+    real, counts, yaw = _real_centres(folder, TILT_POSITIONS_MM)
+    yaws = folder_yaws(yaw)
+    sides = np.array(yaws) + CONTACT_SIDE_DEG
+    rows = [f"| real {folder.name}, pose_3 >= 4 mm, pose_2 +-1 mm | "
+            + " | ".join(f"{c:+.3f} (n {n})" for c, n in zip(real, counts, strict=True)) + " |"]
+    sim = []
+    for tilt in TILTS_DEG:
+        sim.append([press_centre(rest, frames, sides) for rest, frames in
+                    _simulated_taps(scene, TILT_POSITIONS_MM, yaws, tilt)])
+        rows.append(f"| simulated, top face tilted {tilt:+g} deg (yaws "
+                    + ", ".join(f"{v:.0f}" for v in yaws) + f"), {TIP_DEPTH_MM:g} mm | "
+                    + " | ".join(f"{c:+.3f}" for c in sim[-1]) + " |")
+    got = identify_tilt(real, np.array(sim), TILTS_DEG)
+    rows.append("| **identified tilt (deg)** | " + " | ".join(f"**{v:+.2f}**" for v in got)
+                + " |")
+    rows.append(f"\nmean over the positions: {np.nanmean(got):+.2f} deg")
+    return rows
 
 
 def sim_centres(scene) -> list[str]:
@@ -201,7 +274,19 @@ def main(argv: list[str] | None = None) -> int:
     args = scene_variants.parse(__doc__.split("\n\n")[0], VARIANTS, "tactip331_edge128",
                                 "real edge taps (Bristol layout, 128x128)", argv,
                                 flags={"--centre": "where the press is centred over the block "
-                                       "(field radii toward it) instead"})
+                                       "(field radii toward it) instead",
+                                       "--tilt": "identify the block's top-face tilt from "
+                                       f"that centre ({TILT_VARIANT}; VARIANT ignored)"})
+    if args.tilt:
+        if args.no_real:
+            raise SystemExit("--tilt identifies the tilt from the real folder: drop --no-real")
+        print("| taps (press centre, field radii toward the block) | "
+              + " | ".join(f"pose_2 {v:+g} mm" for v in TILT_POSITIONS_MM) + " |")
+        print("|---|" + "---:|" * len(TILT_POSITIONS_MM))
+        _, scene = next(scene_variants.scenes([TILT_VARIANT], VARIANTS))
+        for row in tilt_rows(args.real, scene):
+            print(row, flush=True)
+        return 0
     if args.centre:
         print("| taps (press centre, field radii toward the block) | "
               + " | ".join(f"pose_2 {v:+g} mm" for v in CENTRE_POSITIONS_MM) + " |")

@@ -320,6 +320,24 @@ def test_edge_pose_puts_the_edge_where_asked():
         assert d[0] == pytest.approx(-min(inside, 0.001) if inside > 0 else -inside, abs=2e-3)
 
 
+@pytest.mark.parametrize("tilt,yaw", [(5.0, 37.0), (-3.0, -140.0)])
+def test_a_tilted_top_face_moves_first_contact_into_the_block(tilt, yaw):
+    """A sphere's first contact with a plane turned by tau lies R sin(tau) from its apex, up
+    the slope: with the top face rising away from the edge (tau > 0) that is into the block,
+    along the block's inward normal (sin yaw, -cos yaw) in the sensor frame."""
+    from tactip_lab.real.tasks import EdgeConvention, block_indenter, edge_pose
+    from tactip_sim.fem import place
+
+    radius = 20.0
+    pl = place(block_indenter(), edge_pose(9.0, yaw, 0.0, tilt_deg=tilt), _dome(radius),
+               skin_thickness_mm=0.0)
+    y = np.radians(yaw)
+    want = radius * np.sin(np.radians(tilt)) * np.array([np.sin(y), -np.cos(y)])
+    np.testing.assert_allclose(pl.contact_point_mm[:2], want, atol=0.25)  # points ~0.2 mm apart
+    with pytest.raises(ValueError, match="top_tilt_deg"):
+        EdgeConvention(1.0, -1.0, 0.0, top_tilt_deg=12.0)
+
+
 def test_lab_ranges_and_shear_path():
     from tactip_lab.real.tasks import COLUMNS, EdgeConvention, draw_poses, shear_path
 
