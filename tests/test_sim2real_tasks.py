@@ -718,6 +718,24 @@ def test_an_edge_tap_that_misses_the_block_is_the_rest_state_with_its_own_noise(
     timing = json.loads((out2 / "timing.json").read_text())
     assert timing["missed"] == [1] and [f["row"] for f in timing["failed"]] == [2]
     assert rendered[-1] == (None, (53, 0))
+    # a contact solve that does not settle fails its tap alone: recorded, the next one made
+    answers = iter([ts.ContactError("closest-point updates did not converge"), "pressed"])
+
+    def solve(self, *a, **k):
+        a = next(answers)
+        if isinstance(a, Exception):
+            raise a
+        return [a], None
+
+    monkeypatch.setattr(FakeSim, "continue_path", solve)
+    monkeypatch.setattr(tasks, "sim_pose", lambda *a, **k: ts.Pose(depth_mm=0.4))
+    out3 = tmp_path / "unsettled"
+    tasks.simulate_task(scene, out3, "edge", 2, progress=False)
+    timing = json.loads((out3 / "timing.json").read_text())
+    assert [f["row"] for f in timing["failed"]] == [1] and "did not converge" in \
+        timing["failed"][0]["error"]
+    assert rendered[-1] == ("pressed", (53, 1))
+    assert len((out3 / "targets.csv").read_text().splitlines()) == 2  # header and tap 2
 
 
 def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path, capsys):

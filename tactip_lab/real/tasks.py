@@ -489,8 +489,9 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
                 pose = sim_pose(task, rows[i], sim=chain.sim, indenter=indenter,
                                 convention=convention, axes=axes)
                 state = chain.sim.press(pose, indenter, surface=False)
-        except (ValueError, ArithmeticError) as exc:  # a pose out of the pad's range, or
-            failed.append({"row": i + 1, "error": str(exc)})  # a path that failed: recorded
+        except (ValueError, ArithmeticError, ts.ContactError) as exc:  # a pose out of the
+            # pad's range, a path that failed or a contact solve that did not settle: recorded
+            failed.append({"row": i + 1, "error": str(exc)})
             continue
         r = chain.render(state, 53, i, frames=1)
         cv2.imwrite(str(target), r.images[0])
