@@ -23,6 +23,10 @@ class Tolerances:
     geometry_mm : closest-point updates for curved indenters stop when no node's
         displacement changes by more than this (mm)
     geometry_max_iter : at most this many closest-point updates
+    geometry_settled_mm : after ``geometry_max_iter`` updates, a last change below this is
+        taken as settled rather than failed: a node on the boundary between two faces of a
+        mesh indenter can alternate between them at that level without ever meeting
+        ``geometry_mm`` (0.1 µm: under a thousandth of a pixel of the 640x480 frames)
     newton_rtol : neo-Hookean Newton stops when the residual force is below this fraction
         of the largest reaction force (and the increment is below ``geometry_mm``)
     newton_max_iter : Newton iterations per load step
@@ -36,6 +40,7 @@ class Tolerances:
     pdas_max_iter: int = 50
     geometry_mm: float = 1e-10
     geometry_max_iter: int = 30
+    geometry_settled_mm: float = 1e-4
     newton_rtol: float = 1e-9
     newton_max_iter: int = 25
     max_load_steps: int = 64

@@ -284,7 +284,8 @@ def solve_contact(placement: Placement, rest_mm: np.ndarray, operator: Complianc
         if flat or change <= tol.geometry_mm:
             break
     else:
-        raise closest_point_error(label, tol, change)
+        if not change <= tol.geometry_settled_mm:
+            raise closest_point_error(label, tol, change)
     on = p_work > 0
     active, pressures = work[on], p_work[on]
     surface = operator.surface(active, pressures[:, None] * nu[active])

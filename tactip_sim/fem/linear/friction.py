@@ -469,7 +469,8 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
         if flat or change <= tol.geometry_mm:
             break
     else:
-        raise closest_point_error(label, tol, change)
+        if not change <= tol.geometry_settled_mm:
+            raise closest_point_error(label, tol, change)
     on = status != OPEN
     active = work[on]
     forces = np.einsum("iab,ib->ia", frames[on], lam[on]) if work.size else np.zeros((0, 3))

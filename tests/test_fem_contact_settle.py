@@ -1,0 +1,40 @@
+"""A contact path whose closest-point updates alternate at the sub-micron level settles."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tactip_sim as ts
+
+
+@pytest.mark.slow
+def test_a_tilted_block_slid_in_contact_settles_where_two_faces_meet():
+    """Regression (2026-11-29): the block's top face tilted 2.7 deg and slid in contact (an
+    edge tap under shear), the closest-point updates went on changing by ~7e-5 mm at every
+    update and the path failed after 64 step splits. A last change that small is taken as
+    settled (``Tolerances.geometry_settled_mm``); with it set to 0 the same path fails."""
+    from tactip_lab.real import tasks
+    from tactip_sim.fem.tolerances import Tolerances
+    from tactip_sim.scene import apply_preset
+
+    scene = ts.replace_in(apply_preset(ts.load_scene(
+        Path(__file__).resolve().parents[1] / "scenes" / "tactip_331_identified.toml"), "fast"),
+        fidelity={"element_order": 2}, pins={"model": "rod"})
+    row = np.array([0.0, 5.382389, 4.127076, 0.0, 0.0, -97.0184,
+                    -1.35936, 4.58181, 0.0, -1.88964, -1.284552, 0.396916])
+    conv = replace(tasks.EDGE_CONVENTION, top_tilt_deg=2.7)
+    block = tasks.block_indenter()
+    for settled, ok in ((Tolerances().geometry_settled_mm, True), (0.0, False)):
+        sim = ts.Simulator(scene, tol=Tolerances(geometry_settled_mm=settled))
+        path = tasks.shear_path("edge+shear", row, 4, sim=sim, indenter=block,
+                                convention=conv, depth_offset_mm=2.2)
+        poses = tasks.tap_poses(path[0], 2) + path[1:]
+        if ok:
+            states, _ = sim.continue_path(poses, friction=1.0, indenter=block)
+            assert len(states) == len(poses)
+            assert np.all(np.isfinite(states[-1].markers_mm))
+        else:
+            with pytest.raises(ts.ContactError, match="closest-point updates did not converge"):
+                sim.continue_path(poses, friction=1.0, indenter=block)
