@@ -137,7 +137,7 @@ EDGE_CONVENTION = EdgeConvention(lateral_sign=1.0, angle_sign=-1.0, angle_origin
   good to ~4 deg), so ``yaw = 174.5 - pose_6``. It uses their labels once, for this
   convention (a geometric descriptor, not a model's score).
 - ``top_tilt_deg`` 2.7: the lab's block is not square to the sensor's tap. With the sensor's
-  centre 3-5 mm over the block (a nearly flat tap) the real press is centred 0.08-0.10 field
+  centre 3-5 mm over the block (a nearly flat tap) the real press is centred 0.06-0.09 field
   radii further into the block than an untilted simulated one, the same at every depth
   (``pose_3`` 3-5 mm) and every ``pose_6`` of the folder, and again in the edge taps under
   shear (another collection, two days later): fixed to the block, not to the sensor, and not
