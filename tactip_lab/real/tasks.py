@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import csv
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -359,25 +359,20 @@ def shear_path(task: str, row: np.ndarray, steps: int, *, sim: Any, indenter: An
                                offset_mm=(float(-back[0]), float(-back[1])),
                                yaw_deg=float((1 - t) * move[5])))
         else:
-            # the sensor's work-frame position is pose_1, pose_2 less the remaining move
-            r2 = np.array(r)
-            inside = convention.lateral_sign * r2[1]
-            yaw = float(convention.yaw(r2[5]))
-            tilt = convention.top_tilt_deg
-            depth = edge_contact_depth(sim, indenter, inside, yaw,
-                                       r2[2] - depth_offset_mm, tilt_deg=tilt)
-            # the sensor at work x = pose_1 - (1 - t) move_1; the block's axes are the work
-            # frame's, turned by 180 deg about z when lateral_sign = +1 (its y runs against
-            # the work frame's): the block's origin sits at minus the sensor's position
-            along = convention.lateral_sign * r2[0]
-            out.append(edge_pose(inside, yaw, depth, tilt_deg=tilt, along_mm=along))
+            # the sensor's work-frame position is pose_1, pose_2 less the remaining move: the
+            # vertical tap's pose there, the block then moved along its edge to the sensor's
+            # work x = pose_1 - (1 - t) move_1 (the block's axes are the work frame's, turned
+            # by 180 deg about z when lateral_sign = +1: its y runs against the work frame's,
+            # and its origin sits at minus the sensor's position)
+            p = sim_pose(task, np.concatenate([r, np.zeros(6)]), sim=sim, indenter=indenter,
+                         convention=convention, depth_offset_mm=depth_offset_mm)
+            along = convention.lateral_sign * float(r[0])
+            out.append(replace(p, offset_mm=(along, p.offset_mm[1])))
     return out
 
 
 def tap_poses(pose: ts.Pose, steps: int) -> list[ts.Pose]:
     """A vertical tap to ``pose`` in ``steps`` equal steps of depth (from first contact)."""
-    from dataclasses import replace
-
     return [replace(pose, depth_mm=pose.depth_mm * j / steps) for j in range(1, steps + 1)]
 
 
