@@ -351,12 +351,16 @@ def test_lab_ranges_and_shear_path():
     np.testing.assert_array_equal(rows, draw_poses("edge+shear", 500, 0))  # seeded
     conv = EdgeConvention(1.0, -1.0, 90.0)
     assert conv.yaw(np.array([0.0, 100.0, -100.0])).tolist() == [90.0, -10.0, -170.0]
+    # the lab's robot: move_linear(pose - move) (the tap), then move_linear(pose): the path
+    # starts a whole move short of the pose and makes all of it in contact, in equal steps
     plate = shear_path("surface+shear", np.array([0, 0, 3.0, 5.0, -4.0, 0, 2.0, -1.0, 0, 0, 0,
                                                   3.0]), 4, sim=None, indenter=None)
-    assert len(plate) == 4
+    assert len(plate) == 5
     last, first = plate[-1], plate[0]
     assert last.offset_mm == (0.0, 0.0) and last.yaw_deg == 0.0
-    assert first.offset_mm == pytest.approx((1.5, -0.75))  # 3/4 of the move still to make
+    # the sensor 2 mm short in x and 1 mm past in y: the plate 2 mm ahead, 1 mm behind
+    assert first.offset_mm == pytest.approx((2.0, -1.0)) and first.yaw_deg == 3.0
+    assert plate[2].offset_mm == pytest.approx((1.0, -0.5))  # half way
     assert (last.roll_deg, last.pitch_deg) == (-5.0, 4.0)  # the -x-y axes
 
 
@@ -1010,6 +1014,15 @@ def test_surface_taps_under_shear_draw_their_friction_per_tap(tmp_path, monkeypa
     assert used[16:] == [0.7] * 3
     with pytest.raises(ValueError, match="another protocol.*friction"):  # not mixed on resume
         tasks.simulate_task(scene, tmp_path / "c", "surface+shear", 3, progress=False)
+    # a folder simulated before the whole move was made in contact (no "shear_path" in its
+    # protocol) is not resumed: its frames hold a shorter move than their labels
+    proto = tmp_path / "a" / "protocol.json"
+    old = json.loads(proto.read_text())
+    del old["shear_path"]
+    proto.write_text(json.dumps(old))
+    with pytest.raises(ValueError, match="another protocol.*shear_path"):
+        tasks.simulate_task(scene, tmp_path / "a", "surface+shear", 8, progress=False)
+    assert len(list((tmp_path / "a" / "images").glob("image_*.png"))) == 8  # nothing removed
 
 
 def test_surface_taps_are_frictionless_unless_a_friction_is_given(tmp_path, monkeypatch):

@@ -331,11 +331,17 @@ def sim_pose(task: str, row: np.ndarray, *, sim: Any = None, indenter: Any = Non
     return edge_pose(inside, yaw, depth, tilt_deg=tilt)
 
 
+SHEAR_PATH_RULE = "tap at pose - move, then all of the move in contact"
+"""What a shear path makes of the lab's move (recorded in a simulated folder's protocol)."""
+
+
 def shear_path(task: str, row: np.ndarray, steps: int, *, sim: Any, indenter: Any,
                convention: EdgeConvention = EDGE_CONVENTION, axes: str = "-x-y",
                depth_offset_mm: float = EDGE_DEPTH_OFFSET_MM[0]) -> list[ts.Pose]:
-    """The lab's shear move as simulator poses: from ``pose - move`` to ``pose`` in ``steps``
-    equal steps of the labels (each step's depth found again for the edge).
+    """The lab's shear move as simulator poses: ``steps + 1`` of them, the first at ``pose -
+    move`` (where the vertical tap goes), then ``steps`` equal steps of the labels to ``pose``
+    (each step's depth found again for the edge). The lab's robot makes the whole move in
+    contact (``move_linear(pose - move)``, then ``move_linear(pose)``).
 
     The move is the sensor's, in the work frame: a translation ``(move_1, move_2)`` of the
     sensor is a translation of the object by minus that, which in the object's own axes
@@ -348,7 +354,7 @@ def shear_path(task: str, row: np.ndarray, steps: int, *, sim: Any, indenter: An
     """
     pose, move = row[:6], row[6:]
     out = []
-    for j in range(1, steps + 1):
+    for j in range(steps + 1):  # j = 0: the tap's own pose, before any of the move
         t = j / steps
         r = pose - (1 - t) * move
         if task.startswith("surface"):
@@ -430,6 +436,9 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
         "ranges": {k: list(v) for k, v in simulated_ranges(task, depth_mm).items()},
         "convention": dict(convention.__dict__), "axes": axes, "shear_steps": shear_steps,
         "tap_steps": tap_steps,
+        # the whole move made in contact: folders simulated before this key made only
+        # 1 - 1/shear_steps of it, and are refused for resuming
+        **({"shear_path": SHEAR_PATH_RULE} if task.endswith("+shear") else {}),
         "friction": list(friction) if isinstance(friction, tuple) else friction,
         **({"edge_depth_offset_mm": list(EDGE_DEPTH_OFFSET_MM)} if task.startswith("edge")
            else {})})
@@ -558,8 +567,8 @@ def convert_128(sim: Path, dest: Path, expected_count: int, field_128: dict | No
 
 
 __all__ = ["BLOCK_MM", "COLUMNS", "EDGE_CONVENTION", "EDGE_DEPTH_OFFSET_MM", "FRICTION_ASSUMED",
-           "TASK_FRICTION",
-           "IMAGE_YAW_SIGN", "PROTOCOLS", "SHEAR_MOVES", "SURFACE_CONTACT_MM", "EdgeConvention",
+           "TASK_FRICTION", "IMAGE_YAW_SIGN", "PROTOCOLS", "SHEAR_MOVES", "SHEAR_PATH_RULE",
+           "SURFACE_CONTACT_MM", "EdgeConvention",
            "block_indenter", "convert_128", "draw_poses", "edge_contact_depth", "edge_pose",
            "label_turn", "shear_path", "sim_pose", "simulate_task", "simulated_ranges",
            "tap_poses"]
