@@ -16,12 +16,13 @@ SCENE = ROOT / "scenes" / "tactip_331_identified.toml"
 
 
 def parse(description: str, variants: dict[str, dict], real: str, real_help: str,
-          argv: list[str] | None = None, *, flags: dict[str, str] | None = None
-          ) -> argparse.Namespace:
+          argv: list[str] | None = None, *, flags: dict[str, str] | None = None,
+          paths: dict[str, tuple[str, str]] | None = None) -> argparse.Namespace:
     """``VARIANT ...`` (names of ``variants``; none: all), ``--real DIR`` (default
-    ``../shared/real/<real>``), ``--no-real`` and the caller's own on/off ``flags`` (name:
-    help); an unknown variant is an error naming the choices. Puts the project's root on
-    ``sys.path`` for the imports that follow."""
+    ``../shared/real/<real>``), ``--no-real``, the caller's own on/off ``flags`` (name: help)
+    and options taking a path, ``paths`` (name: (metavar, help); None when not given); an
+    unknown variant is an error naming the choices. Puts the project's root on ``sys.path``
+    for the imports that follow."""
     p = argparse.ArgumentParser(description=description)
     p.add_argument("variants", nargs="*", metavar="VARIANT",
                    help=f"scene variants (default all): {', '.join(variants)}")
@@ -30,6 +31,8 @@ def parse(description: str, variants: dict[str, dict], real: str, real_help: str
     p.add_argument("--no-real", action="store_true", help="skip the real taps")
     for flag, text in (flags or {}).items():
         p.add_argument(flag, action="store_true", help=text)
+    for flag, (metavar, text) in (paths or {}).items():
+        p.add_argument(flag, type=Path, default=None, metavar=metavar, help=text)
     args = p.parse_args(argv)
     unknown = [v for v in args.variants if v not in variants]
     if unknown:

@@ -1,6 +1,7 @@
 """How local the marker field of an edge tap is: simulated against real taps (docs/sim2real.md).
 
     python benchmarks/sim2real_edge_localisation.py [VARIANT ...] [--no-real]
+        [--centre | --tilt | --split RUN]
 
 A tap beside an edge presses one side of the pad. Two numbers say how much of the marker
 field stays on that side, each independent of the frame's scale and of the field's size:
@@ -38,6 +39,16 @@ well over the block (``pose_2`` +3, +5 mm: a nearly flat tap, the edge clipping 
 the real centre there does not move with the depth or ``pose_6``): the simulated centre at
 tilts :data:`TILTS_DEG` and the real folder's own yaws, the tilt at which it meets the real
 one, interpolated per position. No model and no score enters.
+
+``--split RUN``: where the press over the block is centred, split into a part fixed to the
+block and a part fixed to the sensor. The taps 2–6 mm over the block (``pose_2`` > 2 mm,
+``pose_3`` >= 4 mm) are binned by the contact side's image angle *a* (:data:`SPLIT_BINS`
+quantile bins); each bin's mean field gives a 2-D press centre *c* (:func:`centre_2d`, field
+radii, image axes), and ``c = R(a) (normal, along) + (x, y)`` is fitted by least squares:
+(normal, along) turns with the block, (x, y) stays with the camera. For the real folder
+(``--real``) and for the simulated taps of a ``tactip sim2real --task edge`` run ``RUN``
+(its ``sim/targets.csv`` and ``sim128_points.npz``: the whole circle, and the real folder's
+slice of it). Nothing is simulated.
 """
 
 from __future__ import annotations
@@ -75,6 +86,11 @@ TILT_POSITIONS_MM = (3.0, 5.0)
 TILTS_DEG = (0.0, 2.0, 4.0)
 TILT_VARIANT = "P2, rod pins"
 """The edge task's default pins (``task_run``: rods on P2)."""
+SPLIT_BINS = {"real": 6, "simulated": 12}
+"""Bins of the contact side's angle in ``--split``: the real folder spans ~80 deg, the
+simulated taps the full circle."""
+CENTRE_2D_RADIUS = 0.45
+"""Field radii about the centre over which :func:`centre_2d` fits the mean field as linear."""
 CONTACT_SIDE_DEG = -90.1
 """Image angle of the contact side less the block's yaw (the first simulated edge set;
 docs/sim2real.md, "Edge conventions"): with ``EDGE_CONVENTION`` the real taps' contact side is
@@ -104,6 +120,84 @@ def press_centre(rest: np.ndarray, pts: np.ndarray, side_deg: np.ndarray) -> flo
         if -0.7 < x[i] < 0.8 and fx[i] < 0 <= fx[i + 1]:
             return float(x[i] + (x[i + 1] - x[i]) * -fx[i] / (fx[i + 1] - fx[i]))
     return float("nan")
+
+
+def centre_2d(rest: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Where the mean field of the taps ``pts`` (n, m, 2) vanishes, in field radii from the
+    array's centre (image axes): the field, with its size, fitted as linear in the position
+    within :data:`CENTRE_2D_RADIUS` of the centre, and that linear field's zero."""
+    from tactip_lab.fitting.field_model import field_features, grid_nodes
+
+    nodes = grid_nodes()
+    k = len(nodes)
+    fields = [g for g in (field_features(rest, p, nodes=nodes) for p in pts)
+              if np.all(np.isfinite(g))]
+    if not fields:
+        return np.full(2, np.nan)
+    f = np.mean([g[:2 * k] * 10 ** g[-1] for g in fields], axis=0)
+    near = np.hypot(*nodes.T) < CENTRE_2D_RADIUS
+    design = np.c_[nodes[near], np.ones(near.sum())]
+    cx = np.linalg.lstsq(design, f[:k][near], rcond=None)[0]
+    cy = np.linalg.lstsq(design, f[k:][near], rcond=None)[0]
+    jac = np.array([cx[:2], cy[:2]])
+    return -np.linalg.solve(jac, np.array([cx[2], cy[2]]))
+
+
+def split_centre(rest: np.ndarray, pts: np.ndarray, side_deg: np.ndarray, bins: int
+                 ) -> tuple[np.ndarray, float]:
+    """((normal, along, x, y), RMS residual): the press centres of ``bins`` quantile bins of
+    the contact side's image angle ``side_deg`` fitted as ``R(a) (normal, along) + (x, y)``
+    (:func:`centre_2d` per bin, ``a`` the bin's median angle)."""
+    side = np.asarray(side_deg, dtype=float)
+    edges = np.quantile(side, np.linspace(0.0, 1.0, bins + 1))
+    design, rhs = [], []
+    for i in range(bins):
+        sel = (side >= edges[i]) & (side <= edges[i + 1])
+        c = centre_2d(rest, pts[sel])
+        a = np.radians(np.median(side[sel]))
+        rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        design += [np.r_[rot[0], 1.0, 0.0], np.r_[rot[1], 0.0, 1.0]]
+        rhs += list(c)
+    design, rhs = np.array(design), np.array(rhs)
+    sol = np.linalg.lstsq(design, rhs, rcond=None)[0]
+    return sol, float(np.sqrt(np.mean((design @ sol - rhs) ** 2)))
+
+
+def _over_block(cols: dict[str, np.ndarray]) -> np.ndarray:
+    return (cols["pose_2"] > 2.0) & (cols["pose_3"] >= 4.0)
+
+
+def split_rows(folder: Path | None, run: Path) -> list[str]:
+    """The ``--split`` table's rows: the real folder (None: skipped), ``run``'s simulated taps
+    over the whole circle and over the real folder's slice of it."""
+    from tactip_lab.real.task_run import folder_columns
+    from tactip_lab.real.tasks import EDGE_CONVENTION
+
+    def row(name: str, rest, pts, cols, bins: int) -> str:
+        side = EDGE_CONVENTION.yaw(cols["pose_6"]) + CONTACT_SIDE_DEG
+        keep = _over_block(cols)
+        (nrm, along, x, y), rms = split_centre(rest, pts[keep], side[keep], bins)
+        return (f"| {name} ({int(keep.sum())} taps) | {nrm:+.3f}, {along:+.3f} | "
+                f"{x:+.3f}, {y:+.3f} | {rms:.3f} |")
+
+    out, real_yaw = [], None
+    if folder is not None:
+        cols, rest, pts = _real_taps(folder)
+        out.append(row(f"real {folder.name}", rest, pts, cols, SPLIT_BINS["real"]))
+        real_yaw = EDGE_CONVENTION.yaw(cols["pose_6"][_over_block(cols)])
+    z = np.load(run / "sim128_points.npz")
+    rest, pts = z["rest"], z["pts"]
+    cols = {k: v[:len(pts)] for k, v in folder_columns(run / "sim").items()}
+    out.append(row(f"simulated {run.name}, the full circle", rest, pts, cols,
+                   SPLIT_BINS["simulated"]))
+    if real_yaw is not None:  # the simulated taps within the real folder's span of yaws
+        mean = np.degrees(np.angle(np.mean(np.exp(1j * np.radians(real_yaw)))))
+        half = np.max(np.abs((real_yaw - mean + 180) % 360 - 180))
+        yaw = EDGE_CONVENTION.yaw(cols["pose_6"])
+        keep = np.abs((yaw - mean + 180) % 360 - 180) <= half
+        out.append(row(f"simulated {run.name}, the real folder's yaws", rest, pts[keep],
+                       {k: v[keep] for k, v in cols.items()}, SPLIT_BINS["real"]))
+    return out
 
 
 def _weighted(rest: np.ndarray, points: np.ndarray
@@ -276,7 +370,21 @@ def main(argv: list[str] | None = None) -> int:
                                 flags={"--centre": "where the press is centred over the block "
                                        "(field radii toward it) instead",
                                        "--tilt": "identify the block's top-face tilt from "
-                                       f"that centre ({TILT_VARIANT}; VARIANT ignored)"})
+                                       f"that centre ({TILT_VARIANT}; VARIANT ignored)"},
+                                paths={"--split": ("RUN", "split the press centre over the "
+                                                   "block into parts fixed to the block and to "
+                                                   "the sensor, real and RUN's simulated taps "
+                                                   "(a tactip sim2real --task edge --out)")})
+    if args.split is not None:
+        if not (args.split / "sim128_points.npz").is_file():
+            raise SystemExit(f"--split {args.split}: no sim128_points.npz there (the --out "
+                             "of a tactip sim2real --task edge run)")
+        print("| taps | fixed to the block (normal, along) | fixed to the sensor (x, y) "
+              "| RMS residual |")
+        print("|---|---|---|---|")
+        for row in split_rows(None if args.no_real else args.real, args.split):
+            print(row, flush=True)
+        return 0
     if args.tilt:
         if args.no_real:
             raise SystemExit("--tilt identifies the tilt from the real folder: drop --no-real")

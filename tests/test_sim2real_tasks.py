@@ -1043,3 +1043,45 @@ def test_surface_taps_are_frictionless_unless_a_friction_is_given(tmp_path, monk
     assert len(calls) == 7 and all(0.5 <= m <= 1.0 for m in calls[3:])
     with pytest.raises(ValueError, match="another protocol.*friction"):
         tasks.simulate_task(scene, tmp_path / "a", "surface", 3, friction=0.7, progress=False)
+
+
+def test_the_press_centre_split_finds_a_known_press_and_its_two_parts():
+    """``sim2real_edge_localisation.py --split``: a radial press at the array's centre is found
+    there, one placed off it is found in its direction (nearer the centre: the feature removes
+    the array's median shift, which a one-sided press has), and presses at ``R(a) u + o`` for
+    turned ``a`` give back the part that turns (``u``) apart from the part that stays
+    (``o``), each read with that same gain."""
+    import importlib
+    import sys
+
+    from .conftest import ROOT
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        loc = importlib.import_module("sim2real_edge_localisation")
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    rest = _lattice(n_side=31, spacing=4.0)
+    c0 = rest.mean(axis=0)
+    s = np.sqrt(np.mean(np.sum((rest - c0) ** 2, axis=1)))
+
+    def press(at):  # at: field radii from the centre, image axes
+        return _bump(rest, c0 + np.asarray(at) * s, width=0.5 * s)
+
+    np.testing.assert_allclose(loc.centre_2d(rest, press([0.0, 0.0])[None]), 0.0, atol=1e-3)
+    want = np.array([0.07, -0.04])
+    got = loc.centre_2d(rest, press(want)[None])
+    cos = got @ want / np.hypot(*got) / np.hypot(*want)
+    assert cos > np.cos(np.radians(3.0)) and 0.5 < np.hypot(*got) / np.hypot(*want) < 1.0
+    turning, staying = np.array([0.08, 0.01]), np.array([0.02, -0.015])
+    angles = np.linspace(-170.0, 150.0, 24)
+    taps = []
+    for a in angles:
+        t = np.radians(a)
+        taps.append(press(np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+                          @ turning + staying))
+    sol, rms = loc.split_centre(rest, np.stack(taps), angles, 6)
+    gain = np.hypot(*sol[:2]) / np.hypot(*turning)
+    assert 0.5 < gain < 1.0
+    np.testing.assert_allclose(sol, gain * np.r_[turning, staying], atol=0.003)
+    assert rms < 0.01
