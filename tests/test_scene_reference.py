@@ -235,3 +235,41 @@ def test_each_simulated_tap_is_measured_from_one_of_the_drawn_references():
     np.testing.assert_allclose(x[7], field_features(refs[7], pts[7]), atol=1e-12)
     with pytest.raises(ValueError, match="references for"):
         fields_of(refs[:5], pts)
+
+
+def test_the_scene_rule_keeps_the_cameras_map_and_not_the_frames_shared_drag():
+    """Frames beside an edge reached by a move in contact (the edge under shear): the least
+    spread graze the block at the end of an approach and share one drag, a tangential push of
+    the markers on one side. Seen through a camera that differs from the scene by an affine
+    map, ``"least_spread"`` keeps that drag in the reference; ``"scene"`` keeps only an affine
+    map of the scene, so its error against the true rest state is affine (the drag's own
+    affine part, which no frame can tell from the camera's) and the drag's shape is gone."""
+    rng = np.random.default_rng(21)
+    prior = _lattice(15, 6.0)
+    truth = _affine(prior, -3.0, 0.9, 0.02, (4.0, -2.5))  # the real camera's view of the rest
+    c = truth.mean(axis=0)
+    w = np.exp(-np.sum((truth - (c + [40.0, 0.0])) ** 2, axis=1) / (2 * 14.0 ** 2))
+    dragged = truth + 0.6 * w[:, None] * np.array([0.0, 1.0])  # up to 0.6 px along +y
+    frames = [dragged + rng.normal(0, 0.03, truth.shape) for _ in range(9)]
+    frames += [_bump(truth, c + rng.uniform(-15, 15, 2), amp=rng.uniform(1.0, 3.0))
+               + rng.normal(0, 0.03, truth.shape) for _ in range(140)]
+    pts = np.stack(frames)
+    folder = SimpleNamespace(depth_mm=None, reference_is_a_press=True)
+    spread = marker_median_reference(folder, pts[0], pts, rule="least_spread", prior=prior)
+    scene = marker_median_reference(folder, pts[0], pts, rule="scene", prior=prior)
+    design = np.c_[truth, np.ones(len(truth))]
+
+    def beyond_affine(ref):  # RMS of the error left once an affine map is taken out
+        e = ref - truth
+        return _rms(e - design @ np.linalg.lstsq(design, e, rcond=None)[0], 0 * e)
+
+    drag_shape = beyond_affine(dragged)
+    assert drag_shape > 0.05
+    assert beyond_affine(scene) < 0.005
+    assert beyond_affine(spread) > 0.7 * drag_shape  # the median keeps the drag
+    # without the scene's rest state the rule is the least-spread median
+    np.testing.assert_allclose(marker_median_reference(folder, pts[0], pts, rule="scene"),
+                               marker_median_reference(folder, pts[0], pts,
+                                                       rule="least_spread"))
+    with pytest.raises(ValueError, match="weight"):
+        scene_reference(prior, pts[0], pts, np.arange(3), weight=1.5)

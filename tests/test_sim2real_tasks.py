@@ -572,7 +572,7 @@ def test_reference_rule_of_each_task():
     from tactip_lab.fitting.references import reference_rule
 
     assert [reference_rule(t) for t in ("edge", "edge+shear", "surface", "surface+shear")] \
-        == ["least_spread", "least_spread", "shallowest", "shallowest"]
+        == ["least_spread", "scene", "shallowest", "shallowest"]
 
 
 def test_few_shot_draw_skips_taps_without_a_prediction():

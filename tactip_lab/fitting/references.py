@@ -17,6 +17,12 @@ one of :data:`REFERENCE_RULES` (:func:`marker_median_reference`):
   taps beside the edge that miss it, found without a label; the edge tasks' rule, which
   holds on a folder of any size (docs/sim2real.md, "The edge folders' reference in a folder
   of any size").
+- ``"scene"``: the scene's rest state mapped onto those least-spread frames by an affine map
+  only (:func:`scene_reference` with weight 0): the edge taps under shear, whose frames beside
+  the edge are reached by a move in contact and so are not free of it: the least spread of
+  them are moves that approached the block and graze it at the end, one direction of drag
+  shared by all (docs/sim2real.md, "The edge under shear: a folder's frames beside the edge
+  are not its rest state").
 - ``"densest"``: the median of the densest cluster of frames (:func:`densest_reference`),
   the edge tasks' rule before ``"least_spread"``: on a smaller folder the cluster can be
   shallow presses on the block's top face rather than the misses.
@@ -85,29 +91,38 @@ def folder_points(folder: Any, *, expected_count: int | None = None, progress: b
             reliable)
 
 
-REFERENCE_RULES = ("shallowest", "densest", "least_spread")
+REFERENCE_RULES = ("shallowest", "densest", "least_spread", "scene")
 """How a folder without a frame free of contact gets its reference
 (:func:`marker_median_reference`)."""
 
 
-SCENE_RULES = ("shallowest", "least_spread")
+SCENE_RULES = ("shallowest", "least_spread", "scene")
 """The rules whose frames are combined with the scene's rest state when a model carries it
-(:func:`scene_reference`)."""
+(:func:`scene_reference`; ``"scene"`` takes the frames' affine map of it and nothing more)."""
 
 
 def reference_label(rule: str, prior: np.ndarray | None) -> str:
     """How a folder without a frame free of contact is referenced, in words for a report."""
+    if rule == "scene":
+        return ("the scene's rest state, mapped onto the least spread frames" if prior is not
+                None else "least_spread (no scene rest state to map)")
     return f"{rule}, with the scene's rest state" if (
         prior is not None and rule in SCENE_RULES) else rule
 
 
 def reference_rule(task: str) -> str:
-    """The reference rule of a task's real folders: ``"least_spread"`` for the edge tasks,
+    """The reference rule of a task's real folders: ``"least_spread"`` for the edge taps,
     whose protocol (the lab's ``edge_2d``: the sensor ±6 mm about the edge, 3-5 mm deep) holds
-    taps beside the edge that miss it, so the frames hold the rest state itself;
-    ``"shallowest"`` for the surface tasks, every tap of which presses (docs/sim2real.md, "The
-    edge folders' rest state" and "A folder without a rest frame")."""
-    return "least_spread" if task.split("+")[0] == "edge" else "shallowest"
+    taps beside the edge that miss it, so the frames hold the rest state itself; ``"scene"``
+    for the edge taps under shear, whose taps beside the edge were reached by a move in contact
+    (the least spread graze the block after approaching it: the frames give the camera's
+    affine map, the scene the rest); ``"shallowest"`` for the surface tasks, every tap of
+    which presses (docs/sim2real.md, "The edge folders' rest state", "A folder without a rest
+    frame" and "The edge under shear: a folder's frames beside the edge are not its rest
+    state")."""
+    if task.split("+")[0] == "edge":
+        return "scene" if task.endswith("+shear") else "least_spread"
+    return "shallowest"
 
 
 def least_spread_frames(pts: np.ndarray, k: int) -> np.ndarray:
@@ -215,7 +230,8 @@ def pair_markers(prior: np.ndarray, target: np.ndarray, *, rounds: int = 4
 
 
 def scene_reference(prior: np.ndarray, rest: np.ndarray, pts: np.ndarray,
-                    shallow: np.ndarray, *, seed: int = 0) -> tuple[np.ndarray, dict[str, Any]]:
+                    shallow: np.ndarray, *, seed: int = 0, weight: float | None = None
+                    ) -> tuple[np.ndarray, dict[str, Any]]:
     """The rest state of a folder without a frame free of contact, from the scene's own rest
     state and the folder's shallowest presses together: (positions (m, 2), details).
 
@@ -234,7 +250,10 @@ def scene_reference(prior: np.ndarray, rest: np.ndarray, pts: np.ndarray,
     median's variance (over :data:`SCENE_BOOTSTRAPS` resamples of the presses) and ``b``
     what the difference holds beyond it, both measured on the difference smoothed as the
     feature smooths it (:func:`~tactip_lab.fitting.field_model.smooth_field`), its shift
-    removed."""
+    removed. ``weight`` given (0..1) replaces ``w``: 0 is the mapped scene alone (the frames
+    give only the camera's affine map: :func:`marker_median_reference`'s ``"scene"``)."""
+    if weight is not None and not 0.0 <= weight <= 1.0:
+        raise ValueError(f"scene_reference: weight = {weight} must be in [0, 1]")
     pts = np.asarray(pts, dtype=float)
     shallow = np.asarray(shallow, dtype=np.intp)
 
@@ -249,6 +268,9 @@ def scene_reference(prior: np.ndarray, rest: np.ndarray, pts: np.ndarray,
         return med, info  # the scene is not this sensor's array: the folder's own median
     scene = med.copy()
     scene[paired] = mapped[pair[paired]]
+    if weight is not None:
+        info["weight"] = float(weight)
+        return scene + weight * (med - scene), info
     c = scene.mean(axis=0)
     s = float(np.sqrt(np.mean(np.sum((scene - c) ** 2, axis=1))))
     r = (scene - c) / s
@@ -288,7 +310,10 @@ def marker_median_reference(folder: Any, rest: np.ndarray, pts: np.ndarray, *,
     - ``"least_spread"``: the marker-by-marker median of the ``round(sqrt(N) / 4)`` (at least
       2) frames whose field is the least spread (:func:`least_spread_frames`), also read
       without a label, for such a set: its misses are few (a few % of the lab's edge taps), and
-      a cluster of shallow presses over the object can be denser than they are.
+      a cluster of shallow presses over the object can be denser than they are;
+    - ``"scene"``: the same frames, of which only the affine map of the scene's rest state
+      onto their median is kept (a folder whose frames beside the object are not free of
+      contact: the edge under shear); without ``prior``, ``"least_spread"``.
 
     With ``prior`` (the simulated rest state in this format, a field model's ``rest``) the
     frames of ``"shallowest"`` or ``"least_spread"`` are combined with it
@@ -299,13 +324,14 @@ def marker_median_reference(folder: Any, rest: np.ndarray, pts: np.ndarray, *,
         raise ValueError(f"reference rule {rule!r}: one of {', '.join(REFERENCE_RULES)}")
     if not folder.reference_is_a_press:
         return rest
-    if rule == "least_spread":
+    if rule in ("least_spread", "scene"):
         n = len(pts)
         if n < 3:
             return rest
         sel = least_spread_frames(pts, max(2, int(round(np.sqrt(n) / 4))))
         if prior is not None:
-            return scene_reference(prior, rest, pts, sel)[0]
+            return scene_reference(prior, rest, pts, sel,
+                                   weight=0.0 if rule == "scene" else None)[0]
         return _marker_median(pts, sel, rest)
     if rule == "densest":
         n = len(pts)
