@@ -19,7 +19,10 @@ rule before and since 2026-11-29):
 - ``densest``: the densest cluster of round(sqrt(n) / 2) + 1 frames (the edge tasks' rule
   before);
 - ``least_spread``, ``least_spread+scene``: the round(sqrt(n) / 4) frames of the least spread
-  field, without and with the scene (the edge tasks' rule since).
+  field, without and with the scene (the edge tasks' rule since; the edge under shear's until
+  the ninth session);
+- ``scene``: the scene's rest state mapped onto those frames, the affine map alone (the edge
+  under shear's rule since the ninth session).
 
 Prints MAE per target (mean over the draws) and the spread over draws; the whole folder is
 the last row. Nothing is written unless ``--png``.
@@ -35,7 +38,8 @@ from types import SimpleNamespace
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-RULES = ("shallowest", "shallowest+scene", "densest", "least_spread", "least_spread+scene")
+RULES = ("shallowest", "shallowest+scene", "densest", "least_spread", "least_spread+scene",
+         "scene")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -78,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
                 "tactip sim2real")
     edge = model.task.startswith("edge")
     names = (args.rules.split(",") if args.rules else
+             ["least_spread+scene", "scene"] if model.task == "edge+shear" else
              ["densest", "least_spread+scene"] if edge else ["shallowest", "shallowest+scene"])
     bad = [r for r in names if r not in RULES]
     if bad:
@@ -93,7 +98,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"{cache} holds {len(pts)} frames, {real} {n_all}: rerun the sim2real scoring")
     if max(sizes) > n_all or min(sizes) < 4:
         p.error(f"--sizes must lie in 4..{n_all} (the folder's taps)")
-    rules = {r: (r.split("+")[0], model.rest if r.endswith("+scene") else None) for r in names}
+    rules = {r: (r.split("+")[0], model.rest if r.endswith("+scene") or r == "scene" else None)
+             for r in names}
     rng = np.random.default_rng(args.seed)
     rows = []
     for n in [*sizes, n_all]:

@@ -24,14 +24,15 @@ def test_a_tilted_block_slid_in_contact_settles_where_two_faces_meet():
         fidelity={"element_order": 2}, pins={"model": "rod"})
     row = np.array([0.0, 5.382389, 4.127076, 0.0, 0.0, -97.0184,
                     -1.35936, 4.58181, 0.0, -1.88964, -1.284552, 0.396916])
-    row[6:] *= 0.75  # the failing path tapped 3/4 of the move short and made it in 3 steps
     conv = replace(tasks.EDGE_CONVENTION, top_tilt_deg=2.7)
     block = tasks.block_indenter()
     for settled, ok in ((Tolerances().geometry_settled_mm, True), (0.0, False)):
         sim = ts.Simulator(scene, tol=Tolerances(geometry_settled_mm=settled))
-        path = tasks.shear_path("edge+shear", row, 3, sim=sim, indenter=block,
+        path = tasks.shear_path("edge+shear", row, 4, sim=sim, indenter=block,
                                 convention=conv, depth_offset_mm=2.2)
-        poses = tasks.tap_poses(path[0], 2) + path[1:]
+        # the path that failed: tapped 3/4 of the move short, then the last three steps
+        # (shear_path then left out the whole move's first step; the poses are bit-identical)
+        poses = tasks.tap_poses(path[1], 2) + path[2:]
         if ok:
             states, _ = sim.continue_path(poses, friction=1.0, indenter=block)
             assert len(states) == len(poses)

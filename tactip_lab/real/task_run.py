@@ -84,9 +84,10 @@ DRAWN_REFERENCE_RULES = ("shallowest",)
 surface tasks' median of the shallowest presses, which keeps their tilts and depth (a
 systematic error, different in every folder, that a simulated folder reproduces). The edge
 tasks' rule takes the taps that miss the edge, frames of the rest state itself, whose error is
-the tracking noise alone; drawn for them too, the references moved the zero-shot figures both
-ways (edge 0.81 -> 1.01 mm, 12.9 -> 12.9 deg; under shear 1.64 -> 1.16 mm, 26.0 -> 32.1 deg;
-docs/sim2real.md), so their taps keep the simulated rest state."""
+the tracking noise alone (under shear only their affine map of the scene's rest state:
+``references.reference_rule``); drawn for them too, the references moved the zero-shot figures
+both ways (edge 0.81 -> 1.01 mm, 12.9 -> 12.9 deg; under shear 1.64 -> 1.16 mm, 26.0 -> 32.1
+deg; docs/sim2real.md), so their taps keep the simulated rest state."""
 
 
 @dataclass(frozen=True)
