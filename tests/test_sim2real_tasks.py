@@ -364,6 +364,29 @@ def test_lab_ranges_and_shear_path():
     assert (last.roll_deg, last.pitch_deg) == (-5.0, 4.0)  # the -x-y axes
 
 
+def test_a_shear_path_is_pressed_from_its_first_step_in_contact():
+    """The lab's move in contact, where part of it is clear of the block (``depth_mm`` <= 0):
+    a move that comes onto the block is tapped at its first step in contact and made from
+    there; one that leaves the block before its end ends at rest (None), as does one clear
+    throughout; one that leaves and touches again is refused; one in contact throughout is
+    the tap and the whole move."""
+    import tactip_sim as ts
+    from tactip_lab.real.tasks import contact_path
+
+    def path(*depths):
+        return [ts.Pose(depth_mm=d, offset_mm=(float(i), 0.0)) for i, d in enumerate(depths)]
+
+    got = contact_path(path(-0.3, -0.1, 0.2, 0.5), 2)
+    assert [(p.depth_mm, p.offset_mm[0]) for p in got] == [(0.1, 2.0), (0.2, 2.0), (0.5, 3.0)]
+    got = contact_path(path(0.4, 0.6, 0.3), 2)
+    assert [(p.depth_mm, p.offset_mm[0]) for p in got] == [(0.2, 0.0), (0.4, 0.0), (0.6, 1.0),
+                                                           (0.3, 2.0)]
+    assert contact_path(path(0.5, 0.2, -0.1), 2) is None  # the skin released before the end
+    assert contact_path(path(-0.5, -0.2, -0.1), 2) is None
+    with pytest.raises(ValueError, match="touches again"):
+        contact_path(path(0.5, -0.1, 0.4), 2)
+
+
 def test_turned_frames_move_the_press_and_the_label():
     """A frame turned by 90 deg (image angle, y down) shows its press at the turned place; the
     augmentation moves a turning label by the turn and leaves the others."""
@@ -708,8 +731,8 @@ def test_an_edge_tap_that_misses_the_block_is_the_rest_state_with_its_own_noise(
     tasks.simulate_task(scene, out, "edge", 2, progress=False)  # resumed: nothing to do
     assert len(rendered) == 2
     assert json.loads((out / "timing.json").read_text())["missed"] == [1, 2]
-    # under shear: a path that misses at every step is the rest state too; one that touches
-    # at some step and not at another is refused, as before
+    # under shear: a path that misses at every step is the rest state too; one that touches,
+    # leaves and touches again is refused
     depths = iter([[-0.2, -0.1, -0.3], [0.5, -0.1, 0.4]])
     monkeypatch.setattr(tasks, "shear_path",
                         lambda *a, **k: [ts.Pose(depth_mm=d) for d in next(depths)])
