@@ -1108,3 +1108,21 @@ def test_the_press_centre_split_finds_a_known_press_and_its_two_parts():
     assert 0.5 < gain < 1.0
     np.testing.assert_allclose(sol, gain * np.r_[turning, staying], atol=0.003)
     assert rms < 0.01
+
+
+def test_a_bagged_member_keeps_every_turned_copy_of_its_taps_and_no_other():
+    """``task_run.bag_rows``: a seeded draw of 80 % of the taps; a kept tap brings all of its
+    turned copies (rows ``c * n + i``), a left-out tap none, so no copy of a tap a member did
+    not see trains it; another seed draws other taps."""
+    from tactip_lab.real.task_run import BAG_FRACTION, bag_rows
+
+    n, copies = 50, 12
+    idx = bag_rows(n, copies, (0, 1))
+    taps = idx % n
+    kept = np.unique(taps)
+    assert len(kept) == round(BAG_FRACTION * n) == 40
+    assert len(idx) == copies * len(kept) and len(np.unique(idx)) == len(idx)
+    for i in kept:  # every copy of a kept tap
+        assert sorted(idx[taps == i] // n) == list(range(copies))
+    np.testing.assert_array_equal(idx, bag_rows(n, copies, (0, 1)))
+    assert set(np.unique(bag_rows(n, copies, (0, 2)) % n)) != set(kept)
