@@ -21,8 +21,8 @@ one of :data:`REFERENCE_RULES` (:func:`marker_median_reference`):
   only (:func:`scene_reference` with weight 0): the edge taps under shear, whose frames beside
   the edge are reached by a move in contact and so are not free of it: the least spread of
   them are moves that approached the block and graze it at the end, one direction of drag
-  shared by all (docs/sim2real.md, "The edge under shear: a folder's frames beside the edge
-  are not its rest state").
+  shared by all (docs/sim2real.md, "The shear move made whole, and the edge under shear's
+  reference").
 - ``"densest"``: the median of the densest cluster of frames (:func:`densest_reference`),
   the edge tasks' rule before ``"least_spread"``: on a smaller folder the cluster can be
   shallow presses on the block's top face rather than the misses.
@@ -118,8 +118,7 @@ def reference_rule(task: str) -> str:
     (the least spread graze the block after approaching it: the frames give the camera's
     affine map, the scene the rest); ``"shallowest"`` for the surface tasks, every tap of
     which presses (docs/sim2real.md, "The edge folders' rest state", "A folder without a rest
-    frame" and "The edge under shear: a folder's frames beside the edge are not its rest
-    state")."""
+    frame" and "The shear move made whole, and the edge under shear's reference")."""
     if task.split("+")[0] == "edge":
         return "scene" if task.endswith("+shear") else "least_spread"
     return "shallowest"

@@ -589,7 +589,6 @@ def convert_128(sim: Path, dest: Path, expected_count: int, field_128: dict | No
 
 __all__ = ["BLOCK_MM", "COLUMNS", "EDGE_CONVENTION", "EDGE_DEPTH_OFFSET_MM", "FRICTION_ASSUMED",
            "TASK_FRICTION", "IMAGE_YAW_SIGN", "PROTOCOLS", "SHEAR_MOVES", "SHEAR_PATH_RULE",
-           "SURFACE_CONTACT_MM", "EdgeConvention",
-           "block_indenter", "contact_path", "convert_128", "draw_poses", "edge_contact_depth", "edge_pose",
-           "label_turn", "shear_path", "sim_pose", "simulate_task", "simulated_ranges",
-           "tap_poses"]
+           "SURFACE_CONTACT_MM", "EdgeConvention", "block_indenter", "contact_path",
+           "convert_128", "draw_poses", "edge_contact_depth", "edge_pose", "label_turn",
+           "shear_path", "sim_pose", "simulate_task", "simulated_ranges", "tap_poses"]
