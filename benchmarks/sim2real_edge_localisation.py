@@ -191,10 +191,9 @@ def split_rows(folder: Path | None, run: Path) -> list[str]:
     out.append(row(f"simulated {run.name}, the full circle", rest, pts, cols,
                    SPLIT_BINS["simulated"]))
     if real_yaw is not None:  # the simulated taps within the real folder's span of yaws
-        mean = np.degrees(np.angle(np.mean(np.exp(1j * np.radians(real_yaw)))))
-        half = np.max(np.abs((real_yaw - mean + 180) % 360 - 180))
+        mean, rel = about_circular_mean(real_yaw)
         yaw = EDGE_CONVENTION.yaw(cols["pose_6"])
-        keep = np.abs((yaw - mean + 180) % 360 - 180) <= half
+        keep = np.abs((yaw - mean + 180) % 360 - 180) <= np.max(np.abs(rel))
         out.append(row(f"simulated {run.name}, the real folder's yaws", rest, pts[keep],
                        {k: v[keep] for k, v in cols.items()}, SPLIT_BINS["real"]))
     return out
@@ -299,11 +298,16 @@ def real_centres(folder: Path) -> list[str]:
     return [f"{c:+.3f} (n {n})" for c, n in zip(centres, counts, strict=True)]
 
 
+def about_circular_mean(yaw: np.ndarray) -> tuple[float, np.ndarray]:
+    """(the circular mean of angles ``yaw`` in degrees, each angle less it in [-180, 180))."""
+    mean = float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(yaw))))))
+    return mean, (np.asarray(yaw) - mean + 180) % 360 - 180
+
+
 def folder_yaws(yaw: np.ndarray) -> tuple[float, ...]:
     """Three block yaws spanning a folder's (its 1/6, 1/2 and 5/6 quantiles about the
     circular mean), in [-180, 180]."""
-    mean = np.degrees(np.angle(np.mean(np.exp(1j * np.radians(yaw)))))
-    rel = (np.asarray(yaw) - mean + 180) % 360 - 180
+    mean, rel = about_circular_mean(yaw)
     return tuple(float((mean + q + 180) % 360 - 180)
                  for q in np.quantile(rel, [1 / 6, 1 / 2, 5 / 6]))
 

@@ -525,7 +525,8 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
             "scene_hash": scene_hash(scene), "n_sim": int(len(y_sim)),
             "edge_convention": EDGE_CONVENTION.__dict__, "augmented_turns": label_turn(
                 cfg.task), "components_cv": {str(c): v for c, v in tried.items()},
-            "references": drawn}, n_components=k, rows=rows)
+            "references": drawn, **({} if drawn is not None else {"bagged": {
+                "members": BAG_MEMBERS, "fraction": BAG_FRACTION}})}, n_components=k, rows=rows)
         if drawn is not None:  # the other members: the same taps through other draws
             for j in range(1, REFERENCE_MEMBERS):
                 rj, _ = tap_references(rest, pts, cols["pose_3"], cfg.task,
@@ -539,7 +540,6 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
                 m.members.append(FieldModel(cfg.task, targets, tuple(size), n_components=k,
                                             **_turns(cfg.task, rows)).fit(rows.xa[idx],
                                                                           rows.ya[idx]))
-            m.fitted_on["bagged"] = {"members": BAG_MEMBERS, "fraction": BAG_FRACTION}
         m.save(out / name)
         models[fmt] = m
         summary["formats"][fmt] = {"model": str(out / name), "frames_usable": int(
