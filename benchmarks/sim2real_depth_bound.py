@@ -35,13 +35,14 @@ def main(argv: list[str] | None = None) -> int:
     for out in args.runs:
         sim = np.load(out / "sim128_points.npz")
         depth = folder_columns(out / "sim")["pose_3"]
-        size = np.array([field_features(sim["rest"], q)[-1] for q in sim["pts"]])
+        size = np.array([field_features(sim["rest"], q, invariance="shift")[-1]
+                         for q in sim["pts"]])
         edges = np.linspace(depth.min(), depth.max(), 15)
         mid = 0.5 * (edges[1:] + edges[:-1])
         med = np.array([np.nanmedian(size[(depth >= a) & (depth <= b)])
                         for a, b in zip(edges[:-1], edges[1:], strict=True)])
         ref, pts = surface_runs.real_points(out, args.folder, depth_label)
-        real_size = np.array([field_features(ref, q)[-1] for q in pts])
+        real_size = np.array([field_features(ref, q, invariance="shift")[-1] for q in pts])
         pct = np.nanpercentile(real_size, PERCENTILES)
         at = np.interp(pct, med, mid)  # the median size rises with depth
         print(f"| {out.name} | " + " / ".join(f"{d:.2f}" for d in at) + " |", flush=True)

@@ -25,10 +25,11 @@ field stays on that side, each independent of the frame's scale and of the field
   of its discretisation and *assumed* values.
 
 ``--centre``: instead, where the press is centred with the sensor's centre over the block
-(``pose_2`` +1, +3, +5 mm): each tap's feature field (``field_model.field_features``) turned so
-that the edge's normal toward the block points along +x (real taps by their label ``pose_6``,
-simulated ones by their yaw, through ``tasks.EDGE_CONVENTION`` and the contact side's image
-angle :data:`CONTACT_SIDE_DEG`), averaged over the taps, and the point on the normal through
+(``pose_2`` +1, +3, +5 mm): each tap's feature field (``field_model.field_features`` with
+its median shift removed, not its affine fit) turned so that the edge's normal toward the
+block points along +x (real taps by their label ``pose_6``, simulated ones by their yaw,
+through ``tasks.EDGE_CONVENTION`` and the contact side's image angle
+:data:`CONTACT_SIDE_DEG`), averaged over the taps, and the point on the normal through
 the centre where the field's normal component turns from pointing away from the block to
 pointing toward it: the press's centre, in field radii toward the block (0: at the sensor's
 centre, as a flat tap's).
@@ -106,8 +107,8 @@ def press_centre(rest: np.ndarray, pts: np.ndarray, side_deg: np.ndarray) -> flo
 
     nodes = grid_nodes()
     k = len(nodes)
-    fields = [field_features(rest, p, nodes=nodes, rotation_deg=-a) for p, a in
-              zip(pts, side_deg, strict=True)]
+    fields = [field_features(rest, p, nodes=nodes, rotation_deg=-a, invariance="shift")
+              for p, a in zip(pts, side_deg, strict=True)]
     fields = [f for f in fields if np.all(np.isfinite(f))]
     if not fields:
         return float("nan")
@@ -130,7 +131,8 @@ def centre_2d(rest: np.ndarray, pts: np.ndarray) -> np.ndarray:
 
     nodes = grid_nodes()
     k = len(nodes)
-    fields = [g for g in (field_features(rest, p, nodes=nodes) for p in pts)
+    fields = [g for g in (field_features(rest, p, nodes=nodes, invariance="shift")
+                                  for p in pts)
               if np.all(np.isfinite(g))]
     if not fields:
         return np.full(2, np.nan)

@@ -108,7 +108,7 @@ def contact_side(run: Path, real: Path, out: Path) -> Path:
             ("simulated", run / "sim128_points.npz", run / "sim128", "C1"),
             ("real", run / f"real_{real.name}_points.npz", real, "C0")):
         z = np.load(pts_file)
-        x = fields_of(z["rest"], z["pts"])
+        x = fields_of(z["rest"], z["pts"], invariance="shift")  # the field as seen
         cols = folder_columns(folder)
         m = np.hypot(x[:, :k], x[:, k:2 * k])
         c = (m @ g) / m.sum(axis=1)[:, None]

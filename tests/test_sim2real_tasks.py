@@ -74,6 +74,62 @@ def test_features_ignore_a_shift_and_the_frame_scale_and_keep_the_size_apart():
     assert twice[-1] - f[-1] == pytest.approx(np.log10(2.0), abs=1e-9)
 
 
+def test_features_are_blind_to_an_affine_error_of_the_reference():
+    """A real folder's reference is known only up to an affine map (a drifting camera, a crop
+    resized unevenly, a rest state mapped from the scene). A weak press (under 0.5 px) read
+    against a reference off by a stretch of 0.3 %, a turn of ~0.2 deg, a shear and a shift
+    (up to 0.5 px at the rim): the median shift alone leaves a pattern barely related to the
+    press; removing the affine fit gives the press's own pattern and size back."""
+    from tactip_lab.fitting.field_model import remove_affine
+
+    rest = _lattice()
+    moved = _bump(rest, (80.0, 60.0), amp=0.6)
+    c = rest.mean(axis=0)
+    off = c + (rest - c) @ np.array([[1.003, 0.002], [-0.004, 0.998]]).T + (0.3, -0.2)
+    assert np.abs(off - rest).max() > np.abs(moved - rest).max()  # the error outweighs the press
+    for inv, lo, hi in (("shift", -1.0, 0.6), ("affine", 0.9999, 1.0)):
+        f = field_features(rest, moved, invariance=inv)
+        g = field_features(off, moved, invariance=inv)
+        assert lo <= np.corrcoef(f[:-1], g[:-1])[0, 1] <= hi, inv
+    f = field_features(rest, moved)
+    g = field_features(off, moved)
+    assert abs(g[-1] - f[-1]) < 1e-3  # the size (log10): 0.41 with the median shift alone
+    # remove_affine itself: an affine field vanishes, and adding one changes nothing
+    r = np.random.default_rng(3).normal(size=(40, 2))
+    d = np.random.default_rng(4).normal(size=(40, 2))
+    aff = r @ np.array([[0.2, -0.1], [0.05, 0.3]]) + (1.0, -2.0)
+    np.testing.assert_allclose(remove_affine(r, aff), 0.0, atol=1e-12)
+    np.testing.assert_allclose(remove_affine(r, d + aff), remove_affine(r, d), atol=1e-12)
+    with pytest.raises(ValueError, match="invariance='rigid'"):
+        field_features(rest, moved, invariance="rigid")
+
+
+def test_field_model_keeps_its_invariance_and_old_models_read_as_fitted():
+    """A model records what its features removed; a model saved before the affine removal
+    (no ``invariance`` key) loads as ``shift`` and predicts from the features it was fitted
+    on."""
+    rng = np.random.default_rng(0)
+    rest = _lattice()
+    at = rng.uniform(40, 88, size=(40, 2))
+    pts = np.stack([_bump(rest, a, amp=1.0) for a in at])
+    y = np.c_[at[:, 0] / 10, at[:, 1] / 10]  # in range of pose_4, pose_5
+    from tactip_lab.fitting.field_model import fields_of
+
+    for inv in ("shift", "affine"):
+        m = FieldModel("surface", ["pose_4", "pose_5"], (128, 128), n_components=5,
+                       invariance=inv).fit(fields_of(rest, pts, invariance=inv), y)
+        d = m.to_json()
+        assert d["invariance"] == inv
+        if inv == "shift":
+            del d["invariance"]  # as saved before the affine removal
+        back = FieldModel.from_json(d)
+        assert back.invariance == inv
+        np.testing.assert_allclose(back.predict_points(rest, pts),
+                                   m.predict(fields_of(rest, pts, invariance=inv)), atol=1e-9)
+    with pytest.raises(ValueError, match="invariance='none'"):
+        FieldModel("surface", ["pose_4", "pose_5"], (128, 128), invariance="none")
+
+
 def test_features_locate_the_press():
     """The smoothed field is largest around the press and points away from it."""
     rest = _lattice()

@@ -12,6 +12,11 @@ the full circle (``pose_6``, deg), under shear too. This module holds what ``tac
   :data:`BANDWIDTH` field radii: lost markers leave no hole), then divided by its own RMS so
   that the pattern, not its size, carries the pose (the simulated field spreads ~20 % more
   per mm than the real one, docs/sim2real.md); the log of that size is kept as one more number.
+  Before smoothing, the part of the displacements an affine map of the reference gives (its
+  least-squares fit over the tracked markers, :data:`INVARIANCE`) is removed: a real folder's
+  reference is known only up to such a map (a camera that drifts, a crop resized unevenly, a
+  rest state mapped from the scene), and a model of the field as seen read errors of 0.1 px
+  in it as millimetres and degrees.
 - **The regressor** (:class:`FieldModel`): scikit-learn's standardisation, PCA and kernel ridge
   regression (RBF kernel), one output per target; a target that wraps (an angle over the full
   circle, :data:`TARGETS`) is predicted as its sine and cosine and read back with ``atan2``.
@@ -59,6 +64,14 @@ radius GRID_EXTENT dropped)."""
 GRID_EXTENT = 1.45
 """Half-width of the grid in RMS field radii: a uniform disc of markers has its rim at
 sqrt(2) = 1.41 RMS radii."""
+INVARIANCES = ("shift", "affine")
+"""What :func:`field_features` removes from the displacements before smoothing: ``shift`` the
+array's median shift (models saved before 2026-11-29's tenth session); ``affine`` then the
+least-squares affine map of the reference (shift, scale, turn, stretch and shear: six numbers
+per frame)."""
+INVARIANCE = "affine"
+"""The invariance of the models fitted now (docs/sim2real.md, "Features blind to the
+reference's affine error")."""
 BANDWIDTH = 0.12
 """Gaussian kernel width (RMS field radii) of the grid smoothing: about 0.9 marker spacings on
 the 331-pin field (spacing / RMS radius = 16.9 / 126.7 on the raw frame, docs/sim2real.md)."""
@@ -79,17 +92,31 @@ def rotate(v: np.ndarray, degrees: float) -> np.ndarray:
     return v @ np.array([[c, s], [-s, c]])
 
 
+def remove_affine(r: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(m, 2) displacements ``d`` at positions ``r`` (m, 2) less their least-squares affine
+    fit ``A r + t``: what is left is blind to any affine error of the reference (``d`` + an
+    affine field of ``r`` gives the same result, to rounding)."""
+    basis = np.column_stack([np.ones(len(r)), r])  # (m, 3): 1, x, y
+    coef, *_ = np.linalg.lstsq(basis, d, rcond=None)  # (3, 2): each component's fit
+    return d - basis @ coef
+
+
 def field_features(rest: np.ndarray, points: np.ndarray, *, nodes: np.ndarray | None = None,
-                   bandwidth: float = BANDWIDTH, rotation_deg: float = 0.0) -> np.ndarray:
+                   bandwidth: float = BANDWIDTH, rotation_deg: float = 0.0,
+                   invariance: str = INVARIANCE) -> np.ndarray:
     """The feature vector of one frame: ``points`` (m, 2) tracked in the order of ``rest``
     (m, 2) (NaN rows lost), px. ``rotation_deg`` turns the whole frame about the field's
     centre first (:func:`rotate`; the training augmentation of a task whose pose turns with
-    the sensor, :func:`augment`).
+    the sensor, :func:`augment`). ``invariance`` (:data:`INVARIANCES`): what is removed from
+    the displacements before smoothing, the array's median shift alone or then its affine
+    fit (:func:`remove_affine`).
 
     Returns (2k + 1,): the smoothed displacement field on the grid (x components, then y),
     divided by its RMS, and log10 of that RMS (in field radii). NaN everywhere when fewer than
     half the markers are tracked.
     """
+    if invariance not in INVARIANCES:
+        raise ValueError(f"invariance={invariance!r}: one of {', '.join(INVARIANCES)}")
     rest = np.asarray(rest, dtype=float)
     points = np.asarray(points, dtype=float)
     nodes = grid_nodes() if nodes is None else nodes
@@ -105,6 +132,8 @@ def field_features(rest: np.ndarray, points: np.ndarray, *, nodes: np.ndarray | 
     r = (rest[ok] - c) / s
     d = (points[ok] - rest[ok]) / s
     d = d - np.median(d, axis=0)  # a shift of the whole array (camera, crop) is not a pose
+    if invariance == "affine":
+        d = remove_affine(r, d)
     g = smooth_field(nodes, r, d, bandwidth)
     size = float(np.sqrt(np.mean(np.sum(g ** 2, axis=1))))
     if size <= 0:
@@ -233,6 +262,9 @@ class FieldModel:
     turn_steps : with ``label_turn``, :meth:`predict_points` averages the predictions of the
         frame turned by ``k * 360 / turn_steps`` degrees (k = 0..turn_steps-1), each turned
         back; 0 (models saved before 2026-11-29's seventh session): the frame as seen
+    invariance : what the features remove before smoothing (:data:`INVARIANCES`): ``affine``
+        for models fitted since 2026-11-29's tenth session, ``shift`` for those saved before
+        (their JSON has no such key), which go on reading frames as they were fitted
     members : other fitted models of the same targets (without members of their own) whose
         regression outputs are averaged with this one's: the same simulated taps measured
         from other draws of references (``tactip sim2real``'s surface tasks)
@@ -248,6 +280,7 @@ class FieldModel:
     rest: np.ndarray | None = None
     label_turn: dict[str, float] = field(default_factory=dict)
     turn_steps: int = 0
+    invariance: str = INVARIANCE
     members: list[FieldModel] = field(default_factory=list)
     _scaler: Any = None
     _pca: Any = None
@@ -263,6 +296,8 @@ class FieldModel:
                              f"turns with the frame ({', '.join(self.targets)})")
         if int(self.turn_steps) < 0 or (self.turn_steps and not self.label_turn):
             raise ValueError(f"turn_steps={self.turn_steps}: 0, or >= 1 with a label_turn")
+        if self.invariance not in INVARIANCES:
+            raise ValueError(f"invariance={self.invariance!r}: one of {', '.join(INVARIANCES)}")
 
     def fit(self, x: np.ndarray, y: np.ndarray) -> FieldModel:
         from sklearn.decomposition import PCA
@@ -339,7 +374,8 @@ class FieldModel:
     def predict_points(self, rest: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """(n, t) predictions of frames ``pts`` (n, m, 2) tracked from ``rest`` (m, 2): the
         mean over :meth:`turns_deg` (:meth:`predict_turned`), or the frames as seen."""
-        return self.predict_turned([fields_of(rest, pts, rotation_deg=d)
+        return self.predict_turned([fields_of(rest, pts, rotation_deg=d,
+                                              invariance=self.invariance)
                                     for d in self.turns_deg()])
 
     def to_json(self) -> dict[str, Any]:
@@ -352,6 +388,7 @@ class FieldModel:
             "fitted_on": self.fitted_on,
             "rest_px": None if self.rest is None else np.asarray(self.rest).tolist(),
             "label_turn": dict(self.label_turn), "turn_steps": int(self.turn_steps),
+            "invariance": self.invariance,
             "scaler": {"mean": self._scaler.mean_.tolist(), "scale": self._scaler.scale_.tolist()},
             "pca": {"mean": self._pca.mean_.tolist(), "components": self._pca.components_.tolist()},
             "krr": {"x_fit": self._krr.X_fit_.tolist(),
@@ -385,7 +422,8 @@ class FieldModel:
                 n_components=int(d["n_components"]), alpha=float(d["alpha"]),
                 gamma=float(d["gamma"]), fitted_on=d.get("fitted_on", {}),
                 label_turn={str(k): float(v) for k, v in d.get("label_turn", {}).items()},
-                turn_steps=int(d.get("turn_steps", 0)))
+                turn_steps=int(d.get("turn_steps", 0)),
+                invariance=str(d.get("invariance", "shift")))
         if d.get("rest_px") is not None:
             rest = np.asarray(d["rest_px"], dtype=float)
             if rest.ndim != 2 or rest.shape[1] != 2 or not np.all(np.isfinite(rest)):
@@ -412,9 +450,10 @@ class FieldModel:
             if md.get("members"):
                 raise ValueError(f"{source}: member {j} has members of its own")
             member = cls.from_json(md, f"{source} (member {j})")
-            if member.targets != m.targets:
-                raise ValueError(f"{source}: member {j} predicts {member.targets}, the model "
-                                 f"{m.targets}")
+            if member.targets != m.targets or member.invariance != m.invariance:
+                raise ValueError(f"{source}: member {j} predicts {member.targets} from "
+                                 f"{member.invariance!r} features, the model {m.targets} "
+                                 f"from {m.invariance!r}")
             m.members.append(member)
         return m
 
@@ -449,7 +488,8 @@ def task_targets(task: str) -> list[str]:
     raise ValueError(f"task {task!r} is not known: surface or edge (optionally +shear)")
 
 
-def fields_of(rest: np.ndarray, pts: np.ndarray, rotation_deg: float = 0.0) -> np.ndarray:
+def fields_of(rest: np.ndarray, pts: np.ndarray, rotation_deg: float = 0.0,
+              invariance: str = INVARIANCE) -> np.ndarray:
     """(n, 2k+1) :func:`field_features` of every frame's tracked points (n, m, 2), against one
     reference ``rest`` (m, 2) or each frame against its own (n, m, 2)."""
     nodes = grid_nodes()
@@ -457,9 +497,11 @@ def fields_of(rest: np.ndarray, pts: np.ndarray, rotation_deg: float = 0.0) -> n
     if rest.ndim == 3 and len(rest) != len(pts):
         raise ValueError(f"{len(rest)} references for {len(pts)} frames")
     refs = rest if rest.ndim == 3 else [rest] * len(pts)
-    return np.stack([field_features(r, p, nodes=nodes, rotation_deg=rotation_deg)
-                     for r, p in zip(refs, pts, strict=True)]) if len(pts) else np.zeros(
-        (0, 2 * len(nodes) + 1))
+    if not len(pts):
+        return np.zeros((0, 2 * len(nodes) + 1))
+    return np.stack([field_features(r, p, nodes=nodes, rotation_deg=rotation_deg,
+                                    invariance=invariance)
+                     for r, p in zip(refs, pts, strict=True)])
 
 
 AUGMENT_STEPS = 12
@@ -467,8 +509,8 @@ AUGMENT_STEPS = 12
 
 
 def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str],
-            label_turn: dict[str, float], steps: int = AUGMENT_STEPS
-            ) -> tuple[np.ndarray, np.ndarray]:
+            label_turn: dict[str, float], steps: int = AUGMENT_STEPS,
+            invariance: str = INVARIANCE) -> tuple[np.ndarray, np.ndarray]:
     """Training rows for a task whose pose turns with the sensor (the edge's angle): every
     frame turned about the field's centre by ``k * 360 / steps`` degrees, k = 0..steps-1, a
     wrapping target ``t`` of ``label_turn`` moved by ``label_turn[t]`` times the turn (its
@@ -479,7 +521,7 @@ def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str]
     xs, ys = [], []
     for k in range(steps):
         d = 360.0 * k / steps
-        xs.append(fields_of(rest, pts, rotation_deg=d))
+        xs.append(fields_of(rest, pts, rotation_deg=d, invariance=invariance))
         yk = np.array(y, dtype=float, copy=True)
         for j, t in enumerate(targets):
             if t in label_turn:
@@ -488,7 +530,8 @@ def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str]
     return np.concatenate(xs), np.concatenate(ys)
 
 
-__all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "TARGETS",
-           "FieldModel", "augment", "decode", "deviation_from_mean", "encode",
-           "field_features", "fields_of", "grid_nodes", "is_field_model", "load_field_model",
-           "median_gamma", "rotate", "smooth_field", "target_scores", "task_targets"]
+__all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "INVARIANCE",
+           "INVARIANCES", "TARGETS", "FieldModel", "augment", "decode", "deviation_from_mean",
+           "encode", "field_features", "fields_of", "grid_nodes", "is_field_model",
+           "load_field_model", "median_gamma", "remove_affine", "rotate", "smooth_field",
+           "target_scores", "task_targets"]
