@@ -657,7 +657,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m perception.zoo",
         description="Run the detector on the format zoo and print the rates per family: "
-                    "within 2 %% of the pin count, positions <= 0.5 px RMS, reliable, false "
+                    "within 2 % of the pin count, positions <= 0.5 px RMS, reliable, false "
                     "reliable, false unreliable. The verdict uses count_tolerance=0.02 (the "
                     "issue's criterion); the expected count is the sensor's pin count.")
     ap.add_argument("--quick", action="store_true", help="a handful of variants per family")
