@@ -31,7 +31,8 @@ the full circle (``pose_6``, deg), under shear too. This module holds what ``tac
 The reference of a real folder without a frame free of contact (which frames stand for its rest
 state) is :mod:`tactip_lab.fitting.references`, which builds on this module.
 
-Saved as JSON (the fitted arrays, no pickle); :func:`load_field_model` checks the format.
+Saved as JSON (the fitted arrays, the large ones as base64 float64: :func:`pack_array`; no
+pickle); :func:`load_field_model` checks the format.
 """
 
 from __future__ import annotations
@@ -242,6 +243,40 @@ def median_gamma(x: np.ndarray, seed: int = 0) -> float:
     return 1.0 / d
 
 
+def pack_array(a: np.ndarray) -> dict[str, Any]:
+    """A float array for the model's JSON, losslessly and compactly: its little-endian float64
+    bytes in base64 with its shape (a decimal list takes about twice the room and as long
+    again to read; the kernel ridge's training rows are most of a model)."""
+    import base64
+
+    a = np.ascontiguousarray(a, dtype="<f8")
+    return {"dtype": "<f8", "shape": list(a.shape),
+            "base64": base64.b64encode(a.tobytes()).decode("ascii")}
+
+
+def unpack_array(v: Any, what: str) -> np.ndarray:
+    """The array :func:`pack_array` wrote, or a plain (nested) list as models saved before
+    it hold; ``what`` names the entry in an error."""
+    import base64
+    import binascii
+
+    if not isinstance(v, dict):
+        return np.asarray(v, dtype=float)
+    shape = v.get("shape")
+    if v.get("dtype") != "<f8" or not isinstance(shape, list) or not all(
+            isinstance(n, int) and n >= 0 for n in shape):
+        raise ValueError(f"{what}: an array entry needs dtype '<f8' and a shape of "
+                         f"non-negative ints, got dtype {v.get('dtype')!r}, shape {shape!r}")
+    try:
+        raw = base64.b64decode(v.get("base64", ""), validate=True)
+    except (binascii.Error, TypeError) as exc:
+        raise ValueError(f"{what}: its base64 data cannot be decoded ({exc})") from None
+    if len(raw) != 8 * int(np.prod(shape)):
+        raise ValueError(f"{what}: {len(raw)} bytes of data for shape {shape} "
+                         f"({8 * int(np.prod(shape))} expected)")
+    return np.frombuffer(raw, dtype="<f8").reshape(shape).astype(float)
+
+
 @dataclass
 class FieldModel:
     """Standardise -> PCA -> kernel ridge (RBF) on :func:`field_features`, one output per
@@ -390,9 +425,10 @@ class FieldModel:
             "label_turn": dict(self.label_turn), "turn_steps": int(self.turn_steps),
             "invariance": self.invariance,
             "scaler": {"mean": self._scaler.mean_.tolist(), "scale": self._scaler.scale_.tolist()},
-            "pca": {"mean": self._pca.mean_.tolist(), "components": self._pca.components_.tolist()},
-            "krr": {"x_fit": self._krr.X_fit_.tolist(),
-                    "dual_coef": np.asarray(self._krr.dual_coef_).tolist()},
+            "pca": {"mean": self._pca.mean_.tolist(),
+                    "components": pack_array(self._pca.components_)},
+            "krr": {"x_fit": pack_array(self._krr.X_fit_),
+                    "dual_coef": pack_array(self._krr.dual_coef_)},
             "members": [m.to_json() for m in self.members],
         }
 
@@ -437,13 +473,13 @@ class FieldModel:
         sc.n_features_in_ = len(sc.mean_)
         pca = PCA(n_components=len(d["pca"]["components"]))
         pca.mean_ = np.asarray(d["pca"]["mean"])
-        pca.components_ = np.asarray(d["pca"]["components"])
+        pca.components_ = unpack_array(d["pca"]["components"], f"{source}: pca.components")
         pca.n_components_ = len(pca.components_)
         pca.n_features_in_ = len(pca.mean_)
         pca.whiten = False
         krr = KernelRidge(kernel="rbf", alpha=m.alpha, gamma=m.gamma)
-        krr.X_fit_ = np.asarray(d["krr"]["x_fit"])
-        krr.dual_coef_ = np.asarray(d["krr"]["dual_coef"])
+        krr.X_fit_ = unpack_array(d["krr"]["x_fit"], f"{source}: krr.x_fit")
+        krr.dual_coef_ = unpack_array(d["krr"]["dual_coef"], f"{source}: krr.dual_coef")
         krr.n_features_in_ = krr.X_fit_.shape[1]
         m._scaler, m._pca, m._krr = sc, pca, krr
         for j, md in enumerate(d.get("members", [])):
@@ -533,5 +569,5 @@ def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str]
 __all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "INVARIANCE",
            "INVARIANCES", "TARGETS", "FieldModel", "augment", "decode", "deviation_from_mean",
            "encode", "field_features", "fields_of", "grid_nodes", "is_field_model",
-           "load_field_model", "median_gamma", "remove_affine", "rotate", "smooth_field",
-           "target_scores", "task_targets"]
+           "load_field_model", "median_gamma", "pack_array", "remove_affine", "rotate",
+           "smooth_field", "target_scores", "task_targets", "unpack_array"]
