@@ -131,9 +131,8 @@ def centre_2d(rest: np.ndarray, pts: np.ndarray) -> np.ndarray:
 
     nodes = grid_nodes()
     k = len(nodes)
-    fields = [g for g in (field_features(rest, p, nodes=nodes, invariance="shift")
-                                  for p in pts)
-              if np.all(np.isfinite(g))]
+    fields = [field_features(rest, p, nodes=nodes, invariance="shift") for p in pts]
+    fields = [g for g in fields if np.all(np.isfinite(g))]
     if not fields:
         return np.full(2, np.nan)
     f = np.mean([g[:2 * k] * 10 ** g[-1] for g in fields], axis=0)

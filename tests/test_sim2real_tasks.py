@@ -128,6 +128,10 @@ def test_field_model_keeps_its_invariance_and_old_models_read_as_fitted():
                                    m.predict(fields_of(rest, pts, invariance=inv)), atol=1e-9)
     with pytest.raises(ValueError, match="invariance='none'"):
         FieldModel("surface", ["pose_4", "pose_5"], (128, 128), invariance="none")
+    d = m.to_json()
+    d["invariance"] = "projective"
+    with pytest.raises(ValueError, match="newer.json: invariance 'projective' is not known"):
+        FieldModel.from_json(d, "newer.json")
 
 
 def test_features_locate_the_press():

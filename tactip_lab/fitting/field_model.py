@@ -451,6 +451,9 @@ class FieldModel:
         if d.get("version") != VERSION:
             raise ValueError(f"{source}: field model version {d.get('version')!r}, this "
                              f"version reads {VERSION}")
+        if d.get("invariance", "shift") not in INVARIANCES:
+            raise ValueError(f"{source}: invariance {d.get('invariance')!r} is not known "
+                             f"({', '.join(INVARIANCES)}): a model of a newer version?")
         g = d.get("grid", {})
         if (g.get("n"), g.get("extent"), g.get("bandwidth")) != (GRID, GRID_EXTENT, BANDWIDTH):
             raise ValueError(f"{source}: fitted on another feature grid ({g}); refit it")
@@ -471,9 +474,10 @@ class FieldModel:
         sc.scale_ = np.asarray(d["scaler"]["scale"])
         sc.var_ = sc.scale_ ** 2
         sc.n_features_in_ = len(sc.mean_)
-        pca = PCA(n_components=len(d["pca"]["components"]))
+        components = unpack_array(d["pca"]["components"], f"{source}: pca.components")
+        pca = PCA(n_components=len(components))
         pca.mean_ = np.asarray(d["pca"]["mean"])
-        pca.components_ = unpack_array(d["pca"]["components"], f"{source}: pca.components")
+        pca.components_ = components
         pca.n_components_ = len(pca.components_)
         pca.n_features_in_ = len(pca.mean_)
         pca.whiten = False
