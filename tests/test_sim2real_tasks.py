@@ -749,6 +749,53 @@ def test_a_simulated_folder_resumes_only_under_its_own_protocol(tmp_path):
     (old / "images" / "image_00001.png").write_bytes(b"frame")
     with pytest.raises(ValueError, match="no protocol.json"):
         _claim_protocol(old, proto)
+    # a key the task does not read is recorded but not compared; every other still is
+    conv = {**proto, "convention": {"angle_origin_deg": 174.5}}
+    other = tmp_path / "conv"
+    (other / "images").mkdir(parents=True)
+    _claim_protocol(other, conv)
+    _claim_protocol(other, {**conv, "convention": {"angle_origin_deg": 174.5,
+                                                   "top_tilt_deg": 2.7}}, ignore=("convention",))
+    with pytest.raises(ValueError, match="another protocol.*convention"):
+        _claim_protocol(other, {**conv, "convention": {}})
+    with pytest.raises(ValueError, match="another protocol.*seed"):
+        _claim_protocol(other, {**conv, "seed": 3, "convention": {}}, ignore=("convention",))
+
+
+def test_a_surface_folder_made_before_the_top_tilt_resumes(tmp_path, monkeypatch):
+    """simulate_task itself: a surface folder whose protocol records the edge convention
+    without ``top_tilt_deg`` (made before the eighth session) resumes, since a surface tap
+    never reads the convention; an edge folder so recorded is refused."""
+    from pathlib import Path
+
+    import tactip_sim as ts
+    from tactip_lab.real import tasks
+    from tactip_lab.sampling import chain
+
+    class Stop(Exception):
+        pass
+
+    def stop(*a, **k):
+        raise Stop
+
+    monkeypatch.setattr(chain, "Chain", stop)  # the protocol is claimed before any simulation
+    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
+                          "tactip_331_identified.toml")
+    for task, resumes in (("surface", True), ("edge", False)):
+        out = tmp_path / task
+        with pytest.raises(Stop):
+            tasks.simulate_task(scene, out, task, 3, progress=False)
+        (out / "images" / "image_00001.png").write_bytes(b"frame")
+        claimed = json.loads((out / "protocol.json").read_text())
+        del claimed["convention"]["top_tilt_deg"]
+        (out / "protocol.json").write_text(json.dumps(claimed))
+        if resumes:
+            with pytest.raises(Stop):  # past the check
+                tasks.simulate_task(scene, out, task, 3, progress=False)
+        else:
+            with pytest.raises(ValueError, match="another protocol.*convention"):
+                tasks.simulate_task(scene, out, task, 3, progress=False)
+        assert (out / "images" / "image_00001.png").read_bytes() == b"frame"
 
 
 def test_an_edge_folder_simulated_with_another_depth_offset_does_not_resume(tmp_path,

@@ -402,10 +402,13 @@ def tap_poses(pose: ts.Pose, steps: int) -> list[ts.Pose]:
     return [replace(pose, depth_mm=pose.depth_mm * j / steps) for j in range(1, steps + 1)]
 
 
-def _claim_protocol(out: Path, protocol: dict[str, Any]) -> None:
+def _claim_protocol(out: Path, protocol: dict[str, Any], ignore: tuple[str, ...] = ()
+                    ) -> None:
     """Record what defines a simulated folder's frames (``protocol.json``), or check that a
     folder being resumed was made by the same protocol: its frames are kept and its labels
-    drawn again from the seed, so any difference would pair old frames with new labels."""
+    drawn again from the seed, so any difference would pair old frames with new labels.
+    ``ignore``: keys recorded but not compared, because this task's frames and labels do not
+    depend on them (the edge convention for the surface tasks)."""
     from tactip_lab.sampling.dataset import atomic_write_text
 
     path = out / "protocol.json"
@@ -415,7 +418,8 @@ def _claim_protocol(out: Path, protocol: dict[str, Any]) -> None:
             theirs = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
             raise ValueError(f"{path}: unreadable ({exc}); simulate into a new --out") from None
-        differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+        differ = sorted(k for k in set(mine) | set(theirs)
+                        if k not in ignore and mine.get(k) != theirs.get(k))
         if differ:
             raise ValueError(
                 f"{out}: its frames were simulated with another protocol (differs in "
@@ -461,7 +465,10 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
         **({"shear_path": SHEAR_PATH_RULE} if task.endswith("+shear") else {}),
         "friction": list(friction) if isinstance(friction, tuple) else friction,
         **({"edge_depth_offset_mm": list(EDGE_DEPTH_OFFSET_MM)} if task.startswith("edge")
-           else {})})
+           else {})},
+        # a surface tap never reads the edge convention (sim_pose, shear_path): a folder made
+        # before one of its fields was added (the top face's tilt) resumes
+        ignore=("convention",) if task.startswith("surface") else ())
     rows = draw_poses(task, n, seed, depth_mm)
     offsets = np.random.default_rng([seed, 53, 2]).uniform(*EDGE_DEPTH_OFFSET_MM, n)
     mus = (np.random.default_rng([seed, 53, 3]).uniform(*friction, n)
