@@ -762,35 +762,43 @@ def test_a_simulated_folder_resumes_only_under_its_own_protocol(tmp_path):
         _claim_protocol(other, {**conv, "seed": 3, "convention": {}}, ignore=("convention",))
 
 
+class _Stop(Exception):
+    """Raised where a simulated folder's simulation would begin (:func:`_stop_at_simulation`)."""
+
+
+def _stop_at_simulation(monkeypatch):
+    """The identified scene, with ``Chain`` made to raise :class:`_Stop`: ``simulate_task``
+    claims its folder's protocol and stops before simulating anything."""
+    from pathlib import Path
+
+    import tactip_sim as ts
+    from tactip_lab.sampling import chain
+
+    def stop(*a, **k):
+        raise _Stop
+
+    monkeypatch.setattr(chain, "Chain", stop)
+    return ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
+                         "tactip_331_identified.toml")
+
+
 def test_a_surface_folder_made_before_the_top_tilt_resumes(tmp_path, monkeypatch):
     """simulate_task itself: a surface folder whose protocol records the edge convention
     without ``top_tilt_deg`` (made before the eighth session) resumes, since a surface tap
     never reads the convention; an edge folder so recorded is refused."""
-    from pathlib import Path
-
-    import tactip_sim as ts
     from tactip_lab.real import tasks
-    from tactip_lab.sampling import chain
 
-    class Stop(Exception):
-        pass
-
-    def stop(*a, **k):
-        raise Stop
-
-    monkeypatch.setattr(chain, "Chain", stop)  # the protocol is claimed before any simulation
-    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
-                          "tactip_331_identified.toml")
+    scene = _stop_at_simulation(monkeypatch)
     for task, resumes in (("surface", True), ("edge", False)):
         out = tmp_path / task
-        with pytest.raises(Stop):
+        with pytest.raises(_Stop):
             tasks.simulate_task(scene, out, task, 3, progress=False)
         (out / "images" / "image_00001.png").write_bytes(b"frame")
         claimed = json.loads((out / "protocol.json").read_text())
         del claimed["convention"]["top_tilt_deg"]
         (out / "protocol.json").write_text(json.dumps(claimed))
         if resumes:
-            with pytest.raises(Stop):  # past the check
+            with pytest.raises(_Stop):  # past the check
                 tasks.simulate_task(scene, out, task, 3, progress=False)
         else:
             with pytest.raises(ValueError, match="another protocol.*convention"):
@@ -802,23 +810,11 @@ def test_an_edge_folder_simulated_with_another_depth_offset_does_not_resume(tmp_
                                                                            monkeypatch):
     """The edge taps' depth offset defines their frames as much as their labels do: a folder
     claimed under another offset range refuses to resume before anything is simulated."""
-    from pathlib import Path
-
-    import tactip_sim as ts
     from tactip_lab.real import tasks
-    from tactip_lab.sampling import chain
 
-    class Stop(Exception):
-        pass
-
-    def stop(*a, **k):
-        raise Stop
-
-    monkeypatch.setattr(chain, "Chain", stop)  # the protocol is claimed before any simulation
-    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
-                          "tactip_331_identified.toml")
+    scene = _stop_at_simulation(monkeypatch)
     out = tmp_path / "sim"
-    with pytest.raises(Stop):
+    with pytest.raises(_Stop):
         tasks.simulate_task(scene, out, "edge", 3, progress=False)
     claimed = json.loads((out / "protocol.json").read_text())
     assert claimed["edge_depth_offset_mm"] == list(tasks.EDGE_DEPTH_OFFSET_MM)
