@@ -93,11 +93,20 @@ def rotate(v: np.ndarray, degrees: float) -> np.ndarray:
     return v @ np.array([[c, s], [-s, c]])
 
 
+def affine_design(src: np.ndarray) -> np.ndarray:
+    """(m, 3) the design matrix of an affine map of the points ``src`` (m, 2): a column of ones
+    and the points centred and scaled to unit RMS radius (well conditioned at any pixel
+    scale)."""
+    c = src.mean(axis=0)
+    s = float(np.sqrt(np.mean(np.sum((src - c) ** 2, axis=1))))
+    return np.c_[np.ones(len(src)), (src - c) / s]
+
+
 def remove_affine(r: np.ndarray, d: np.ndarray) -> np.ndarray:
     """(m, 2) displacements ``d`` at positions ``r`` (m, 2) less their least-squares affine
     fit ``A r + t``: what is left is blind to any affine error of the reference (``d`` + an
     affine field of ``r`` gives the same result, to rounding)."""
-    basis = np.column_stack([np.ones(len(r)), r])  # (m, 3): 1, x, y
+    basis = affine_design(r)
     coef, *_ = np.linalg.lstsq(basis, d, rcond=None)  # (3, 2): each component's fit
     return d - basis @ coef
 
@@ -571,7 +580,7 @@ def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str]
 
 
 __all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "INVARIANCE",
-           "INVARIANCES", "TARGETS", "FieldModel", "augment", "decode", "deviation_from_mean",
-           "encode", "field_features", "fields_of", "grid_nodes", "is_field_model",
-           "load_field_model", "median_gamma", "pack_array", "remove_affine", "rotate",
-           "smooth_field", "target_scores", "task_targets", "unpack_array"]
+           "INVARIANCES", "TARGETS", "FieldModel", "affine_design", "augment", "decode",
+           "deviation_from_mean", "encode", "field_features", "fields_of", "grid_nodes",
+           "is_field_model", "load_field_model", "median_gamma", "pack_array", "remove_affine",
+           "rotate", "smooth_field", "target_scores", "task_targets", "unpack_array"]

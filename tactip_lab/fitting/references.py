@@ -58,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from tactip_lab.fitting.field_model import grid_nodes, smooth_field
+from tactip_lab.fitting.field_model import affine_design, grid_nodes, smooth_field
 
 
 def folder_points(folder: Any, *, expected_count: int | None = None, progress: bool = False,
@@ -185,12 +185,6 @@ SCENE_BOOTSTRAPS = 40
 (:func:`scene_reference`)."""
 
 
-def _affine_design(src: np.ndarray) -> np.ndarray:
-    c = src.mean(axis=0)
-    s = float(np.sqrt(np.mean(np.sum((src - c) ** 2, axis=1))))
-    return np.c_[np.ones(len(src)), (src - c) / s]
-
-
 def pair_markers(prior: np.ndarray, target: np.ndarray, *, rounds: int = 4
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Pair the markers of two views of one array: ``prior`` (p, 2) and ``target`` (m, 2,
@@ -213,7 +207,7 @@ def pair_markers(prior: np.ndarray, target: np.ndarray, *, rounds: int = 4
     st = np.sqrt(np.mean(np.sum((tgt - ct) ** 2, axis=1)))
     mapped = (prior - cp) * (st / sp) + ct
     gate = 0.5 * marker_spacing(tgt)
-    A = _affine_design(prior)
+    A = affine_design(prior)
     pair = np.full(len(target), -1, dtype=np.intp)
     for _ in range(rounds):
         d, j = cKDTree(mapped).query(tgt)
