@@ -3,9 +3,13 @@ run folder, a simulated and a real frame side by side at about the same labels (
 frames and their marker displacement fields), and the run's predicted-vs-true charts.
 
     python benchmarks/sim2real_tasks_figures.py OUT_DIR RUN_DIR=REAL_DIR [RUN_DIR=REAL_DIR ...]
+    python benchmarks/sim2real_tasks_figures.py --origin RUN_DIR=REAL_DIR
 
 Each RUN_DIR is a ``tactip sim2real --task ... --out RUN_DIR --real REAL_DIR`` folder. Prints
-what it writes.
+what it writes. ``--origin`` (an edge run) prints the edge angle origin the contact-side
+descriptor reads (docs/sim2real.md, "Edge conventions"): the circular mean of the descriptor's
+image angle plus ``pose_6`` on the real taps, and of the image angle less the yaw on the run's
+simulated taps, each with a bootstrap standard error; the origin is their sum.
 """
 
 from __future__ import annotations
@@ -88,6 +92,52 @@ def side_by_side(run: Path, real: Path, out: Path) -> Path:
     return path
 
 
+def _contact_side_angles(pts_file: Path, folder: Path) -> tuple[np.ndarray, dict]:
+    """The image angle (deg) of the side of the array the contact is on, and the labels."""
+    from tactip_lab.fitting.field_model import fields_of, grid_nodes
+    from tactip_lab.real.task_run import folder_columns
+
+    g = grid_nodes()
+    k = len(g)
+    z = np.load(pts_file)
+    x = fields_of(z["rest"], z["pts"], invariance="shift")  # the field as seen
+    m = np.hypot(x[:, :k], x[:, k:2 * k])
+    c = (m @ g) / m.sum(axis=1)[:, None]
+    return np.rad2deg(np.arctan2(c[:, 1], c[:, 0])), folder_columns(folder)
+
+
+def _circular_mean(a: np.ndarray, seed: int = 0, draws: int = 2000) -> tuple[float, float,
+                                                                               float]:
+    """Circular mean (deg), its bootstrap standard error (deg) and the resultant length."""
+    u = np.exp(1j * np.deg2rad(a))
+    mean = float(np.rad2deg(np.angle(u.mean())))
+    rng = np.random.default_rng(seed)
+    boot = np.rad2deg(np.angle(u[rng.integers(0, len(u), (draws, len(u)))].mean(axis=1)))
+    se = float(np.std((boot - mean + 180) % 360 - 180))
+    return mean, se, float(abs(u.mean()))
+
+
+def origin_reading(run: Path, real: Path) -> float:
+    """The edge angle origin read by the contact-side descriptor (printed; returned)."""
+    from tactip_lab.real.tasks import EDGE_CONVENTION
+
+    phi, cols = _contact_side_angles(run / f"real_{real.name}_points.npz", real)
+    sel = cols["pose_2"] < -3
+    c_real, se_real, r_real = _circular_mean(phi[sel] + cols["pose_6"][sel])
+    phi_s, cols_s = _contact_side_angles(run / "sim128_points.npz", run / "sim128")
+    sel_s = np.isfinite(phi_s) & (cols_s["pose_2"] < -3)
+    yaw = EDGE_CONVENTION.yaw(cols_s["pose_6"][sel_s])
+    c_sim, se_sim, r_sim = _circular_mean(yaw - phi_s[sel_s])
+    origin = (c_real + c_sim) % 360
+    print(f"real: image angle = {c_real:.2f} - pose_6 (se {se_real:.2f}, resultant "
+          f"{r_real:.3f}, n {int(sel.sum())})")
+    print(f"simulated: image angle = yaw - {c_sim:.2f} (se {se_sim:.2f}, resultant "
+          f"{r_sim:.3f}, n {int(sel_s.sum())})")
+    print(f"origin: yaw = {origin:.2f} - pose_6 (se {np.hypot(se_real, se_sim):.2f}; in use "
+          f"{EDGE_CONVENTION.angle_origin_deg})")
+    return float(origin)
+
+
 def contact_side(run: Path, real: Path, out: Path) -> Path:
     """The edge conventions' check: the image angle of the side of the array the contact is
     on (the displacement-magnitude-weighted centroid of the smoothed field) against
@@ -98,21 +148,11 @@ def contact_side(run: Path, real: Path, out: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tactip_lab.fitting.field_model import fields_of, grid_nodes
-    from tactip_lab.real.task_run import folder_columns
-
-    g = grid_nodes()
-    k = len(g)
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     for who, pts_file, folder, colour in (
             ("simulated", run / "sim128_points.npz", run / "sim128", "C1"),
             ("real", run / f"real_{real.name}_points.npz", real, "C0")):
-        z = np.load(pts_file)
-        x = fields_of(z["rest"], z["pts"], invariance="shift")  # the field as seen
-        cols = folder_columns(folder)
-        m = np.hypot(x[:, :k], x[:, k:2 * k])
-        c = (m @ g) / m.sum(axis=1)[:, None]
-        phi = np.rad2deg(np.arctan2(c[:, 1], c[:, 0]))
+        phi, cols = _contact_side_angles(pts_file, folder)
         sel = cols["pose_2"] < -3
         ax.scatter(cols["pose_6"][sel], phi[sel], s=6, color=colour, label=f"{who} "
                    f"(pose_2 < -3 mm, n = {int(sel.sum())})", alpha=0.6)
@@ -129,7 +169,10 @@ def contact_side(run: Path, real: Path, out: Path) -> Path:
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) < 2:
+    if len(argv) == 2 and argv[0] == "--origin":
+        origin_reading(*(Path(p) for p in argv[1].split("=", 1)))
+        return 0
+    if len(argv) < 2 or argv[0].startswith("-"):
         print(__doc__)
         return 2
     out = Path(argv[0])
