@@ -1,12 +1,15 @@
 """The edge task's randomisation study (issues 52 item 3 and 53): what each value that
 identification cannot fix does to the zero-shot edge model, one value at a time.
 
-    python benchmarks/sim2real_edge_randomisation.py OUT [--real DIR] [--n N]
+    python benchmarks/sim2real_edge_randomisation.py OUT [--shear] [--only SUFFIX ...]
+        [--real DIR] [--n N]
 
-Each variant is one ``tactip sim2real SCENE --task edge`` run (the task's defaults: field
-model, beam pins on P2, 1 200 simulated taps unless ``--n``) into ``OUT/<slug>``, skipped
-when that folder already holds a finished run (``summary.json``), so the study resumes. The
-values and their sources:
+Each variant is one ``tactip sim2real SCENE --task edge [--shear]`` run (the task's defaults:
+field model, beam pins on P2, 1 200 simulated taps for the edge and 600 under shear unless
+``--n``) into ``OUT/edge<suffix>`` (``OUT/eshear<suffix>`` with ``--shear``), skipped when
+that folder already holds a finished run (``summary.json``), so the study resumes; ``--only``
+runs the variants of those suffixes (``""`` is the shipped scene). The values and their
+sources:
 
 - gel modulus 10 and 50 kPa (skin/gel stiffness ratio 90 and 18): the scene's assumed range
   "order 10-50 kPa for Shore OO 10" (scenes/tactip_331.toml), as in the surface study
@@ -22,7 +25,7 @@ values and their sources:
 Printed, per variant (zero-shot on the real folder, no real label used): ``pose_2`` MAE and
 mean error (mm), ``pose_6`` MAE and median error (deg, wrapped), the median angle error of
 the deepest taps (``pose_3`` >= 4.5 mm, where the shipped model's bias shows), and what
-simulation's own 5-fold CV predicts. Written to OUT/edge_study.json.
+simulation's own 5-fold CV predicts. Written to OUT/edge_study.json (OUT/eshear_study.json).
 """
 
 from __future__ import annotations
@@ -37,7 +40,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "tactip_331_identified.toml"
-REAL = ROOT.parent / "shared" / "real" / "tactip331_edge128"
+REAL = {False: ROOT.parent / "shared" / "real" / "tactip331_edge128",
+        True: ROOT.parent / "shared" / "real" / "tactip331_edgeshear128"}
 OTHER_CAMERA = {"camera.distance_mm": 19.7051, "camera.shift_mm": 1.589,
                 "camera.tilt_deg": -3.9786, "camera.principal_offset_px": (24.193, 16.6685),
                 "lens.focal_length_mm": 2.17669, "pins.pitch_mm": 1.84489,
@@ -45,11 +49,11 @@ OTHER_CAMERA = {"camera.distance_mm": 19.7051, "camera.shift_mm": 1.589,
 """The rest frame's other camera solution (scenes/tactip_331_identified.toml at 046e6e9)."""
 
 VARIANTS: dict[str, tuple[str, list[str]]] = {
-    "edge": ("as identified", []),
-    "edge_gel10": ("gel 10 kPa (skin/gel 90)", ["--set", "gel.youngs_modulus_kpa=10"]),
-    "edge_gel50": ("gel 50 kPa (skin/gel 18)", ["--set", "gel.youngs_modulus_kpa=50"]),
-    "edge_mu2": ("friction 2 (1 assumed)", ["--friction", "2"]),
-    "edge_camera": ("the other camera solution (tilt -3.98 deg)", []),
+    "": ("as identified", []),
+    "_gel10": ("gel 10 kPa (skin/gel 90)", ["--set", "gel.youngs_modulus_kpa=10"]),
+    "_gel50": ("gel 50 kPa (skin/gel 18)", ["--set", "gel.youngs_modulus_kpa=50"]),
+    "_mu2": ("friction 2 (1 assumed)", ["--friction", "2"]),
+    "_camera": ("the other camera solution (tilt -3.98 deg)", []),
 }
 
 
@@ -96,23 +100,32 @@ def variant_row(run: Path, real: Path) -> dict[str, float]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("out", type=Path)
-    ap.add_argument("--real", type=Path, default=REAL)
+    ap.add_argument("--shear", action="store_true", help="the edge taps under shear")
+    ap.add_argument("--only", nargs="+", metavar="SUFFIX", choices=list(VARIANTS),
+                    help="run these variants only (default: all)")
+    ap.add_argument("--real", type=Path, default=None,
+                    help="real folder (default: the shared edge, or edge-shear, taps)")
     ap.add_argument("--n", type=int, default=None, help="simulated taps per variant "
                     "(default: the edge task's)")
     args = ap.parse_args()
+    real = args.real or REAL[args.shear]
+    prefix = "eshear" if args.shear else "edge"
     rows: dict[str, dict[str, float]] = {}
-    for slug, (name, extra) in VARIANTS.items():
-        run = args.out / slug
+    for suffix, (name, extra) in VARIANTS.items():
+        if args.only is not None and suffix not in args.only:
+            continue
+        run = args.out / f"{prefix}{suffix}"
         scene = SCENE
-        if slug == "edge_camera":
+        if suffix == "_camera":
             scene = other_camera_scene(args.out / "scene_other_camera.toml")
         if not (run / "summary.json").is_file():
             cmd = [sys.executable, "-m", "tactip_sim.commands", "sim2real", str(scene),
-                   "--task", "edge", "--out", str(run), "--real", str(args.real),
+                   "--task", "edge", *(["--shear"] if args.shear else []), "--out", str(run),
+                   "--real", str(real),
                    "--no-progress", *(["--n", str(args.n)] if args.n else []), *extra]
             print(f"{name}: {' '.join(cmd[3:])}", flush=True)
             subprocess.run(cmd, cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
-        rows[name] = variant_row(run, args.real)
+        rows[name] = variant_row(run, real)
     print("\n| simulated variant | `pose_2` MAE (mean error), mm | `pose_6` MAE (median "
           "error), deg | deepest taps' median angle error, deg | predicted by simulation "
           "|\n|---|---|---|---|---|")
@@ -120,7 +133,7 @@ def main() -> int:
         print(f"| {name} | {r['lateral_mae']:.2f} ({r['lateral_mean']:+.2f}) | "
               f"{r['angle_mae']:.1f} ({r['angle_median']:+.1f}) | {r['deep_angle_median']:+.1f} "
               f"| {r['predicted_lateral_mae']:.2f} mm / {r['predicted_angle_mae']:.1f}° |")
-    (args.out / "edge_study.json").write_text(json.dumps(rows, indent=2) + "\n")
+    (args.out / f"{prefix}_study.json").write_text(json.dumps(rows, indent=2) + "\n")
     return 0
 
 
