@@ -137,7 +137,7 @@ EDGE_CONVENTION = EdgeConvention(lateral_sign=1.0, angle_sign=-1.0, angle_origin
   good to ~4 deg), so ``yaw = 174.5 - pose_6``. It uses their labels once, for this
   convention (a geometric descriptor, not a model's score). Re-read on 2026-11-30 as the
   pipeline now reads the folder (``benchmarks/sim2real_tasks_figures.py --origin``): 165.0
-  (real side 75.6, moved 8.8 deg by the reference alone): the descriptor is good to ~10 deg,
+  (real side 75.6, moved 7-9 deg with the reference): the descriptor is good to ~10 deg,
   and the value was kept (docs/sim2real.md, "Edge conventions").
 - ``top_tilt_deg`` 2.7: the lab's block is not square to the sensor's tap. With the sensor's
   centre 3-5 mm over the block (a nearly flat tap) the real press is centred 0.06-0.09 field
