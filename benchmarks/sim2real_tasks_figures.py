@@ -122,7 +122,7 @@ def origin_reading(run: Path, real: Path) -> float:
     from tactip_lab.real.tasks import EDGE_CONVENTION
 
     phi, cols = _contact_side_angles(run / f"real_{real.name}_points.npz", real)
-    sel = cols["pose_2"] < -3
+    sel = np.isfinite(phi) & (cols["pose_2"] < -3)
     c_real, se_real, r_real = _circular_mean(phi[sel] + cols["pose_6"][sel])
     phi_s, cols_s = _contact_side_angles(run / "sim128_points.npz", run / "sim128")
     sel_s = np.isfinite(phi_s) & (cols_s["pose_2"] < -3)
