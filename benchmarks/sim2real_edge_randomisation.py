@@ -75,23 +75,22 @@ def other_camera_scene(path: Path) -> Path:
     return path
 
 
-def angle_error(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    return (pred - truth + 180.0) % 360.0 - 180.0
-
-
 def variant_row(run: Path, real: Path) -> dict[str, float]:
+    """The run's zero-shot MAEs and simulation's prediction (its ``summary.json``), and the
+    mean / median errors the summary does not keep (from its ``real_<name>.npz``)."""
     from tactip_lab.real.task_run import folder_columns
 
     s = json.loads((run / "summary.json").read_text())
+    zero = next(r["zero_shot"] for d, r in s["real"].items() if Path(d).name == real.name)
+    pred = s["formats"]["128x128"]["predicted_by_simulation"]
     z = np.load(run / f"real_{real.name}.npz")
     t = [str(v) for v in z["targets"]]
     y, p = z["truth"], z["zero_shot"]
     lat = p[:, t.index("pose_2")] - y[:, t.index("pose_2")]
-    ang = angle_error(p[:, t.index("pose_6")], y[:, t.index("pose_6")])
+    ang = (p[:, t.index("pose_6")] - y[:, t.index("pose_6")] + 180.0) % 360.0 - 180.0
     deep = folder_columns(real)["pose_3"] >= 4.5
-    pred = s["formats"]["128x128"]["predicted_by_simulation"]
-    return {"lateral_mae": float(np.nanmean(np.abs(lat))), "lateral_mean": float(np.nanmean(lat)),
-            "angle_mae": float(np.nanmean(np.abs(ang))), "angle_median": float(np.nanmedian(ang)),
+    return {"lateral_mae": float(zero["pose_2"]["mae"]), "lateral_mean": float(np.nanmean(lat)),
+            "angle_mae": float(zero["pose_6"]["mae"]), "angle_median": float(np.nanmedian(ang)),
             "deep_angle_median": float(np.nanmedian(ang[deep])),
             "predicted_lateral_mae": float(pred["pose_2"]["mae"]),
             "predicted_angle_mae": float(pred["pose_6"]["mae"])}
