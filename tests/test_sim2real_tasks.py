@@ -445,8 +445,8 @@ def test_lab_ranges_and_shear_path():
     assert conv.yaw(np.array([0.0, 100.0, -100.0])).tolist() == [90.0, -10.0, -170.0]
     # the lab's robot: move_linear(pose - move) (the tap), then move_linear(pose): the path
     # starts a whole move short of the pose and makes all of it in contact, in equal steps
-    plate = shear_path("surface+shear", np.array([0, 0, 3.0, 5.0, -4.0, 0, 2.0, -1.0, 0, 0, 0,
-                                                  3.0]), 4, sim=None, indenter=None)
+    row = np.array([0, 0, 3.0, 5.0, -4.0, 0, 2.0, -1.0, 0, 0, 0, 3.0])
+    plate = shear_path("surface+shear", row, 4, sim=None, indenter=None, move_turn_deg=0.0)
     assert len(plate) == 5
     last, first = plate[-1], plate[0]
     assert last.offset_mm == (0.0, 0.0) and last.yaw_deg == 0.0
@@ -454,6 +454,10 @@ def test_lab_ranges_and_shear_path():
     assert first.offset_mm == pytest.approx((2.0, -1.0)) and first.yaw_deg == 3.0
     assert plate[2].offset_mm == pytest.approx((1.0, -0.5))  # half way
     assert (last.roll_deg, last.pitch_deg) == (-5.0, 4.0)  # the -x-y axes
+    # the lab's work frame turned a quarter turn into the simulation's: (2, -1) becomes (1, 2)
+    turned = shear_path("surface+shear", row, 4, sim=None, indenter=None, move_turn_deg=90.0)
+    assert turned[0].offset_mm == pytest.approx((1.0, 2.0))
+    assert turned[-1].offset_mm == pytest.approx((0.0, 0.0))
 
 
 def test_a_shear_path_is_pressed_from_its_first_step_in_contact():

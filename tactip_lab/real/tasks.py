@@ -86,6 +86,12 @@ surface under shear keeps its range (a shear's own field enters the size)."""
 SHEAR_MOVES = {"move_1": (-5.0, 5.0), "move_2": (-5.0, 5.0), "move_4": (-5.0, 5.0),
                "move_5": (-5.0, 5.0), "move_6": (-5.0, 5.0)}
 """The lab's ``moves_rng`` for shear (mm, deg); ``move_3`` is 0."""
+SURFACE_MOVE_TURN_DEG = -1.1
+"""The surface taps under shear: the lab's move (``move_1``, ``move_2``) in the simulation's
+x, y turned by this angle (image sense: the drag's, :func:`~tactip_lab.real.drag.drag_rotation`).
+Read from the 1 000 shared real surface taps under shear against 400 simulated ones whose
+move was the simulation's x, y (-1.10 deg, bootstrap se 1.29; the same rule as the edge's
+angle origin, :data:`EDGE_CONVENTION`, which it agrees with to 0.7 deg; 0 until 2026-11-30)."""
 
 
 @dataclass(frozen=True)
@@ -114,7 +120,7 @@ class EdgeConvention:
         return (self.angle_sign * np.asarray(pose_6) + self.angle_origin_deg + 180) % 360 - 180
 
 
-EDGE_CONVENTION = EdgeConvention(lateral_sign=1.0, angle_sign=-1.0, angle_origin_deg=174.5,
+EDGE_CONVENTION = EdgeConvention(lateral_sign=1.0, angle_sign=-1.0, angle_origin_deg=179.5,
                                  top_tilt_deg=2.7)
 """The conventions in use (docs/sim2real.md, "Edge conventions", says how each was checked):
 
@@ -128,17 +134,21 @@ EDGE_CONVENTION = EdgeConvention(lateral_sign=1.0, angle_sign=-1.0, angle_origin
   real frames: the side of the array the contact is on turns at -0.74 deg per degree of
   ``pose_6`` on the real taps beside the edge (linear fit over their 70 deg), at +0.93 per
   degree of the simulated yaw (:data:`IMAGE_YAW_SIGN`).
-- ``angle_origin_deg`` 174.5: the lab sets ``pose_6 = 0`` with the camera aligned to its
-  work axes (``sensor_offset_ang = -48``, "align camera with axis"), a multiple of 90 deg
-  (180 here) up to how well that was aligned by hand. The value is *read from the shared real
-  edge taps*: the contact side's image angle is ``84.4 - pose_6`` on the 127 real taps more
-  than 3 mm beside the edge (circular mean, resultant 0.96), and ``yaw - 90.1`` on the
-  first simulated set (``yaw - 93.7`` on the final one, an origin of 178.1: the descriptor is
-  good to ~4 deg), so ``yaw = 174.5 - pose_6``. It uses their labels once, for this
-  convention (a geometric descriptor, not a model's score). Re-read on 2026-11-30 as the
-  pipeline now reads the folder (``benchmarks/sim2real_tasks_figures.py --origin``): 165.0
-  (real side 75.6, moved 7-9 deg with the reference): the descriptor is good to ~10 deg,
-  and the value was kept (docs/sim2real.md, "Edge conventions").
+- ``angle_origin_deg`` 179.5 (since 2026-11-30, twelfth session; 174.5 before): the lab sets
+  ``pose_6 = 0`` with the camera aligned to its work axes (``sensor_offset_ang = -48``,
+  "align camera with axis"), 180 deg here up to how well that was aligned by hand. The
+  alignment is *read from the shared real taps under shear*, by a rule written before the
+  reading: a shear move drags the skin along it, so the mean image displacement of the
+  markers turns with the move; the angle between the real and the simulated maps from move to
+  drag is the real camera's turn against the simulated one
+  (:func:`~tactip_lab.real.drag.drag_rotation`, ``benchmarks/shear_drag_rotation.py``). The
+  edge taps under shear (500, against simulated ones made at 174.5) give 174.5 + 5.06 (se
+  0.79); the surface taps under shear (1 000; their move in the simulation's x, y, which is
+  an origin of 180) give 180 - 1.10 (se 1.29): they agree within 0.7 deg, and their
+  inverse-variance mean is 179.4, rounded to 179.5. It reads no edge label. The earlier
+  values came from the side of the array the edge's contact is on (84.4 - ``pose_6`` on the
+  real taps beside the edge against ``yaw - 90.1`` on simulated ones: 174.5; re-read on
+  2026-11-30 as 165.0, the descriptor moving 7-9 deg with the reference: good to ~10 deg).
 - ``top_tilt_deg`` 2.7: the lab's block is not square to the sensor's tap. With the sensor's
   centre 3-5 mm over the block (a nearly flat tap) the real press is centred 0.06-0.09 field
   radii further into the block than an untilted simulated one, the same at every depth
@@ -344,7 +354,8 @@ SHEAR_PATH_RULE = "tap at pose - move, then all of the move in contact"
 
 def shear_path(task: str, row: np.ndarray, steps: int, *, sim: Any, indenter: Any,
                convention: EdgeConvention = EDGE_CONVENTION, axes: str = "-x-y",
-               depth_offset_mm: float = EDGE_DEPTH_OFFSET_MM[0]) -> list[ts.Pose]:
+               depth_offset_mm: float = EDGE_DEPTH_OFFSET_MM[0],
+               move_turn_deg: float = SURFACE_MOVE_TURN_DEG) -> list[ts.Pose]:
     """The lab's shear move as simulator poses: ``steps + 1`` of them, the first at ``pose -
     move`` (where the vertical tap goes), then ``steps`` equal steps of the labels to ``pose``
     (each step's depth found again for the edge). The lab's robot makes the whole move in
@@ -353,11 +364,12 @@ def shear_path(task: str, row: np.ndarray, steps: int, *, sim: Any, indenter: An
     The move is the sensor's, in the work frame: a translation ``(move_1, move_2)`` of the
     sensor is a translation of the object by minus that, which in the object's own axes
     (``offset_mm``) is the same vector for the edge (its axes are the work frame's turned by the
-    yaw) and the move's projection for the plate. The twist ``move_6`` turns the sensor about
-    its axis (the edge's yaw; the plate's yaw, which a flat plate's geometry does not see but
-    its friction does). ``move_4``/``move_5`` (tilts made in contact) are applied to the plate's
-    roll and pitch; for the edge (a 2-D task, the lab's labels have no tilt) they are left out
-    (*assumed* small: the edge protocol's ``pose_4``/``pose_5`` are 0).
+    yaw) and for the plate the move turned by ``move_turn_deg`` (the lab's work frame in the
+    simulation's, :data:`SURFACE_MOVE_TURN_DEG`), projected. The twist ``move_6`` turns the
+    sensor about its axis (the edge's yaw; the plate's yaw, which a flat plate's geometry does
+    not see but its friction does). ``move_4``/``move_5`` (tilts made in contact) are applied to
+    the plate's roll and pitch; for the edge (a 2-D task, the lab's labels have no tilt) they
+    are left out (*assumed* small: the edge protocol's ``pose_4``/``pose_5`` are 0).
     """
     pose, move = row[:6], row[6:]
     out = []
@@ -366,8 +378,10 @@ def shear_path(task: str, row: np.ndarray, steps: int, *, sim: Any, indenter: An
         r = pose - (1 - t) * move
         if task.startswith("surface"):
             p = sim_pose(task, np.concatenate([r, np.zeros(6)]), axes=axes)
-            # the sensor moved by (1 - t) * move short of the pose: the plate by minus that
-            back = -(1 - t) * np.asarray(move[:2])
+            # the sensor moved by (1 - t) * move short of the pose: the plate by minus that,
+            # the lab's work x, y turned into the simulation's (SURFACE_MOVE_TURN_DEG)
+            c, s = np.cos(np.radians(move_turn_deg)), np.sin(np.radians(move_turn_deg))
+            back = -(1 - t) * np.array([[c, -s], [s, c]]) @ np.asarray(move[:2], dtype=float)
             out.append(ts.Pose(roll_deg=p.roll_deg, pitch_deg=p.pitch_deg, depth_mm=p.depth_mm,
                                offset_mm=(float(-back[0]), float(-back[1])),
                                yaw_deg=float((1 - t) * move[5])))
@@ -466,6 +480,8 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
         # the whole move made in contact: folders simulated before this key made only
         # 1 - 1/shear_steps of it, and are refused for resuming
         **({"shear_path": SHEAR_PATH_RULE} if task.endswith("+shear") else {}),
+        # the move's turn into the simulation's frame: folders made before it (0) are refused
+        **({"move_turn_deg": SURFACE_MOVE_TURN_DEG} if task == "surface+shear" else {}),
         "friction": list(friction) if isinstance(friction, tuple) else friction,
         **({"edge_depth_offset_mm": list(EDGE_DEPTH_OFFSET_MM)} if task.startswith("edge")
            else {})},
@@ -599,6 +615,7 @@ def convert_128(sim: Path, dest: Path, expected_count: int, field_128: dict | No
 
 __all__ = ["BLOCK_MM", "COLUMNS", "EDGE_CONVENTION", "EDGE_DEPTH_OFFSET_MM", "FRICTION_ASSUMED",
            "TASK_FRICTION", "IMAGE_YAW_SIGN", "PROTOCOLS", "SHEAR_MOVES", "SHEAR_PATH_RULE",
+           "SURFACE_MOVE_TURN_DEG",
            "SURFACE_CONTACT_MM", "EdgeConvention", "block_indenter", "contact_path",
            "convert_128", "draw_poses", "edge_contact_depth", "edge_pose", "label_turn",
            "shear_path", "sim_pose", "simulate_task", "simulated_ranges", "tap_poses"]
