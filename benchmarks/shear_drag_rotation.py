@@ -14,7 +14,9 @@ Usage::
 RUN is a ``tactip sim2real --shear`` output (``sim128/targets.csv``, ``sim128_points.npz``,
 ``real_<name>_points.npz``), REAL_DIR the real folder it scored. Prints, per pair, both maps,
 their rotations, their scales (pixels of drag per mm of move, 128x128 frames) and
-phi = real - simulated with its bootstrap standard error.
+phi = real - simulated with its bootstrap standard error; then the drag along the move by the
+move's length, real and simulated (a skin that sticks drags in proportion, one that slides
+levels off: the friction's reading), and how far apart the two curves are.
 """
 
 from __future__ import annotations
@@ -30,13 +32,13 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from tactip_lab.real.drag import drag_rotation, mean_drag  # noqa: E402
+import tactip_lab.real.drag as drag  # noqa: E402
 from tactip_lab.real.task_run import folder_columns  # noqa: E402
 
 
 def _drag(points: Path) -> np.ndarray:
     z = np.load(points, allow_pickle=False)
-    return mean_drag(z["rest"], z["pts"])
+    return drag.mean_drag(z["rest"], z["pts"])
 
 
 def read(run: Path, real: Path, *, boot: int = 500) -> dict:
@@ -45,12 +47,15 @@ def read(run: Path, real: Path, *, boot: int = 500) -> dict:
         if not need.is_file():
             raise SystemExit(f"{need}: missing; RUN must be a finished `tactip sim2real --shear "
                              f"--real {real}` output")
-    cols_real = folder_columns(real)
+    cols_real, cols_sim = folder_columns(real), folder_columns(run / "sim128")
+    d_real, d_sim = _drag(run / f"real_{real.name}_points.npz"), _drag(run / "sim128_points.npz")
     edge = float(np.ptp(cols_real.get("pose_2", np.zeros(1)))) > 0
-    r = drag_rotation((cols_real, _drag(run / f"real_{real.name}_points.npz")),
-                      (folder_columns(run / "sim128"), _drag(run / "sim128_points.npz")),
-                      edge=edge, boot=boot)
-    return {"run": str(run), "real": str(real), "task": "edge" if edge else "surface", **r}
+    r = drag.drag_rotation((cols_real, d_real), (cols_sim, d_sim), edge=edge, boot=boot)
+    c_real = drag.drag_curve(cols_real, d_real, edge=edge, turn=r["turn_sense"])
+    c_sim = drag.drag_curve(cols_sim, d_sim, edge=edge, turn=r["turn_sense"])
+    return {"run": str(run), "real": str(real), "task": "edge" if edge else "surface", **r,
+            "curve_bins_mm": drag.CURVE_BINS_MM.tolist(), "curve_real": c_real, "curve_sim": c_sim,
+            "curve_distance_px": drag.curve_distance(c_real, c_sim)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -77,6 +82,14 @@ def main(argv: list[str] | None = None) -> int:
                   f"{r['scale_' + who + '_px_per_mm']:.3f} px per mm")
         print(f"   phi = real - simulated = {r['phi_deg']:+.2f} deg "
               f"(bootstrap se {r['phi_se_deg']:.2f})")
+        bins = r["curve_bins_mm"]
+        print("   drag along the move (px) by its length, mm: "
+              + " ".join(f"{lo:.0f}-{hi:.0f}" for lo, hi in zip(bins[:-1], bins[1:], strict=True)))
+        for group in r["curve_real"]:
+            for who in ("sim", "real"):
+                print(f"     {who:4s} {group:28s} "
+                      + " ".join(f"{v:5.2f}" for v in r["curve_" + who][group]))
+        print(f"   drag curves apart by {r['curve_distance_px']:.3f} px (RMS over the bins)")
     if a.json:
         a.json.write_text(json.dumps(out, indent=2) + "\n")
     return 0

@@ -81,3 +81,31 @@ def test_mean_drag_leaves_lost_markers_out_and_a_short_fit_is_refused():
     assert np.isnan(d[2]).all()
     with pytest.raises(ValueError, match="usable taps"):
         fit_drag_map(np.ones((3, 3)), np.zeros((3, 2)))
+
+
+def test_the_drag_curve_levels_off_where_the_skin_slides():
+    # a skin that sticks for 2.5 mm of move (0.8 px a mm) and then slides (2 px): moves at the
+    # middle of each 1 mm bin, in every direction; for the edge the move is in the block's
+    # frame, seen in the sensor's turned by -pose_6, and the taps beside the edge drag half
+    from tactip_lab.real.drag import curve_distance, drag_curve
+
+    rng = np.random.default_rng(5)
+    n = 600
+    length = rng.integers(0, 6, n) + 0.5
+    ang = rng.uniform(-np.pi, np.pi, n)
+    pose_6 = rng.uniform(-180, 180, n)
+    pose_2 = rng.choice([-4.0, 4.0], n)
+    m_block = length[:, None] * np.stack([np.cos(ang), np.sin(ang)], 1)
+    m_sensor = np.stack([_rot(-p) @ v for p, v in zip(pose_6, m_block, strict=True)])
+    held = np.minimum(0.8 * length, 2.0) * np.where(pose_2 > 0, 1.0, 0.5)
+    drag = -held[:, None] * m_sensor / length[:, None]
+    cols = {"move_1": m_block[:, 0], "move_2": m_block[:, 1], "pose_6": pose_6,
+            "pose_2": pose_2, "pose_3": np.full(n, 4.0), "move_6": np.zeros(n)}
+    curve = drag_curve(cols, drag, edge=True)
+    expected = np.minimum(0.8 * (np.arange(6) + 0.5), 2.0)
+    over, beside = curve.values()
+    np.testing.assert_allclose(over, expected, atol=1e-9)
+    np.testing.assert_allclose(beside, expected / 2, atol=1e-9)
+    stuck = {k: [2 * v for v in c] for k, c in curve.items()}
+    assert curve_distance(curve, stuck) == pytest.approx(
+        np.sqrt(np.mean(np.concatenate([expected, expected / 2]) ** 2)))

@@ -75,6 +75,45 @@ def wrap_deg(a: Any) -> Any:
     return (np.asarray(a, dtype=float) + 180.0) % 360.0 - 180.0
 
 
+CURVE_BINS_MM = np.arange(0.0, 7.0, 1.0)
+"""Bin edges of the move's length for :func:`drag_curve` (mm; the lab's moves reach 5 * sqrt 2)."""
+EDGE_GROUPS_MM = {"over the block (pose_2 > 2)": (2.0, np.inf),
+                  "beside it (pose_2 < -2)": (-np.inf, -2.0)}
+"""The edge taps' groups for :func:`drag_curve`: the drag over the block and beside it differ
+by the contact's area."""
+
+
+def drag_curve(cols: dict[str, np.ndarray], drag: np.ndarray, *, edge: bool,
+               turn: float = -1.0) -> dict[str, list[float]]:
+    """The mean drag along the move (pixels; the drag projected on minus the move, in the
+    sensor's frame: the skin stays behind the sensor) per bin of the move's length
+    (:data:`CURVE_BINS_MM`): a skin that sticks drags in proportion to the move, one that
+    slides levels off at what friction holds. For the edge per group of
+    :data:`EDGE_GROUPS_MM`, the move turned by ``turn * pose_6`` (the sense
+    :func:`drag_rotation` finds: -1)."""
+    x = move_design(cols, edge=edge, turn=turn if edge else 0.0)[:, :2]
+    length = np.hypot(x[:, 0], x[:, 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        along = -(np.asarray(drag, float) * x).sum(axis=1) / length
+    groups = ({k: (cols["pose_2"] > lo) & (cols["pose_2"] < hi)
+               for k, (lo, hi) in EDGE_GROUPS_MM.items()} if edge
+              else {"all taps": np.ones(len(length), bool)})
+    out = {}
+    for name, sel in groups.items():
+        row = []
+        for lo, hi in zip(CURVE_BINS_MM[:-1], CURVE_BINS_MM[1:], strict=True):
+            m = sel & (length >= lo) & (length < hi) & np.isfinite(along)
+            row.append(float(along[m].mean()) if m.any() else float("nan"))
+        out[name] = row
+    return out
+
+
+def curve_distance(a: dict[str, list[float]], b: dict[str, list[float]]) -> float:
+    """RMS difference (pixels) of two :func:`drag_curve` readings over the bins both have."""
+    d = np.array([x - y for k in a for x, y in zip(a[k], b[k], strict=True)], dtype=float)
+    return float(np.sqrt(np.nanmean(d ** 2)))
+
+
 def drag_rotation(real: tuple[dict, np.ndarray], sim: tuple[dict, np.ndarray], *,
                   edge: bool, boot: int = 500, seed: int = 0) -> dict[str, Any]:
     """How far the real camera is turned against the simulated one: ``phi`` (deg, image
@@ -111,5 +150,5 @@ def drag_rotation(real: tuple[dict, np.ndarray], sim: tuple[dict, np.ndarray], *
             "n_real": int(len(xr)), "n_sim": int(len(xs))}
 
 
-__all__ = ["drag_rotation", "fit_drag_map", "map_rotation_deg", "mean_drag", "move_design",
-           "wrap_deg"]
+__all__ = ["CURVE_BINS_MM", "EDGE_GROUPS_MM", "curve_distance", "drag_curve", "drag_rotation",
+           "fit_drag_map", "map_rotation_deg", "mean_drag", "move_design", "wrap_deg"]
