@@ -1155,27 +1155,30 @@ def _identified_scene():
 
 
 def test_surface_taps_under_shear_draw_their_friction_per_tap(tmp_path, monkeypatch):
-    """The surface taps under shear draw each tap's friction over the cited 0.5-1 (seeded: the
-    same draw in another folder), a single value given is every tap's, and the folder's
-    record says which (tasks.TASK_FRICTION)."""
+    """The surface taps under shear draw each tap's friction over a range given (seeded: the
+    same draw in another folder), a single value is every tap's (by default the one read
+    from the lab's drag, tasks.SURFACE_SHEAR_FRICTION), and the folder's record says which
+    (tasks.TASK_FRICTION)."""
     import tactip_sim as ts
     from tactip_lab.real import tasks
 
     used = _record_presses(monkeypatch)
     monkeypatch.setattr(tasks, "shear_path", lambda *a, **k: [ts.Pose(depth_mm=1.0)] * 3)
     scene = _identified_scene()
-    tasks.simulate_task(scene, tmp_path / "a", "surface+shear", 8, progress=False)
+    tasks.simulate_task(scene, tmp_path / "a", "surface+shear", 8, friction=(0.5, 1.0),
+                        progress=False)
     first = list(used)
     assert len(first) == 8 and all(0.5 <= m <= 1.0 for m in first)
     assert np.ptp(first) > 0.1  # drawn, not one value
-    tasks.simulate_task(scene, tmp_path / "b", "surface+shear", 8, progress=False)
+    tasks.simulate_task(scene, tmp_path / "b", "surface+shear", 8, friction=(0.5, 1.0),
+                        progress=False)
     assert used[8:] == first  # seeded
     assert json.loads((tmp_path / "a" / "timing.json").read_text())["friction"] == [0.5, 1.0]
-    tasks.simulate_task(scene, tmp_path / "c", "surface+shear", 3, friction=0.7,
-                        progress=False)
-    assert used[16:] == [0.7] * 3
+    tasks.simulate_task(scene, tmp_path / "c", "surface+shear", 3, progress=False)
+    assert used[16:] == [tasks.SURFACE_SHEAR_FRICTION] * 3  # the default: one value
     with pytest.raises(ValueError, match="another protocol.*friction"):  # not mixed on resume
-        tasks.simulate_task(scene, tmp_path / "c", "surface+shear", 3, progress=False)
+        tasks.simulate_task(scene, tmp_path / "c", "surface+shear", 3, friction=(0.5, 1.0),
+                            progress=False)
     # a folder simulated before the whole move was made in contact (no "shear_path" in its
     # protocol) is not resumed: its frames hold a shorter move than their labels
     proto = tmp_path / "a" / "protocol.json"

@@ -365,8 +365,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--friction", type=_friction, default=None, metavar="MU|LOW,HIGH",
                    help="Coulomb coefficient between skin and object, in (0, 3]: one value, "
                    "or a range each tap draws from; default 1.0 for the edge tasks (assumed), "
-                   "0.5,1 for the surface taps under shear, none (frictionless presses) for "
-                   "the surface taps (tactip_lab/real/tasks.py TASK_FRICTION)")
+                   "0.5 for the surface taps under shear (read from the lab's drag), none "
+                   "(frictionless presses) for the surface taps (tactip_lab/real/tasks.py "
+                   "TASK_FRICTION)")
     p.add_argument("--folder-size", type=int, default=None, metavar="N",
                    help="surface tasks: taps in the real folders the field models will read "
                    "(3..100000); the simulated taps are measured from the references the "
