@@ -1157,7 +1157,7 @@ def _identified_scene():
 def test_surface_taps_under_shear_draw_their_friction_per_tap(tmp_path, monkeypatch):
     """The surface taps under shear draw each tap's friction over a range given (seeded: the
     same draw in another folder), a single value is every tap's (by default the one read
-    from the lab's drag, tasks.SURFACE_SHEAR_FRICTION), and the folder's record says which
+    from the lab's drag, tasks.SHEAR_FRICTION), and the folder's record says which
     (tasks.TASK_FRICTION)."""
     import tactip_sim as ts
     from tactip_lab.real import tasks
@@ -1175,7 +1175,7 @@ def test_surface_taps_under_shear_draw_their_friction_per_tap(tmp_path, monkeypa
     assert used[8:] == first  # seeded
     assert json.loads((tmp_path / "a" / "timing.json").read_text())["friction"] == [0.5, 1.0]
     tasks.simulate_task(scene, tmp_path / "c", "surface+shear", 3, progress=False)
-    assert used[16:] == [tasks.SURFACE_SHEAR_FRICTION] * 3  # the default: one value
+    assert used[16:] == [tasks.SHEAR_FRICTION] * 3  # the default: one value
     with pytest.raises(ValueError, match="another protocol.*friction"):  # not mixed on resume
         tasks.simulate_task(scene, tmp_path / "c", "surface+shear", 3, friction=(0.5, 1.0),
                             progress=False)

@@ -364,8 +364,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="load steps of the move in contact (--shear; default 4)")
     p.add_argument("--friction", type=_friction, default=None, metavar="MU|LOW,HIGH",
                    help="Coulomb coefficient between skin and object, in (0, 3]: one value, "
-                   "or a range each tap draws from; default 1.0 for the edge tasks (assumed), "
-                   "0.5 for the surface taps under shear (read from the lab's drag), none "
+                   "or a range each tap draws from; default 1.0 for the edge taps (assumed), "
+                   "0.5 for the taps under shear (read from the lab's drag), none "
                    "(frictionless presses) for the surface taps (tactip_lab/real/tasks.py "
                    "TASK_FRICTION)")
     p.add_argument("--folder-size", type=int, default=None, metavar="N",

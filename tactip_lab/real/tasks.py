@@ -231,33 +231,43 @@ and touches again is refused. Until the ninth session every path partly out of c
 refused: 30 of the 600 edge taps under shear, the approaches and retreats beside the edge
 that the lab's folders hold (docs/sim2real.md)."""
 FRICTION_ASSUMED = 1.0
-"""Coulomb coefficient between skin and object (edge taps, shear moves): *assumed*, not
-published for the lab's skin (a rubber-like print) and its printed block; rubber on rigid
-plastic is commonly 0.5-1 and more. At 0.5 the simulated skin still slides sideways where the
-block's corner presses it (centre 2 mm beside the edge, 2 mm deep: a mean marker shift of
-1.71 px against a mean displacement of 3.1 px on the raw frame), which the real edge taps do
-not show (docs/sim2real.md, the frames side by side); at 1 the shift is 0.07 px, at 2 0.08 px."""
+"""Coulomb coefficient between skin and object (edge taps; the shear moves too until
+2026-11-30, :data:`SHEAR_FRICTION` since): *assumed*, not published for the lab's skin (a
+rubber-like print) and its printed block; rubber on rigid plastic is commonly 0.5-1 and more.
+At 0.5 the simulated skin still slides sideways where the block's corner presses it (centre
+2 mm beside the edge, 2 mm deep: a mean marker shift of 1.71 px against a mean displacement
+of 3.1 px on the raw frame), which the real edge taps do not show (docs/sim2real.md, the
+frames side by side); at 1 the shift is 0.07 px, at 2 0.08 px."""
 
 
-SURFACE_SHEAR_FRICTION = 0.5
-"""The surface taps under shear: skin on the lab's plate, *read from the lab's shear taps*
-(since 2026-11-30, twelfth session; drawn over 0.5-1 before). A shear move drags the skin
-in proportion while it sticks and no further once it slides, so the drag along the move
-against the move's length reads the friction (:func:`~tactip_lab.real.drag.drag_curve`):
-on the 1 000 shared real taps it levels off at ~2 px (128x128) from 1.5-2 mm of move; the
-simulated skin drawn over 0.5-1 keeps following to 3.9 px at 5-6 mm (curves 1.17 px apart,
-RMS over 1 mm bins), at 0.25 it levels off at 1.2-1.4 px (0.88 px apart), at 0.5 at 2.2-2.6
-px (0.40 px apart). By a rule written before the simulations at 0.25 and 0.5 (the best
-candidate, if under half the shipped curve's distance), 0.5 (docs/sim2real.md, "The camera's
-turn and the friction, read from the drag")."""
+SHEAR_FRICTION = 0.5
+"""The taps under shear: skin on the lab's plate and on its block, *read from the lab's shear
+taps* (since 2026-11-30, twelfth session; before, the surface drew 0.5-1 and the edge had
+:data:`FRICTION_ASSUMED`). A shear move drags the skin in proportion while it sticks and no
+further once it slides, so the drag along the move against the move's length reads the
+friction (:func:`~tactip_lab.real.drag.drag_curve`; RMS of the real minus the simulated curve
+over 1 mm bins of the move, 128x128 pixels):
+
+- surface (1 000 real taps): the real drag levels off at ~2 px from 1.5-2 mm of move; the
+  simulated skin drawn over 0.5-1 keeps following to 3.9 px (1.17 px apart), at 0.25 it
+  levels off at 1.2-1.4 px (0.88 apart), at 0.5 at 2.2-2.6 px (**0.40** apart);
+- edge (500 real taps, over the block and beside it): the real drag levels off at ~1 px over
+  the block from the first mm; at 1 the simulated one grows to 2.5 px (0.85 apart), at 2 to
+  4.6 px (1.96), at 0.25 and 0.5 it levels off (0.252 and **0.248** apart).
+
+By a rule written before the simulations at 0.25 and 0.5 (a task's best candidate, if under
+half its shipped curve's distance), 0.5 for both (docs/sim2real.md, "The camera's turn and
+the friction, read from the drag"). The edge taps without shear keep
+:data:`FRICTION_ASSUMED` (the same rule: their reason, the slide at the block's corner, is a
+contact without a move)."""
 TASK_FRICTION: dict[str, float | tuple[float, float]] = {
-    "edge": FRICTION_ASSUMED, "edge+shear": FRICTION_ASSUMED,
-    "surface+shear": SURFACE_SHEAR_FRICTION}
+    "edge": FRICTION_ASSUMED, "edge+shear": SHEAR_FRICTION, "surface+shear": SHEAR_FRICTION}
 """Each task's friction: one value, or a range each simulated tap draws from (uniform,
-seeded). The edge tasks keep :data:`FRICTION_ASSUMED`, for the measured reason in its note
+seeded). The edge taps keep :data:`FRICTION_ASSUMED`, for the measured reason in its note
 (the real edge taps show no sideways slide at the block's corner, which 0.5 gives). The
-surface taps under shear: :data:`SURFACE_SHEAR_FRICTION`, read from the drag of the lab's
-shear taps; from 2026-11-29 (fifth session) to 2026-11-30 they drew it over the range
+taps under shear: :data:`SHEAR_FRICTION`, read from the drag of the lab's shear taps (the
+edge under shear had :data:`FRICTION_ASSUMED` until 2026-11-30); from 2026-11-29 (fifth
+session) to 2026-11-30 the surface under shear drew it over the range
 :data:`FRICTION_ASSUMED`'s note gives for rubber on rigid plastic, 0.5-1 (docs/sim2real.md,
 "The friction under shear", measures both ends). Published dry values for soft elastomers on
 hard surfaces lie around and above it (above 1 for a silicone skin simulant, L7350, on dry
@@ -627,7 +637,7 @@ def convert_128(sim: Path, dest: Path, expected_count: int, field_128: dict | No
 
 __all__ = ["BLOCK_MM", "COLUMNS", "EDGE_CONVENTION", "EDGE_DEPTH_OFFSET_MM", "FRICTION_ASSUMED",
            "TASK_FRICTION", "IMAGE_YAW_SIGN", "PROTOCOLS", "SHEAR_MOVES", "SHEAR_PATH_RULE",
-           "SURFACE_MOVE_TURN_DEG", "SURFACE_SHEAR_FRICTION",
+           "SHEAR_FRICTION", "SURFACE_MOVE_TURN_DEG",
            "SURFACE_CONTACT_MM", "EdgeConvention", "block_indenter", "contact_path",
            "convert_128", "draw_poses", "edge_contact_depth", "edge_pose", "label_turn",
            "shear_path", "sim_pose", "simulate_task", "simulated_ranges", "tap_poses"]
