@@ -58,6 +58,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tactip_lab.fitting.field_model import wrap_deg
+
 POSITIONS_MM = (-4.5, -2.0, 3.0)
 """Lateral positions (``pose_2``; negative: the sensor's centre beside the block)."""
 TIP_DEPTH_MM = 2.2
@@ -194,7 +196,7 @@ def split_rows(folder: Path | None, run: Path) -> list[str]:
     if real_yaw is not None:  # the simulated taps within the real folder's span of yaws
         mean, rel = about_circular_mean(real_yaw)
         yaw = EDGE_CONVENTION.yaw(cols["pose_6"])
-        keep = np.abs((yaw - mean + 180) % 360 - 180) <= np.max(np.abs(rel))
+        keep = np.abs(wrap_deg(yaw - mean)) <= np.max(np.abs(rel))
         out.append(row(f"simulated {run.name}, the real folder's yaws", rest, pts[keep],
                        {k: v[keep] for k, v in cols.items()}, SPLIT_BINS["real"]))
     return out
@@ -302,14 +304,14 @@ def real_centres(folder: Path) -> list[str]:
 def about_circular_mean(yaw: np.ndarray) -> tuple[float, np.ndarray]:
     """(the circular mean of angles ``yaw`` in degrees, each angle less it in [-180, 180))."""
     mean = float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(yaw))))))
-    return mean, (np.asarray(yaw) - mean + 180) % 360 - 180
+    return mean, wrap_deg(np.asarray(yaw) - mean)
 
 
 def folder_yaws(yaw: np.ndarray) -> tuple[float, ...]:
     """Three block yaws spanning a folder's (its 1/6, 1/2 and 5/6 quantiles about the
     circular mean), in [-180, 180]."""
     mean, rel = about_circular_mean(yaw)
-    return tuple(float((mean + q + 180) % 360 - 180)
+    return tuple(float(wrap_deg(mean + q))
                  for q in np.quantile(rel, [1 / 6, 1 / 2, 5 / 6]))
 
 

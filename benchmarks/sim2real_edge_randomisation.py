@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tactip_lab.fitting.field_model import wrap_deg
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "tactip_331_identified.toml"
 REAL = {False: ROOT.parent / "shared" / "real" / "tactip331_edge128",
@@ -87,7 +89,7 @@ def variant_row(run: Path, real: Path) -> dict[str, float]:
     t = [str(v) for v in z["targets"]]
     y, p = z["truth"], z["zero_shot"]
     lat = p[:, t.index("pose_2")] - y[:, t.index("pose_2")]
-    ang = (p[:, t.index("pose_6")] - y[:, t.index("pose_6")] + 180.0) % 360.0 - 180.0
+    ang = wrap_deg(p[:, t.index("pose_6")] - y[:, t.index("pose_6")])
     deep = folder_columns(real)["pose_3"] >= 4.5
     return {"lateral_mae": float(zero["pose_2"]["mae"]), "lateral_mean": float(np.nanmean(lat)),
             "angle_mae": float(zero["pose_6"]["mae"]), "angle_median": float(np.nanmedian(ang)),

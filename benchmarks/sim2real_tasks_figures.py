@@ -20,13 +20,15 @@ from pathlib import Path
 
 import numpy as np
 
+from tactip_lab.fitting.field_model import wrap_deg
+
 
 def _nearest(y_sim: np.ndarray, y: np.ndarray, wraps: list[bool], scale: list[float]) -> int:
     d = np.zeros(len(y_sim))
     for j, (w, s) in enumerate(zip(wraps, scale, strict=True)):
         e = y_sim[:, j] - y[j]
         if w:
-            e = (e + 180) % 360 - 180
+            e = wrap_deg(e)
         d += (e / s) ** 2
     return int(np.argmin(d))
 
@@ -113,28 +115,33 @@ def _circular_mean(a: np.ndarray, seed: int = 0, draws: int = 2000) -> tuple[flo
     mean = float(np.rad2deg(np.angle(u.mean())))
     rng = np.random.default_rng(seed)
     boot = np.rad2deg(np.angle(u[rng.integers(0, len(u), (draws, len(u)))].mean(axis=1)))
-    se = float(np.std((boot - mean + 180) % 360 - 180))
+    se = float(np.std(wrap_deg(boot - mean)))
     return mean, se, float(abs(u.mean()))
 
 
 def origin_reading(run: Path, real: Path) -> float:
-    """The edge angle origin read by the contact-side descriptor (printed; returned)."""
-    from tactip_lab.real.tasks import EDGE_CONVENTION
+    """The edge angle origin read by the contact-side descriptor (printed; returned). The
+    simulated taps' yaw is the one the run made them with (its ``sim/protocol.json``)."""
+    import json
+
+    from tactip_lab.real.tasks import EdgeConvention
+
+    made = EdgeConvention(**json.loads((run / "sim" / "protocol.json").read_text())["convention"])
 
     phi, cols = _contact_side_angles(run / f"real_{real.name}_points.npz", real)
     sel = np.isfinite(phi) & (cols["pose_2"] < -3)
     c_real, se_real, r_real = _circular_mean(phi[sel] + cols["pose_6"][sel])
     phi_s, cols_s = _contact_side_angles(run / "sim128_points.npz", run / "sim128")
     sel_s = np.isfinite(phi_s) & (cols_s["pose_2"] < -3)
-    yaw = EDGE_CONVENTION.yaw(cols_s["pose_6"][sel_s])
+    yaw = made.yaw(cols_s["pose_6"][sel_s])
     c_sim, se_sim, r_sim = _circular_mean(yaw - phi_s[sel_s])
     origin = (c_real + c_sim) % 360
     print(f"real: image angle = {c_real:.2f} - pose_6 (se {se_real:.2f}, resultant "
           f"{r_real:.3f}, n {int(sel.sum())})")
     print(f"simulated: image angle = yaw - {c_sim:.2f} (se {se_sim:.2f}, resultant "
           f"{r_sim:.3f}, n {int(sel_s.sum())})")
-    print(f"origin: yaw = {origin:.2f} - pose_6 (se {np.hypot(se_real, se_sim):.2f}; in use "
-          f"{EDGE_CONVENTION.angle_origin_deg})")
+    print(f"origin: yaw = {origin:.2f} - pose_6 (se {np.hypot(se_real, se_sim):.2f}; the run "
+          f"made its taps with {made.angle_origin_deg})")
     return float(origin)
 
 

@@ -168,7 +168,8 @@ def smooth_field(nodes: np.ndarray, r: np.ndarray, d: np.ndarray, bandwidth: flo
     return g
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
+def wrap_deg(a: Any) -> np.ndarray:
+    """Angles (deg) wrapped into [-180, 180)."""
     return (np.asarray(a, dtype=float) + 180.0) % 360.0 - 180.0
 
 
@@ -189,7 +190,7 @@ def decode(z: np.ndarray, targets: list[str]) -> np.ndarray:
     cols, k = [], 0
     for name in targets:
         if TARGETS[name]["wraps"]:
-            cols.append(_wrap(np.rad2deg(np.arctan2(z[:, k], z[:, k + 1]))))
+            cols.append(wrap_deg(np.rad2deg(np.arctan2(z[:, k], z[:, k + 1]))))
             k += 2
         else:
             cols.append(z[:, k])
@@ -204,7 +205,7 @@ def deviation_from_mean(t: np.ndarray, wraps: bool) -> np.ndarray:
     if not wraps:
         return t - t.mean()
     a = np.deg2rad(t)
-    return _wrap(t - np.rad2deg(np.arctan2(np.sin(a).mean(), np.cos(a).mean())))
+    return wrap_deg(t - np.rad2deg(np.arctan2(np.sin(a).mean(), np.cos(a).mean())))
 
 
 def target_scores(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> dict[str, Any]:
@@ -221,7 +222,7 @@ def target_scores(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> dict[s
             out[name] = {"mae": float("nan"), "rmse": float("nan"), "r2": float("nan"),
                          "unit": TARGETS[name]["unit"], "n": int(len(t)), "wrapped": wraps}
             continue
-        err = _wrap(p - t) if wraps else p - t
+        err = wrap_deg(p - t) if wraps else p - t
         dev = deviation_from_mean(t, wraps)
         ss = float(np.sum(dev ** 2))
         out[name] = {"mae": float(np.mean(np.abs(err))),
@@ -574,7 +575,7 @@ def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str]
         yk = np.array(y, dtype=float, copy=True)
         for j, t in enumerate(targets):
             if t in label_turn:
-                yk[:, j] = (yk[:, j] + label_turn[t] * d + 180.0) % 360.0 - 180.0
+                yk[:, j] = wrap_deg(yk[:, j] + label_turn[t] * d)
         ys.append(yk)
     return np.concatenate(xs), np.concatenate(ys)
 
@@ -583,4 +584,5 @@ __all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "INVAR
            "INVARIANCES", "TARGETS", "FieldModel", "affine_design", "augment", "decode",
            "deviation_from_mean", "encode", "field_features", "fields_of", "grid_nodes",
            "is_field_model", "load_field_model", "median_gamma", "pack_array", "remove_affine",
-           "rotate", "smooth_field", "target_scores", "task_targets", "unpack_array"]
+           "rotate", "smooth_field", "target_scores", "task_targets", "unpack_array",
+           "wrap_deg"]

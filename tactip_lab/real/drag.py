@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from tactip_lab.fitting.field_model import wrap_deg
+
 
 def mean_drag(rest: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """(n, 2) mean displacement of the tracked markers ``pts`` (n, m, 2) from ``rest`` (m, 2);
@@ -68,11 +70,6 @@ def map_rotation_deg(a: np.ndarray) -> tuple[float, float]:
     u, _, vt = np.linalg.svd(np.asarray(a, dtype=float))
     r = u @ vt
     return float(np.degrees(np.arctan2(r[1, 0], r[0, 0]))), float(np.sign(np.linalg.det(r)))
-
-
-def wrap_deg(a: Any) -> Any:
-    """Angles wrapped into [-180, 180)."""
-    return (np.asarray(a, dtype=float) + 180.0) % 360.0 - 180.0
 
 
 CURVE_BINS_MM = np.arange(0.0, 7.0, 1.0)
@@ -151,4 +148,4 @@ def drag_rotation(real: tuple[dict, np.ndarray], sim: tuple[dict, np.ndarray], *
 
 
 __all__ = ["CURVE_BINS_MM", "EDGE_GROUPS_MM", "curve_distance", "drag_curve", "drag_rotation",
-           "fit_drag_map", "map_rotation_deg", "mean_drag", "move_design", "wrap_deg"]
+           "fit_drag_map", "map_rotation_deg", "mean_drag", "move_design"]

@@ -40,6 +40,7 @@ from tactip_lab.fitting.field_model import (
     fields_of,
     target_scores,
     task_targets,
+    wrap_deg,
 )
 from tactip_lab.fitting.references import (
     folder_points,
@@ -304,7 +305,7 @@ def few_shot(pred: np.ndarray, y: np.ndarray, targets: list[str], k: int, seed: 
         if TARGETS[t]["wraps"]:
             e = np.deg2rad(y[shot, j] - pred[shot, j])
             off = float(np.rad2deg(np.arctan2(np.sin(e).mean(), np.cos(e).mean())))
-            out[:, j] = (out[:, j] + off + 180) % 360 - 180
+            out[:, j] = wrap_deg(out[:, j] + off)
             corr[t] = {"offset": off}
         else:
             a, b = np.polyfit(pred[shot, j], y[shot, j], 1)
@@ -368,7 +369,7 @@ def cv_tap_losses(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> np.nda
         spread = _spread(y[:, j], t)
         e = pred[:, j] - y[:, j]
         if TARGETS[t]["wraps"]:
-            e = (e + 180.0) % 360.0 - 180.0
+            e = wrap_deg(e)
         out += np.abs(e) / spread if spread > 0 else 0.0 * e
     return out
 
@@ -599,7 +600,7 @@ def chart(path: Path, y: np.ndarray, pred: np.ndarray, targets: list[str], title
     for ax, j, t in zip(np.atleast_1d(axs), range(len(targets)), targets, strict=True):
         p = pred[:, j]
         if TARGETS[t]["wraps"]:  # unwrap the prediction onto the truth's side
-            p = y[:, j] + ((p - y[:, j] + 180) % 360 - 180)
+            p = y[:, j] + wrap_deg(p - y[:, j])
         ax.scatter(y[:, j], p, s=4, alpha=0.5)
         lo, hi = float(np.nanmin(y[:, j])), float(np.nanmax(y[:, j]))
         ax.plot([lo, hi], [lo, hi], "k--", lw=0.8)

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 import tactip_sim as ts
+from tactip_lab.fitting.field_model import wrap_deg
 
 COLUMNS = ["sensor_image", "pose_1", "pose_2", "pose_3", "pose_4", "pose_5", "pose_6",
            "move_1", "move_2", "move_3", "move_4", "move_5", "move_6"]
@@ -117,7 +118,7 @@ class EdgeConvention:
                              "[-10, 10] deg (a block's face, not a tilted tap)")
 
     def yaw(self, pose_6: np.ndarray) -> np.ndarray:
-        return (self.angle_sign * np.asarray(pose_6) + self.angle_origin_deg + 180) % 360 - 180
+        return wrap_deg(self.angle_sign * np.asarray(pose_6) + self.angle_origin_deg)
 
 
 EDGE_CONVENTION = EdgeConvention(lateral_sign=1.0, angle_sign=-1.0, angle_origin_deg=179.5,
