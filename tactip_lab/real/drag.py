@@ -1,14 +1,15 @@
-"""The camera's turn about its axis, read from the skin's drag under shear.
+"""The camera's turn about its axis and the skin's friction, read from the drag under shear.
 
 A shear move made in contact drags the skin along it, so the mean image displacement of the
 markers (the *drag*) follows the move's direction through the camera. Fitting the map from the
 move to the drag on real taps and on simulated taps of the same labels, the angle between the
-two maps is how far the real camera is turned against the simulated one about its axis: the
-convention that places a label's direction in the image (the edge's angle origin, the surface
-shear's move frame; :mod:`tactip_lab.real.tasks`). It reads only the move labels and the
-tracked markers; no model, no score. ``benchmarks/shear_drag_rotation.py`` runs it on
-``tactip sim2real --shear`` outputs (docs/sim2real.md, "The camera's turn, read from the
-drag").
+two maps is how far the real camera is turned against the simulated one about its axis
+(:func:`drag_rotation`): the convention that places a label's direction in the image (the
+edge's angle origin, the surface shear's move frame; :mod:`tactip_lab.real.tasks`). And the
+drag against the move's length (:func:`drag_curve`) says how far the skin follows before it
+slides: the friction. Both read only the move labels and the tracked markers; no model, no
+score. ``benchmarks/shear_drag_rotation.py`` runs them on ``tactip sim2real --shear`` outputs
+(docs/sim2real.md, "The camera's turn and the friction, read from the drag").
 """
 
 from __future__ import annotations
