@@ -172,12 +172,18 @@ def _over_block(cols: dict[str, np.ndarray]) -> np.ndarray:
 
 def split_rows(folder: Path | None, run: Path) -> list[str]:
     """The ``--split`` table's rows: the real folder (None: skipped), ``run``'s simulated taps
-    over the whole circle and over the real folder's slice of it."""
-    from tactip_lab.real.task_run import folder_columns
-    from tactip_lab.real.tasks import EDGE_CONVENTION
+    over the whole circle and over the real folder's slice of it. The real taps' yaws are the
+    convention in use; the simulated ones' are those the run made them with (its
+    ``sim/protocol.json``)."""
+    import json
 
-    def row(name: str, rest, pts, cols, bins: int) -> str:
-        side = EDGE_CONVENTION.yaw(cols["pose_6"]) + CONTACT_SIDE_DEG
+    from tactip_lab.real.task_run import folder_columns
+    from tactip_lab.real.tasks import EDGE_CONVENTION, EdgeConvention
+
+    made = EdgeConvention(**json.loads((run / "sim" / "protocol.json").read_text())["convention"])
+
+    def row(name: str, rest, pts, cols, bins: int, conv: EdgeConvention) -> str:
+        side = conv.yaw(cols["pose_6"]) + CONTACT_SIDE_DEG
         keep = _over_block(cols)
         (nrm, along, x, y), rms = split_centre(rest, pts[keep], side[keep], bins)
         return (f"| {name} ({int(keep.sum())} taps) | {nrm:+.3f}, {along:+.3f} | "
@@ -186,19 +192,20 @@ def split_rows(folder: Path | None, run: Path) -> list[str]:
     out, real_yaw = [], None
     if folder is not None:
         cols, rest, pts = _real_taps(folder)
-        out.append(row(f"real {folder.name}", rest, pts, cols, SPLIT_BINS["real"]))
+        out.append(row(f"real {folder.name}", rest, pts, cols, SPLIT_BINS["real"],
+                       EDGE_CONVENTION))
         real_yaw = EDGE_CONVENTION.yaw(cols["pose_6"][_over_block(cols)])
     z = np.load(run / "sim128_points.npz")
     rest, pts = z["rest"], z["pts"]
     cols = {k: v[:len(pts)] for k, v in folder_columns(run / "sim").items()}
     out.append(row(f"simulated {run.name}, the full circle", rest, pts, cols,
-                   SPLIT_BINS["simulated"]))
+                   SPLIT_BINS["simulated"], made))
     if real_yaw is not None:  # the simulated taps within the real folder's span of yaws
         mean, rel = about_circular_mean(real_yaw)
-        yaw = EDGE_CONVENTION.yaw(cols["pose_6"])
+        yaw = made.yaw(cols["pose_6"])
         keep = np.abs(wrap_deg(yaw - mean)) <= np.max(np.abs(rel))
         out.append(row(f"simulated {run.name}, the real folder's yaws", rest, pts[keep],
-                       {k: v[keep] for k, v in cols.items()}, SPLIT_BINS["real"]))
+                       {k: v[keep] for k, v in cols.items()}, SPLIT_BINS["real"], made))
     return out
 
 
