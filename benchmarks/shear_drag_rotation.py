@@ -5,7 +5,7 @@ markers follows the move's direction. The same labels give the same moves in sim
 the angle between the real and the simulated maps from move to drag is the camera's turn about
 its axis between the real sensor and the simulated one (``tactip_lab/real/drag.py``): the edge's
 angle origin and the surface shear's move frame (``tactip_lab/real/tasks.py``) without any
-edge label or model score.
+model score.
 
 Usage::
 

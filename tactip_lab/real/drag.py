@@ -7,8 +7,8 @@ two maps is how far the real camera is turned against the simulated one about it
 (:func:`drag_rotation`): the convention that places a label's direction in the image (the
 edge's angle origin, the surface shear's move frame; :mod:`tactip_lab.real.tasks`). And the
 drag against the move's length (:func:`drag_curve`) says how far the skin follows before it
-slides: the friction. Both read only the move labels and the tracked markers; no model, no
-score. ``benchmarks/shear_drag_rotation.py`` runs them on ``tactip sim2real --shear`` outputs
+slides: the friction. Both read the labels and the tracked markers; no model, no score.
+``benchmarks/shear_drag_rotation.py`` runs them on ``tactip sim2real --shear`` outputs
 (docs/sim2real.md, "The camera's turn and the friction, read from the drag").
 """
 

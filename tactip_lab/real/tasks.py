@@ -146,7 +146,7 @@ EDGE_CONVENTION = EdgeConvention(lateral_sign=1.0, angle_sign=-1.0, angle_origin
   edge taps under shear (500, against simulated ones made at 174.5) give 174.5 + 5.06 (se
   0.79); the surface taps under shear (1 000; their move in the simulation's x, y, which is
   an origin of 180) give 180 - 1.10 (se 1.29): they agree within 0.7 deg, and their
-  inverse-variance mean is 179.4, rounded to 179.5. It reads no edge label. The earlier
+  inverse-variance mean is 179.4, rounded to 179.5. No model score enters. The earlier
   values came from the side of the array the edge's contact is on (84.4 - ``pose_6`` on the
   real taps beside the edge against ``yaw - 90.1`` on simulated ones: 174.5; re-read on
   2026-11-30 as 165.0, the descriptor moving 7-9 deg with the reference: good to ~10 deg).
