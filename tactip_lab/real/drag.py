@@ -121,11 +121,12 @@ def drag_rotation(real: tuple[dict, np.ndarray], sim: tuple[dict, np.ndarray], *
     fits the simulated taps better (they cover the full circle), used for both."""
     (cr, dr), (cs, ds) = real, sim
     turns = (1.0, -1.0) if edge else (0.0,)
-    r2_by_turn = {t: fit_drag_map(move_design(cs, edge=edge, turn=t), ds)[1] for t in turns}
+    sim_fits = {t: fit_drag_map(move_design(cs, edge=edge, turn=t), ds) for t in turns}
+    r2_by_turn = {t: fit[1] for t, fit in sim_fits.items()}
     turn = max(r2_by_turn, key=r2_by_turn.__getitem__)
     xr, xs = move_design(cr, edge=edge, turn=turn), move_design(cs, edge=edge, turn=turn)
     a_real, r2_real = fit_drag_map(xr, dr)
-    a_sim, r2_sim = fit_drag_map(xs, ds)
+    a_sim, r2_sim = sim_fits[turn]
     th_real, det_real = map_rotation_deg(a_real)
     th_sim, det_sim = map_rotation_deg(a_sim)
     rng = np.random.default_rng(seed)
