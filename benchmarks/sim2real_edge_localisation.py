@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactip_lab.fitting.field_model import wrap_deg
+from tactip_lab.fitting.field_model import circular_mean_deg, wrap_deg
 
 POSITIONS_MM = (-4.5, -2.0, 3.0)
 """Lateral positions (``pose_2``; negative: the sensor's centre beside the block)."""
@@ -310,7 +310,7 @@ def real_centres(folder: Path) -> list[str]:
 
 def about_circular_mean(yaw: np.ndarray) -> tuple[float, np.ndarray]:
     """(the circular mean of angles ``yaw`` in degrees, each angle less it in [-180, 180))."""
-    mean = float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(yaw))))))
+    mean = circular_mean_deg(yaw)
     return mean, wrap_deg(np.asarray(yaw) - mean)
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactip_lab.fitting.field_model import wrap_deg
+from tactip_lab.fitting.field_model import circular_mean_deg, wrap_deg
 
 
 def _nearest(y_sim: np.ndarray, y: np.ndarray, wraps: list[bool], scale: list[float]) -> int:
@@ -112,7 +112,7 @@ def _circular_mean(a: np.ndarray, seed: int = 0, draws: int = 2000) -> tuple[flo
                                                                                float]:
     """Circular mean (deg), its bootstrap standard error (deg) and the resultant length."""
     u = np.exp(1j * np.deg2rad(a))
-    mean = float(np.rad2deg(np.angle(u.mean())))
+    mean = circular_mean_deg(a)
     rng = np.random.default_rng(seed)
     boot = np.rad2deg(np.angle(u[rng.integers(0, len(u), (draws, len(u)))].mean(axis=1)))
     se = float(np.std(wrap_deg(boot - mean)))

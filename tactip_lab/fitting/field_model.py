@@ -198,14 +198,20 @@ def decode(z: np.ndarray, targets: list[str]) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
+def circular_mean_deg(a: np.ndarray) -> float:
+    """The circular mean of angles in degrees (the direction of the mean unit vector), in
+    [-180, 180]."""
+    r = np.deg2rad(np.asarray(a, dtype=float))
+    return float(np.rad2deg(np.arctan2(np.sin(r).mean(), np.cos(r).mean())))
+
+
 def deviation_from_mean(t: np.ndarray, wraps: bool) -> np.ndarray:
     """Each value's deviation from the values' mean: for a wrapping angle (deg) from their
     circular mean, wrapped to [-180, 180)."""
     t = np.asarray(t, dtype=float)
     if not wraps:
         return t - t.mean()
-    a = np.deg2rad(t)
-    return wrap_deg(t - np.rad2deg(np.arctan2(np.sin(a).mean(), np.cos(a).mean())))
+    return wrap_deg(t - circular_mean_deg(t))
 
 
 def target_scores(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> dict[str, Any]:
