@@ -618,6 +618,19 @@ def test_sim2real_edge_command_end_to_end(tmp_path):
     assert t["pose_6"]["unit"] == "deg" and t["pose_6"]["wrapped"]
     assert t["pose_2"]["mae"] == pytest.approx(z["pose_2"]["mae"], rel=1e-9)
     assert t["pose_6"]["mae"] == pytest.approx(z["pose_6"]["mae"], rel=1e-9)
+    # simulation's own CV predictions are kept beside their labels: the summary's
+    # "predicted by simulation" recomputed from them, and the labels are the simulated folder's
+    from tactip_lab.fitting.field_model import target_scores
+    from tactip_lab.real.task_run import folder_columns
+
+    cv = np.load(out / "sim_cv_128x128.npz")
+    assert list(cv["targets"]) == ["pose_2", "pose_6"]
+    assert int(cv["n_components"]) == s["formats"]["128x128"]["n_components"]
+    again = target_scores(cv["truth"], cv["cv"], ["pose_2", "pose_6"])
+    pbs = s["formats"]["128x128"]["predicted_by_simulation"]
+    assert again["pose_6"]["mae"] == pytest.approx(pbs["pose_6"]["mae"], rel=1e-12)
+    np.testing.assert_array_equal(cv["col_pose_3"], folder_columns(out / "sim")["pose_3"])
+    assert (out / "sim_cv_raw.npz").is_file()
 
 
 # --- the surface field model (issue 52) -------------------------------------------------------
@@ -1297,6 +1310,36 @@ def test_the_press_centre_split_finds_a_known_press_and_its_two_parts():
     assert 0.5 < gain < 1.0
     np.testing.assert_allclose(sol, gain * np.r_[turning, staying], atol=0.003)
     assert rms < 0.01
+
+
+def test_edge_bins_break_errors_down_by_position_and_take_a_slice_across_the_seam():
+    """``sim2real_edge_bins.py``: set errors per tap come back per 2 mm bin (angles wrapped:
+    a prediction of -178 for 178 is 4 deg off), and the real folder's slice of edge angles
+    (170 ... -150 across the seam) keeps the angles inside it only."""
+    import importlib
+    import sys
+
+    from .conftest import ROOT
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        bins = importlib.import_module("sim2real_edge_bins")
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    lateral = np.array([-5.0, -5.0, 1.0, 1.0, 5.5])
+    truth = np.c_[lateral, [178.0, 10.0, 20.0, 30.0, 40.0]]
+    pred = np.c_[lateral + [0.5, -0.5, 1.0, 1.0, 0.2], [-178.0, 12.0, 20.0, 24.0, 40.0]]
+    depth = np.array([3.0, 4.0, 4.0, 4.0, 4.0])
+    rows = {r["lo"]: r for r in bins.bin_rows(lateral, truth, pred, depth)}
+    assert rows[-6.0]["n"] == 2 and rows[-6.0]["lat_mae"] == pytest.approx(0.5)
+    assert rows[-6.0]["lat_mean"] == pytest.approx(0.0)
+    assert rows[-6.0]["ang_mae"] == pytest.approx(3.0)  # 4 (wrapped) and 2
+    assert rows[-6.0]["ang_mae_deep"] == pytest.approx(2.0)  # the 3 mm tap left out
+    assert rows[0.0]["ang_median"] == pytest.approx(-3.0) and rows[0.0]["lat_mean"] == 1.0
+    assert rows[4.0]["n"] == 1 and rows[-2.0]["n"] == 0 and np.isnan(rows[-2.0]["lat_mae"])
+    span = np.array([170.0, 180.0, -170.0, -150.0])
+    got = bins.in_slice(np.array([175.0, -160.0, -140.0, 160.0, 0.0, -150.0]), span)
+    assert got.tolist() == [True, True, False, False, False, True]
 
 
 def test_a_bagged_member_keeps_every_turned_copy_of_its_taps_and_no_other():

@@ -540,6 +540,7 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
             drawn["members"] = REFERENCE_MEMBERS
         k, pred, tried, rows = choose_components(refs, pts, y_sim, targets, size,
                                                  task=cfg.task, seed=cfg.seed)
+        save_sim_cv(out / f"sim_cv_{fmt}.npz", y_sim, pred, targets, k, cols)
         m = fit_model(cfg.task, targets, size, rest, pts, y_sim, fitted_on={
             "simulated": str(sim), "format": fmt, "scene": scene_source,
             "scene_hash": scene_hash(scene), "n_sim": int(len(y_sim)),
@@ -574,6 +575,19 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     atomic_write_text(out / "table.md", table_markdown(summary))
     return summary
+
+
+def save_sim_cv(path: Path, y: np.ndarray, pred: np.ndarray, targets: list[str], k: int,
+                cols: dict[str, np.ndarray]) -> None:
+    """The simulated taps' CV predictions at the chosen component count (what
+    ``predicted_by_simulation`` scores), beside their labels: ``truth``, ``cv``, ``targets``,
+    ``n_components`` and every column of the simulated ``targets.csv`` as ``col_<name>``, so
+    that simulation's own errors can be broken down by pose later
+    (``benchmarks/sim2real_edge_bins.py``). Written whole or not at all."""
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    np.savez(tmp, truth=y, cv=pred, targets=np.array(targets), n_components=k,
+             **{f"col_{c}": np.asarray(v) for c, v in cols.items()})
+    tmp.replace(path)
 
 
 def score_real(model: FieldModel, folder: Path, out: Path, cfg: TaskConfig, fmt: str, *,

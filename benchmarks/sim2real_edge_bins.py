@@ -1,0 +1,115 @@
+"""Where an edge model's errors are: the real taps read zero-shot, beside simulation's own
+cross-validated reading of its taps, by lateral position (docs/sim2real.md).
+
+    python benchmarks/sim2real_edge_bins.py RUN_DIR=REAL_DIR [RUN_DIR=REAL_DIR ...]
+
+Each RUN_DIR is a ``tactip sim2real --task edge [--shear] --out RUN_DIR --real REAL_DIR``
+folder. Printed per 2 mm bin of ``pose_2`` (-6 ... +6 mm; negative beside the edge, positive
+over the block):
+
+- *real*: the run's zero-shot predictions of the real folder (``real_<name>.npz``): taps,
+  ``pose_2`` MAE and mean error (mm), ``pose_6`` MAE and median error (deg, wrapped), and the
+  angle MAE of the taps pressed at least :data:`DEEP_MM` (label ``pose_3``: the shallowest
+  ones barely touch the edge far beside it);
+- *sim CV*: simulation's own 5-fold CV predictions at the chosen component count
+  (``sim_cv_128x128.npz``, written by the run since the thirteenth session), the same
+  figures over the whole circle of edge angles and over the real folder's slice of it
+  (simulated taps whose ``pose_6`` lies within the real labels' span about their circular
+  mean).
+
+A bias the real taps carry and the simulated ones do not is lost in the transfer; one both
+carry is the model's. No model is fitted and nothing is simulated.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from tactip_lab.fitting.field_model import circular_mean_deg, wrap_deg
+
+BINS_MM = (-6.0, -4.0, -2.0, 0.0, 2.0, 4.0, 6.0)
+DEEP_MM = 3.5
+"""Taps pressed at least this deep (label ``pose_3``, mm) in the ``deep`` column: the real
+edge taps far beside the edge that read worst are the ones under it (docs/sim2real.md)."""
+
+
+def bin_rows(lateral: np.ndarray, truth: np.ndarray, pred: np.ndarray, depth: np.ndarray
+             ) -> list[dict[str, float]]:
+    """Per :data:`BINS_MM` bin of ``lateral`` (mm): n, pose_2 MAE and mean error, pose_6 MAE
+    and median error (wrapped), pose_6 MAE of the taps at least :data:`DEEP_MM` deep."""
+    out = []
+    el = pred[:, 0] - truth[:, 0]
+    ea = wrap_deg(pred[:, 1] - truth[:, 1])
+    for lo, hi in zip(BINS_MM[:-1], BINS_MM[1:], strict=True):
+        s = (lateral >= lo) & (lateral < hi) & np.isfinite(el) & np.isfinite(ea)
+        d = s & (depth >= DEEP_MM)
+        out.append({"lo": lo, "hi": hi, "n": int(s.sum()),
+                    "lat_mae": float(np.abs(el[s]).mean()) if s.any() else np.nan,
+                    "lat_mean": float(el[s].mean()) if s.any() else np.nan,
+                    "ang_mae": float(np.abs(ea[s]).mean()) if s.any() else np.nan,
+                    "ang_median": float(np.median(ea[s])) if s.any() else np.nan,
+                    "ang_mae_deep": float(np.abs(ea[d]).mean()) if d.any() else np.nan})
+    return out
+
+
+def in_slice(angles: np.ndarray, span_of: np.ndarray) -> np.ndarray:
+    """Which ``angles`` (deg) lie within the span of ``span_of`` about its circular mean."""
+    mean = circular_mean_deg(span_of)
+    dev = wrap_deg(np.asarray(span_of) - mean)
+    rel = wrap_deg(np.asarray(angles) - mean)
+    return (rel >= dev.min()) & (rel <= dev.max())
+
+
+def _print(title: str, rows: list[dict[str, float]]) -> None:
+    print(f"  {title}")
+    print("    pose_2 bin (mm)   taps  pose_2 MAE (mean)   pose_6 MAE (median)   "
+          f"pose_6 MAE, pose_3 >= {DEEP_MM:g}")
+    for r in rows:
+        print(f"    {r['lo']:+4.0f} … {r['hi']:+4.0f}      {r['n']:5d}  {r['lat_mae']:6.2f} "
+              f"({r['lat_mean']:+5.2f})     {r['ang_mae']:6.2f} ({r['ang_median']:+6.2f})"
+              f"      {r['ang_mae_deep']:6.2f}")
+
+
+def report(run: Path, real: Path) -> None:
+    from tactip_lab.real.task_run import folder_columns
+
+    z = np.load(run / f"real_{real.name}.npz")
+    targets = [str(t) for t in z["targets"]]
+    if targets[:2] != ["pose_2", "pose_6"]:
+        raise SystemExit(f"{run}: targets {targets}; an edge run predicts pose_2 and pose_6")
+    cols = folder_columns(real)
+    truth, zero = z["truth"][:, :2], z["zero_shot"][:, :2]
+    print(f"{run} on {real} ({len(truth)} taps)")
+    _print("real, zero-shot", bin_rows(truth[:, 0], truth, zero, cols["pose_3"]))
+    cv_file = run / "sim_cv_128x128.npz"
+    if not cv_file.is_file():
+        print(f"  sim CV: {cv_file} not written (a run before the thirteenth session)")
+        return
+    c = np.load(cv_file)
+    st, sp = c["truth"][:, :2], c["cv"][:, :2]
+    depth = c["col_pose_3"]
+    print(f"  ({int(c['n_components'])} components)")
+    _print("sim CV, every edge angle", bin_rows(st[:, 0], st, sp, depth))
+    keep = in_slice(st[:, 1], truth[:, 1])
+    _print(f"sim CV, the real folder's slice of pose_6 ({int(keep.sum())} taps)",
+           bin_rows(st[keep, 0], st[keep], sp[keep], depth[keep]))
+
+
+def main(argv: list[str]) -> int:
+    if not argv or any(a in ("-h", "--help") for a in argv):
+        print(__doc__)
+        return 0 if argv else 2
+    for pair in argv:
+        if "=" not in pair:
+            print(f"expected RUN_DIR=REAL_DIR, got {pair!r}", file=sys.stderr)
+            return 2
+        run, real = (Path(p) for p in pair.split("=", 1))
+        report(run, real)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
