@@ -606,6 +606,18 @@ def test_sim2real_edge_command_end_to_end(tmp_path):
                  "real_real.png", "real_real.npz"):
         assert (out / name).is_file(), name
     s = json.loads((out / "summary.json").read_text())
+    # the default two draws: seeds 0 and 1, each its own folder and labels; the saved model
+    # averages three members fitted on each (ceil(5 / 2))
+    from tactip_lab.fitting.field_model import load_field_model
+    from tactip_lab.real.task_run import TASK_DRAWS, folder_columns
+
+    assert TASK_DRAWS["edge"] == 2 and [d["seed"] for d in s["simulated"]["draws"]] == [0, 1]
+    assert json.loads((out / "sim_d1" / "protocol.json").read_text())["seed"] == 1
+    assert s["simulated"]["n"] == 40 and (out / "sim128_d1_points.npz").is_file()
+    assert not np.allclose(folder_columns(out / "sim")["pose_2"],
+                           folder_columns(out / "sim_d1")["pose_2"])
+    assert len(load_field_model(out / "model.json").members) + 1 == 6
+    assert s["formats"]["raw"]["members"] == 6
     z = s["real"][str(sub)]["zero_shot"]
     assert set(z) == {"pose_2", "pose_6"} and z["pose_2"]["unit"] == "mm"
     ev = tmp_path / "ev.json"
@@ -621,7 +633,6 @@ def test_sim2real_edge_command_end_to_end(tmp_path):
     # simulation's own CV predictions are kept beside their labels: the summary's
     # "predicted by simulation" recomputed from them, and the labels are the simulated folder's
     from tactip_lab.fitting.field_model import target_scores
-    from tactip_lab.real.task_run import folder_columns
 
     cv = np.load(out / "sim_cv_128x128.npz")
     assert list(cv["targets"]) == ["pose_2", "pose_6"]
@@ -943,7 +954,13 @@ def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path
                       (["--task", "edge", "--folder-size", "300"],
                        "--folder-size is for the surface tasks"),
                       (["--model", "cop", "--folder-size", "300"],
-                       "--folder-size is for the field models")):
+                       "--folder-size is for the field models"),
+                      (["--task", "edge", "--draws", "0"], "--draws=0 is out of range"),
+                      (["--task", "edge", "--draws", "17"], "--draws=17 is out of range"),
+                      (["--draws", "2"], "--draws is for the edge tasks"),
+                      (["--shear", "--draws", "3"], "--draws is for the edge tasks"),
+                      (["--model", "cop", "--draws", "2"], "--draws is for the edge tasks' "
+                       "field models")):
         out = tmp_path / f"o{len(argv)}{argv[-1]}"
         assert main(["sim2real", scene, "--out", str(out), "--no-progress", *argv]) != 0
         assert msg in capsys.readouterr().err
@@ -1117,23 +1134,29 @@ def test_a_minimum_below_the_grid_is_bracketed_by_halving(monkeypatch):
     assert calls == [20, 40, 80, 160, 10, 5] and k == 5 == tr.COMPONENT_FLOOR
 
 
-def test_cv_loss_weighs_units_alike_and_wraps_angles():
-    from tactip_lab.real.task_run import cv_loss
+def test_cv_loss_weighs_each_unit_by_its_tolerance_and_wraps_angles():
+    """The loss is each target's MAE over its unit's tolerance (0.5 mm, 5 deg): a model at
+    the goal in both edge targets scores 2, whatever the spread of the labels; an angle's
+    error is wrapped across the seam."""
+    from tactip_lab.real.task_run import cv_loss, cv_tap_losses
 
-    # an angle across the seam, 150 and -170 (= 190): circular mean 170, deviations 20
-    y = np.array([[150.0, 1.0], [-170.0, 3.0]])
+    y = np.array([[150.0, 1.0], [-178.0, 3.0]])
     assert cv_loss(y, y, ["pose_6", "pose_2"]) == pytest.approx(0.0)
     assert cv_loss(y + [360.0, 0.0], y, ["pose_6", "pose_2"]) == pytest.approx(0.0)
-    # the constant (170 deg, 2 mm): each target off by its own mean deviation -> 1 + 1
-    mean = np.array([[170.0, 2.0], [170.0, 2.0]])
-    assert cv_loss(y, mean, ["pose_6", "pose_2"]) == pytest.approx(2.0)
-    # off by half the deviation in one unit only
-    half = np.array([[160.0, 1.0], [-180.0, 3.0]])
-    assert cv_loss(y, half, ["pose_6", "pose_2"]) == pytest.approx(0.5)
+    # 5 deg and 0.5 mm off each tap, the second angle across the seam (-178 read as 177 is
+    # 5 deg off, not 355): 1 + 1
+    goal = np.array([[155.0, 1.5], [177.0, 2.5]])
+    assert cv_loss(y, goal, ["pose_6", "pose_2"]) == pytest.approx(2.0)
+    # the same errors on labels spread ten times wider weigh the same
+    wide = y * [1.0, 10.0]
+    assert cv_loss(wide, wide + (goal - y), ["pose_6", "pose_2"]) == pytest.approx(2.0)
+    # 1 mm weighs as 10 deg: 10 deg off in the angle alone equals 1 mm off in the lateral alone
+    ten = y + [[10.0, 0.0], [-10.0, 0.0]]
+    one = y + [[0.0, 1.0], [0.0, -1.0]]
+    assert cv_loss(y, ten, ["pose_6", "pose_2"]) == pytest.approx(
+        cv_loss(y, one, ["pose_6", "pose_2"])) == pytest.approx(2.0)
     # the taps' shares (the one-standard-error rule's spread) average to the loss
-    from tactip_lab.real.task_run import cv_tap_losses
-
-    for p in (mean, half, y + [360.0, 0.0]):
+    for p in (goal, ten, one, y + [360.0, 0.0]):
         assert cv_tap_losses(y, p, ["pose_6", "pose_2"]).mean() == pytest.approx(
             cv_loss(y, p, ["pose_6", "pose_2"]))
 

@@ -169,7 +169,10 @@ surface tap here (``fast``, render included), 0.42 s an edge tap (rods on P2):
   simulating); more would need fewer turns (the kernel model keeps 12 rows a tap).
 - edge under shear: 600 (580 with a path in contact), 1.0 s a tap (rods on P2): simulation's
   CV 1.07 mm / 32.1 deg with 600, 1.01 mm / 31.7 deg with 1 200 (flat: not worth twice the
-  time; with P1 embedded tips it had been 1.66 mm / 53.7 deg with 200, 1.50 / 38.0 with 600)."""
+  time; with P1 embedded tips it had been 1.66 mm / 53.7 deg with 200, 1.50 / 38.0 with 600).
+
+The edge tasks' taps come in ``task_run.TASK_DRAWS`` draws of this many each (since the
+thirteenth session: the draw, not the count, is what moved their zero-shot figures)."""
 COP_N = 300
 """Default simulated taps of ``--task surface --model cop``."""
 
@@ -211,7 +214,8 @@ def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
                              "a field model on the lab's protocol (docs/sim2real.md)")
     cfg = TaskConfig(task=task, n=args.n or TASK_N[task], seed=args.seed, k=args.k,
                      shear_steps=args.shear_steps, depth_range_mm=depth,
-                     friction=args.friction, folder_size=args.folder_size)
+                     friction=args.friction, folder_size=args.folder_size,
+                     draws=args.draws)
     cfg.check()
     for d in [*(args.real or []), *(args.real_raw or [])]:
         if not Path(d).is_dir():
@@ -225,7 +229,9 @@ def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
     s = run_task(scene, args.out, cfg, real=args.real or [], real_raw=args.real_raw or [],
                  progress=not args.no_progress, scene_source=args.scene)
     out = Path(args.out)
-    print(f"field models fitted on {s['simulated']['n']} simulated taps of task {task}: "
+    k = len(s["simulated"].get("draws", ()))
+    print(f"field models fitted on {s['simulated']['n']} simulated taps"
+          f"{f' in {k} draws' if k > 1 else ''} of task {task}: "
           f"{out / 'model.json'} (128x128 processed frames), {out / 'model_raw.json'} (raw); "
           f"targets {', '.join(s['targets'])}")
     for fmt, f in s["formats"].items():
@@ -257,6 +263,9 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
     if args.folder_size is not None:
         raise ValueError("--folder-size is for the field models (--model field): the CoP "
                          "model's taps are measured from the simulated rest frame")
+    if args.draws is not None:
+        raise ValueError("--draws is for the edge tasks' field models (--task edge): the CoP "
+                         "model is fitted on one draw of taps")
     for opt, v in (("--real", args.real), ("--real-raw", args.real_raw)):
         if v and len(v) > 1:
             raise ValueError(f"{opt} given {len(v)} times: the surface taps' run scores one "
@@ -384,6 +393,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--n", type=int, default=None,
                    help="simulated taps (default 3000 surface, 1200 edge, 3000 surface --shear, "
                    f"600 edge --shear; {COP_N} with --model cop)")
+    p.add_argument("--draws", type=int, default=None, metavar="K",
+                   help="edge tasks: independent simulated draws of --n taps each (seeds "
+                   "SEED..SEED+K-1); the saved model is the mean of members fitted on each "
+                   "(default 2 edge, 4 edge --shear: tactip_lab/real/task_run.py TASK_DRAWS)")
     p.add_argument("--depth-range", default=None, metavar="LOW,HIGH",
                    help="simulated depths of the surface taps, mm: with --model field the "
                    "indentation beyond first contact (default 0.5,4: the real folders' field "
