@@ -1365,6 +1365,36 @@ def test_edge_bins_break_errors_down_by_position_and_take_a_slice_across_the_sea
     assert got.tolist() == [True, True, False, False, False, True]
 
 
+def test_draw_spread_groups_members_by_draw_and_splits_draws_into_halves():
+    """``draw_spread.py``: a model of 3 draws x 2 members groups as [head, m1], [m2, m3],
+    [m4, m5] (the head without its members); four draws split into halves three ways, each
+    once; an angle's difference is wrapped (179 against -179 is 2 deg)."""
+    import importlib
+    import sys
+    from types import SimpleNamespace
+
+    from .conftest import ROOT
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        ds = importlib.import_module("draw_spread")
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    members = [SimpleNamespace(name=f"m{i}", members=[]) for i in range(1, 6)]
+    model = SimpleNamespace(name="head", members=members,
+                            fitted_on={"bagged": {"draws": [0, 1, 2]}})
+    groups = ds.draw_groups(model)
+    assert [[m.name for m in g] for g in groups] == [["head", "m1"], ["m2", "m3"], ["m4", "m5"]]
+    assert groups[0][0].members == [] and len(model.members) == 5  # the model is not changed
+    model.fitted_on["bagged"]["draws"] = [0, 1, 2, 3]
+    with pytest.raises(ValueError, match="do not split"):
+        ds.draw_groups(model)
+    assert ds.halves(4) == [((0, 1), (2, 3)), ((0, 2), (1, 3)), ((0, 3), (1, 2))]
+    a = np.array([[1.0, 179.0], [2.0, 10.0]])
+    b = np.array([[1.5, -179.0], [1.0, 14.0]])
+    assert ds.difference(a, b, ["pose_2", "pose_6"]) == pytest.approx([0.75, 3.0])
+
+
 def test_a_bagged_member_keeps_every_turned_copy_of_its_taps_and_no_other():
     """``task_run.bag_rows``: a seeded draw of 80 % of the taps; a kept tap brings all of its
     turned copies (rows ``c * n + i``), a left-out tap none, so no copy of a tap a member did
