@@ -64,7 +64,8 @@ COMPONENT_FLOOR = 5
 """The fewest PCA components the search goes down to: while the lowest CV loss is at the
 fewest count tried, that count is halved and tried too (20 -> 10 -> 5), so a minimum below the
 grid is bracketed, not cut off at its end. The edge tasks' losses rose from 20 upward in every
-run of the twelfth session (docs/sim2real.md, "The component search bracketed")."""
+run of the twelfth session (docs/sim2real.md, "The component search, its loss, and the edge
+models averaged over simulated draws")."""
 NAIVE_COMPONENTS = 50
 NAIVE_ALPHA = 1.0
 FOLDER_SIZE = {"128x128": 300, "raw": 50}
@@ -99,9 +100,11 @@ TASK_DRAWS = {"edge": 2, "edge+shear": 4}
 averages (``--draws``; the surface tasks average over reference draws instead, one draw of
 taps). Two models of the edge taps under shear fitted on two draws of 600 taps read the same
 real frames 0.51 mm / 6.4 deg apart (mean absolute, no label used; 2026-11-30, docs/sim2real.md
-"The edge models averaged over simulated draws"): as large as their errors. The mean over K
-draws is the expectation over the draw; K by the time it costs, 2 400 simulated taps for
-either task (edge 2 x 1 200, under shear 4 x 600), not by a score."""
+"The component search, its loss, and the edge models averaged over simulated draws"): as large
+as their errors. The mean over K draws is the expectation over the draw; K by the time it
+costs, 2 400 simulated taps for either task (edge 2 x 1 200, under shear 4 x 600), not by a
+score. Measured since (``benchmarks/draw_spread.py``): halves of the four draws under shear
+read the frames 0.37 mm / 4.6 deg apart, the single draws' spread over sqrt(2)."""
 DRAWN_REFERENCE_RULES = ("shallowest",)
 """The reference rules whose error the training taps are given (:func:`tap_references`): the
 surface tasks' median of the shallowest presses, which keeps their tilts and depth (a
