@@ -392,7 +392,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "model_raw.json)")
     p.add_argument("--n", type=int, default=None,
                    help="simulated taps (default 3000 surface, 1200 edge, 3000 surface --shear, "
-                   f"600 edge --shear; {COP_N} with --model cop)")
+                   f"600 edge --shear; {COP_N} with --model cop); the edge tasks' in each of "
+                   "--draws draws")
     p.add_argument("--draws", type=int, default=None, metavar="K",
                    help="edge tasks: independent simulated draws of --n taps each (seeds "
                    "SEED..SEED+K-1); the saved model is the mean of members fitted on each "
