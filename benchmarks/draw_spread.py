@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactip_lab.fitting.field_model import TARGETS, load_field_model, wrap_deg
+from tactip_lab.fitting.field_model import TARGETS, load_field_model, target_scores
 
 
 def draw_groups(model) -> list[list]:
@@ -53,14 +53,10 @@ def ensemble(models: list):
 
 
 def difference(a: np.ndarray, b: np.ndarray, targets: list[str]) -> list[float]:
-    """Per target the mean absolute difference of two readings (wrapped for an angle)."""
-    out = []
-    for j, t in enumerate(targets):
-        e = a[:, j] - b[:, j]
-        if TARGETS[t]["wraps"]:
-            e = wrap_deg(e)
-        out.append(float(np.nanmean(np.abs(e))))
-    return out
+    """Per target the mean absolute difference of two readings (wrapped for an angle): the
+    MAE of one against the other (:func:`~tactip_lab.fitting.field_model.target_scores`)."""
+    s = target_scores(a, b, targets)
+    return [s[t]["mae"] for t in targets]
 
 
 def halves(k: int) -> list[tuple[tuple[int, ...], tuple[int, ...]]]:
@@ -104,8 +100,6 @@ def report(run: Path, real: Path, labels: bool) -> None:
                   *(np.mean(pairs, axis=0) / np.sqrt(k / 2))) + ")")
     if not labels:
         return
-    from tactip_lab.fitting.field_model import target_scores
-
     cols = folder_columns(real)
     y = np.stack([cols[t] for t in targets], axis=1)
 
