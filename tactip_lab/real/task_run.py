@@ -565,17 +565,19 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
     sim, cols = draws[0]["sim"], draws[0]["cols"]
     ys = [np.stack([d["cols"][t] for t in targets], axis=1) for d in draws]
     y_sim = ys[0]
+    per_draw_info = [{"folder": str(d["sim"]), "seed": d["seed"], "n": int(len(y)),
+                      "seconds_per_tap": d["timing"].get("seconds_per_tap"),
+                      "failed": d["timing"].get("failed", [])}
+                     for d, y in zip(draws, ys, strict=True)]
+    # a one-draw run keeps its draw's timing and failures at the top, as before draws existed
+    only = ({k: per_draw_info[0][k] for k in ("seconds_per_tap", "failed")}
+            if draws_n == 1 else {})
     summary: dict[str, Any] = {
         "scene": scene_source, "scene_hash": scene_hash(scene), "task": cfg.task,
         "targets": targets, "config": cfg.__dict__, "edge_convention":
         EDGE_CONVENTION.__dict__, "simulated": {
-            "n": int(sum(len(y) for y in ys)), "seconds": t_sim,
-            "seconds_per_tap": draws[0]["timing"].get("seconds_per_tap"),
-            "failed": draws[0]["timing"].get("failed", []),
-            "draws": [{"folder": str(d["sim"]), "seed": d["seed"], "n": int(len(y)),
-                       "seconds_per_tap": d["timing"].get("seconds_per_tap"),
-                       "failed": d["timing"].get("failed", [])}
-                      for d, y in zip(draws, ys, strict=True)]},
+            "n": int(sum(len(y) for y in ys)), "seconds": t_sim, **only,
+            "draws": per_draw_info},
         "formats": {}, "real": {}}
     per_draw = -(-BAG_MEMBERS // draws_n)  # ceil: 5 members for one draw, 3 each for two
     models = {}
