@@ -569,6 +569,30 @@ def test_a_model_averaged_over_its_turns_is_exactly_equivariant_and_reads_new_an
     np.testing.assert_allclose(back.predict_points(rest, pts), pred, atol=1e-9)
 
 
+def test_pooled_rows_of_two_draws_are_the_rows_of_their_taps_taken_together():
+    """Rule 14's pooled CV: two draws' :class:`Rows` pooled equal the rows of all their taps
+    featured at once (a second computation through ``training_rows``), turned copy ``c`` of
+    pooled tap ``i`` at row ``c * n + i``; a part of another copy count is refused."""
+    from tactip_lab.real.task_run import Rows, pool_rows, training_rows
+
+    rest, pts, y = _presses_round_the_circle(7, 3)
+    targets = ["pose_2", "pose_6"]
+    whole = training_rows("edge", targets, rest, pts, y)
+    pooled = pool_rows([training_rows("edge", targets, rest, pts[:4], y[:4]),
+                        training_rows("edge", targets, rest, pts[4:], y[4:])])
+    assert whole.copies > 1 and pooled.copies == whole.copies
+    for a, b in zip(pooled, whole, strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+    # by hand: 2 + 1 taps, 2 copies; rows of copy 0 first, each part's taps in order
+    a = Rows(np.array([[1.0], [2.0]]), np.array([[1.0], [2.0], [10.0], [20.0]]),
+             np.array([[1.0], [2.0], [10.0], [20.0]]), 2)
+    b = Rows(np.array([[3.0]]), np.array([[3.0], [30.0]]), np.array([[3.0], [30.0]]), 2)
+    np.testing.assert_array_equal(pool_rows([a, b]).xa.ravel(), [1, 2, 3, 10, 20, 30])
+    np.testing.assert_array_equal(pool_rows([b, a]).ya.ravel(), [3, 1, 2, 30, 10, 20])
+    with pytest.raises(ValueError, match="turned copies"):
+        pool_rows([a, Rows(b.x, b.x, b.x, 1)])
+
+
 def test_turns_are_only_for_wrapping_targets_and_a_model_without_them_reads_the_frame(tmp_path):
     with pytest.raises(ValueError, match="label_turn"):
         FieldModel("edge", ["pose_2", "pose_6"], (128, 128), label_turn={"pose_2": 1.0},
@@ -640,7 +664,10 @@ def test_sim2real_edge_command_end_to_end(tmp_path):
     again = target_scores(cv["truth"], cv["cv"], ["pose_2", "pose_6"])
     pbs = s["formats"]["128x128"]["predicted_by_simulation"]
     assert again["pose_6"]["mae"] == pytest.approx(pbs["pose_6"]["mae"], rel=1e-12)
-    np.testing.assert_array_equal(cv["col_pose_3"], folder_columns(out / "sim")["pose_3"])
+    # the count was chosen on both draws' taps pooled (rule 14): the CV covers all 40
+    assert len(cv["truth"]) == 40
+    np.testing.assert_array_equal(cv["col_pose_3"], np.concatenate(
+        [folder_columns(out / d)["pose_3"] for d in ("sim", "sim_d1")]))
     assert (out / "sim_cv_raw.npz").is_file()
 
 

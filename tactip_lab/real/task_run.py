@@ -16,8 +16,9 @@ Per real folder (``--real DIR``, repeatable), the figures of docs/sim2real.md:
 Hyper-parameters: the kernel ridge's ``alpha`` and the kernel width rule are fixed
 (:class:`~tactip_lab.fitting.field_model.FieldModel`'s defaults); the number of PCA components
 is chosen from :data:`COMPONENT_GRID` by 5-fold cross-validation within the training taps
-(:func:`choose_components`: the simulated taps for the saved models, the real folder's own for
-the real-trained figure; the fewest within one standard error of the best). None is chosen on
+(:func:`choose_components_rows`: the simulated taps for the saved models, all draws' pooled
+when there are several, the real folder's own for the real-trained figure; the fewest within
+one standard error of the best). None is chosen on
 a score of the data a figure is about: the "predicted by simulation" figure is the selection's
 own CV, so it carries the (small) optimism of picking among four.
 """
@@ -57,7 +58,7 @@ POINTS_VERSION = 2
 without a rest frame, :func:`~tactip_lab.fitting.references.marker_median_reference`)."""
 FOLDS = 5
 COMPONENT_GRID = (20, 40, 80, 160)
-"""PCA components :func:`choose_components` tries (doubling from 20; the field feature has 299
+"""PCA components :func:`choose_components_rows` tries (doubling from 20; the field feature has 299
 numbers). Measured on the simulated surface taps under shear (3 000 taps, 5-fold CV): 40
 components 2.61 / 2.53 deg, 80 2.26 / 2.26 (docs/sim2real.md)."""
 COMPONENT_FLOOR = 5
@@ -283,6 +284,25 @@ def tap_references(rest: np.ndarray, pts: np.ndarray, depth: np.ndarray, task: s
                          "draws": REFERENCE_DRAWS}
 
 
+def pool_rows(parts: list[Rows]) -> Rows:
+    """One :class:`Rows` of the taps of several (each draw's taps featured from its own rest
+    state), in the layout of one: training row ``c * n + i`` is pooled tap ``i``'s turned copy
+    ``c``, the taps in the order of ``parts``."""
+    copies = parts[0].copies
+    if any(p.copies != copies for p in parts):
+        raise ValueError(f"pool_rows: the parts hold {[p.copies for p in parts]} turned copies "
+                         "per tap; pooled rows need one count")
+
+    def block(a: np.ndarray, p: Rows, c: int) -> np.ndarray:
+        n = len(p.x)
+        return a[c * n:(c + 1) * n]
+
+    return Rows(np.concatenate([p.x for p in parts]),
+                np.concatenate([block(p.xa, p, c) for c in range(copies) for p in parts]),
+                np.concatenate([block(p.ya, p, c) for c in range(copies) for p in parts]),
+                copies)
+
+
 def fit_model(task: str, targets: list[str], size, rest, pts, y, fitted_on=None, *,
               n_components: int | None = None, rows: Rows | None = None) -> FieldModel:
     """A :class:`FieldModel` on simulated taps, augmented by turns for the edge
@@ -395,25 +415,14 @@ def cv_tap_losses(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> np.nda
     return out
 
 
-def choose_components(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str],
-                      image_size, *, task: str = "", seed: int = 0,
-                      grid: tuple[int, ...] = COMPONENT_GRID
-                      ) -> tuple[int, np.ndarray, dict[int, dict[str, float]], Rows]:
-    """The PCA component count of ``grid`` by :func:`cv_loss` in :func:`cv_predict_rows` over
-    these taps, with the one-standard-error rule (:func:`choose_components_rows`). Returns
-    (count, its CV predictions, per count tried the CV MAE of every target, the loss and its
-    standard error, the :func:`training_rows` for :func:`fit_model`)."""
-    rows = training_rows(task, targets, rest, pts, y)
-    k, pred, table = choose_components_rows(rows, y, targets, image_size, task=task, seed=seed,
-                                            grid=grid)
-    return k, pred, table, rows
-
-
 def choose_components_rows(rows: Rows, y: np.ndarray, targets: list[str], image_size, *,
                            task: str = "", seed: int = 0,
                            grid: tuple[int, ...] = COMPONENT_GRID
                            ) -> tuple[int, np.ndarray, dict[int, dict[str, float]]]:
-    """:func:`choose_components` on features already computed. The choice is the fewest
+    """The PCA component count for taps of features ``rows`` (:func:`training_rows`,
+    :func:`pool_rows`) by :func:`cv_loss` in :func:`cv_predict_rows`. Returns (the count, its
+    CV predictions, per count tried the CV MAE of every target, the loss and its standard
+    error). The choice is the fewest
     components whose :func:`cv_loss` is within one standard error (over the taps) of the
     lowest: counts whose losses differ by less than their own noise are a tie, and a tie goes
     to the simpler model (the one-standard-error rule, Hastie, Tibshirani & Friedman, *The
@@ -589,9 +598,17 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
             refs, drawn = tap_references(rest, pts, cols["pose_3"], cfg.task,
                                          cfg.folder_size or FOLDER_SIZE[fmt], cfg.seed)
             drawn["members"] = REFERENCE_MEMBERS
-        k, pred, tried, rows = choose_components(refs, pts, y_sim, targets, size,
-                                                 task=cfg.task, seed=cfg.seed)
-        save_sim_cv(out / f"sim_cv_{fmt}.npz", y_sim, pred, targets, k, cols)
+        rows = training_rows(cfg.task, targets, refs, pts, y_sim)
+        # the count is chosen for the taps the model is fitted on: with K draws, all of them
+        # (rule 14, docs/sim2real.md "The component count chosen on every draw")
+        parts = [rows] + ([training_rows(cfg.task, targets, *d["points"][fmt], y)
+                           for d, y in zip(draws[1:], ys[1:], strict=True)]
+                          if drawn is None else [])
+        y_cv = np.concatenate(ys[:len(parts)])
+        k, pred, tried = choose_components_rows(pool_rows(parts), y_cv, targets, size,
+                                                task=cfg.task, seed=cfg.seed)
+        save_sim_cv(out / f"sim_cv_{fmt}.npz", y_cv, pred, targets, k, {
+            c: np.concatenate([d["cols"][c] for d in draws[:len(parts)]]) for c in cols})
         m = fit_model(cfg.task, targets, size, rest, pts, y_sim, fitted_on={
             "simulated": str(sim), "format": fmt, "scene": scene_source,
             "scene_hash": scene_hash(scene), "n_sim": int(summary["simulated"]["n"]),
@@ -609,7 +626,7 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
                                             **_turns(cfg.task, xj)).fit(xj.xa, xj.ya))
         else:  # the other members: every draw's taps, and seeded 80 % draws of them
             for j, (d, y) in enumerate(zip(draws, ys, strict=True)):
-                dj = rows if j == 0 else training_rows(cfg.task, targets, *d["points"][fmt], y)
+                dj = parts[j]
                 for b in range(per_draw):
                     if j == 0 and b == 0:
                         continue  # the model itself
@@ -625,7 +642,7 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
             np.all(np.isfinite(rows.x), axis=1).sum()), "n_components": k,
             "references": drawn, "members": 1 + len(m.members),
             "components_cv": {str(c): v for c, v in tried.items()},
-            "predicted_by_simulation": _short(target_scores(y_sim, pred, targets))}
+            "predicted_by_simulation": _short(target_scores(y_cv, pred, targets))}
     for fmt, folders in (("128x128", real), ("raw", real_raw)):
         for d in folders:
             summary["real"][str(d)] = score_real(models[fmt], Path(d), out, cfg, fmt,
