@@ -17,6 +17,9 @@ over the block):
   (simulated taps whose ``pose_6`` lies within the real labels' span about their circular
   mean).
 
+Then the angle alone per cell of ``pose_2`` bin by ``pose_3`` bin (:data:`DEPTH_BINS_MM`):
+median error and MAE (deg, wrapped), real beside sim CV on the folder's slice.
+
 A bias the real taps carry and the simulated ones do not is lost in the transfer; one both
 carry is the model's. No model is fitted and nothing is simulated.
 """
@@ -53,6 +56,38 @@ def bin_rows(lateral: np.ndarray, truth: np.ndarray, pred: np.ndarray, depth: np
                     "ang_median": float(np.median(ea[s])) if s.any() else np.nan,
                     "ang_mae_deep": float(np.abs(ea[d]).mean()) if d.any() else np.nan})
     return out
+
+
+DEPTH_BINS_MM = (3.0, 3.5, 4.0, 4.5, 5.0)
+"""The lab's edge tap depths (label ``pose_3``, 3-5 mm) in four bins; the last bin closed."""
+
+
+def depth_grid(lateral: np.ndarray, truth: np.ndarray, pred: np.ndarray, depth: np.ndarray
+               ) -> list[list[dict[str, float]]]:
+    """Per :data:`BINS_MM` bin of ``lateral`` (rows) and :data:`DEPTH_BINS_MM` bin of
+    ``depth`` (columns): n, and the ``pose_6`` error's median and MAE (wrapped)."""
+    ea = wrap_deg(pred[:, 1] - truth[:, 1])
+    out = []
+    for lo, hi in zip(BINS_MM[:-1], BINS_MM[1:], strict=True):
+        row = []
+        for j, (dlo, dhi) in enumerate(zip(DEPTH_BINS_MM[:-1], DEPTH_BINS_MM[1:], strict=True)):
+            top = depth <= dhi if j == len(DEPTH_BINS_MM) - 2 else depth < dhi
+            s = (lateral >= lo) & (lateral < hi) & (depth >= dlo) & top & np.isfinite(ea)
+            row.append({"n": int(s.sum()),
+                        "median": float(np.median(ea[s])) if s.any() else np.nan,
+                        "mae": float(np.abs(ea[s]).mean()) if s.any() else np.nan})
+        out.append(row)
+    return out
+
+
+def _print_grid(title: str, grid: list[list[dict[str, float]]]) -> None:
+    print(f"  {title}: pose_6 median error / MAE (deg) (taps), by pose_3 (mm)")
+    print("    pose_2 bin (mm) " + "".join(
+        f"   {a:g} … {b:g}".ljust(23) for a, b in zip(DEPTH_BINS_MM[:-1], DEPTH_BINS_MM[1:],
+                                                     strict=True)))
+    for (lo, hi), row in zip(zip(BINS_MM[:-1], BINS_MM[1:], strict=True), grid, strict=True):
+        print(f"    {lo:+4.0f} … {hi:+4.0f}    " + "".join(
+            f"  {c['median']:+6.1f} / {c['mae']:5.1f} ({c['n']:3d})" for c in row))
 
 
 def in_slice(angles: np.ndarray, span_of: np.ndarray) -> np.ndarray:
@@ -96,6 +131,9 @@ def report(run: Path, real: Path) -> None:
     keep = in_slice(st[:, 1], truth[:, 1])
     _print(f"sim CV, the real folder's slice of pose_6 ({int(keep.sum())} taps)",
            bin_rows(st[keep, 0], st[keep], sp[keep], depth[keep]))
+    _print_grid("real, zero-shot", depth_grid(truth[:, 0], truth, zero, cols["pose_3"]))
+    _print_grid("sim CV, the real folder's slice",
+                depth_grid(st[keep, 0], st[keep], sp[keep], depth[keep]))
 
 
 def main(argv: list[str]) -> int:

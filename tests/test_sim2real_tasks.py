@@ -1387,6 +1387,14 @@ def test_edge_bins_break_errors_down_by_position_and_take_a_slice_across_the_sea
     assert rows[-6.0]["ang_mae_deep"] == pytest.approx(2.0)  # the 3 mm tap left out
     assert rows[0.0]["ang_median"] == pytest.approx(-3.0) and rows[0.0]["lat_mean"] == 1.0
     assert rows[4.0]["n"] == 1 and rows[-2.0]["n"] == 0 and np.isnan(rows[-2.0]["lat_mae"])
+    # by depth: the 3 mm tap in the first depth column, the three 4 mm ones in the third
+    # (the wrapped -178 for 178 is +4); a 5 mm tap falls in the last, closed, bin
+    grid = bins.depth_grid(lateral, truth, pred, depth)
+    assert grid[0][0]["n"] == 1 and grid[0][0]["median"] == pytest.approx(4.0)
+    assert grid[0][2]["n"] == 1 and grid[0][2]["mae"] == pytest.approx(2.0)
+    assert grid[3][2]["n"] == 2 and grid[3][2]["median"] == pytest.approx(-3.0)
+    assert grid[3][2]["mae"] == pytest.approx(3.0) and grid[3][1]["n"] == 0
+    assert bins.depth_grid(lateral[:1], truth[:1], pred[:1], np.array([5.0]))[0][3]["n"] == 1
     span = np.array([170.0, 180.0, -170.0, -150.0])
     got = bins.in_slice(np.array([175.0, -160.0, -140.0, 160.0, 0.0, -150.0]), span)
     assert got.tolist() == [True, True, False, False, False, True]
