@@ -17,6 +17,7 @@ from tactip_lab.fitting.field_model import (
     grid_nodes,
     load_field_model,
     target_scores,
+    wrap_deg,
 )
 
 from .test_bristol import folder  # noqa: F401 (the synthetic labelled folder fixture)
@@ -569,28 +570,34 @@ def test_a_model_averaged_over_its_turns_is_exactly_equivariant_and_reads_new_an
     np.testing.assert_allclose(back.predict_points(rest, pts), pred, atol=1e-9)
 
 
-def test_pooled_rows_of_two_draws_are_the_rows_of_their_taps_taken_together():
-    """Rule 14's pooled CV: two draws' :class:`Rows` pooled equal the rows of all their taps
-    featured at once (a second computation through ``training_rows``), turned copy ``c`` of
-    pooled tap ``i`` at row ``c * n + i``; a part of another copy count is refused."""
-    from tactip_lab.real.task_run import Rows, pool_rows, training_rows
+def test_cv_over_draws_predicts_each_fold_by_the_mean_of_one_model_per_draw():
+    """Rule 14b's CV of the model as saved (one member per simulated draw): two copies of one
+    draw give, for either copy's taps, the one draw's own CV predictions (two equal members);
+    with a copy whose lateral labels are 2 mm further, every tap's lateral prediction is the
+    mean of the two draws' own CV predictions (the regression is linear in its labels) and
+    the angle is the one draw's (the turned path of the edge, wrapped)."""
+    from tactip_lab.real.task_run import cv_predict_rows, training_rows
 
-    rest, pts, y = _presses_round_the_circle(7, 3)
+    rest, pts, y = _presses_round_the_circle(40, 3)
     targets = ["pose_2", "pose_6"]
-    whole = training_rows("edge", targets, rest, pts, y)
-    pooled = pool_rows([training_rows("edge", targets, rest, pts[:4], y[:4]),
-                        training_rows("edge", targets, rest, pts[4:], y[4:])])
-    assert whole.copies > 1 and pooled.copies == whole.copies
-    for a, b in zip(pooled, whole, strict=True):
-        np.testing.assert_allclose(a, b, atol=1e-12)
-    # by hand: 2 + 1 taps, 2 copies; rows of copy 0 first, each part's taps in order
-    a = Rows(np.array([[1.0], [2.0]]), np.array([[1.0], [2.0], [10.0], [20.0]]),
-             np.array([[1.0], [2.0], [10.0], [20.0]]), 2)
-    b = Rows(np.array([[3.0]]), np.array([[3.0], [30.0]]), np.array([[3.0], [30.0]]), 2)
-    np.testing.assert_array_equal(pool_rows([a, b]).xa.ravel(), [1, 2, 3, 10, 20, 30])
-    np.testing.assert_array_equal(pool_rows([b, a]).ya.ravel(), [3, 1, 2, 30, 10, 20])
-    with pytest.raises(ValueError, match="turned copies"):
-        pool_rows([a, Rows(b.x, b.x, b.x, 1)])
+    one = training_rows("edge", targets, rest, pts, y)
+    assert one.copies > 1
+    alone = cv_predict_rows(one, y, targets, (128, 128), task="edge", seed=2, n_components=8)
+    both = cv_predict_rows([one, one], np.r_[y, y], targets, (128, 128), task="edge", seed=2,
+                           n_components=8)
+    np.testing.assert_allclose(both[:40], alone, atol=1e-9)
+    np.testing.assert_allclose(both[40:], alone, atol=1e-9)
+    y2 = y + [2.0, 0.0]
+    moved = training_rows("edge", targets, rest, pts, y2)
+    mixed = cv_predict_rows([one, moved], np.r_[y, y2], targets, (128, 128), task="edge",
+                            seed=2, n_components=8)
+    further = cv_predict_rows(moved, y2, targets, (128, 128), task="edge", seed=2,
+                              n_components=8)
+    assert 1.0 < np.median(further[:, 0] - alone[:, 0]) < 2.01  # the 2 mm, shrunk by the ridge
+    np.testing.assert_allclose(mixed[:40, 0], (alone[:, 0] + further[:, 0]) / 2, atol=1e-9)
+    np.testing.assert_allclose(mixed[40:, 0], (alone[:, 0] + further[:, 0]) / 2, atol=1e-9)
+    np.testing.assert_allclose(wrap_deg(mixed[:, 1] - np.r_[alone[:, 1], alone[:, 1]]), 0.0,
+                               atol=1e-6)
 
 
 def test_turns_are_only_for_wrapping_targets_and_a_model_without_them_reads_the_frame(tmp_path):
@@ -664,7 +671,7 @@ def test_sim2real_edge_command_end_to_end(tmp_path):
     again = target_scores(cv["truth"], cv["cv"], ["pose_2", "pose_6"])
     pbs = s["formats"]["128x128"]["predicted_by_simulation"]
     assert again["pose_6"]["mae"] == pytest.approx(pbs["pose_6"]["mae"], rel=1e-12)
-    # the count was chosen on both draws' taps pooled (rule 14): the CV covers all 40
+    # the count was chosen by CV of the mean over both draws (rule 14b): all 40 taps
     assert len(cv["truth"]) == 40
     np.testing.assert_array_equal(cv["col_pose_3"], np.concatenate(
         [folder_columns(out / d)["pose_3"] for d in ("sim", "sim_d1")]))

@@ -16,10 +16,10 @@ Per real folder (``--real DIR``, repeatable), the figures of docs/sim2real.md:
 Hyper-parameters: the kernel ridge's ``alpha`` and the kernel width rule are fixed
 (:class:`~tactip_lab.fitting.field_model.FieldModel`'s defaults); the number of PCA components
 is chosen from :data:`COMPONENT_GRID` by 5-fold cross-validation within the training taps
-(:func:`choose_components_rows`: the simulated taps for the saved models, all draws' pooled
-when there are several, the real folder's own for the real-trained figure; the fewest within
-one standard error of the best). None is chosen on
-a score of the data a figure is about: the "predicted by simulation" figure is the selection's
+(:func:`choose_components_rows`: the simulated taps for the saved models, every draw's
+with the saved model's mean over draws when there are several, the real folder's own for
+the real-trained figure; the fewest within one standard error of the best). None is chosen
+on a score of the data a figure is about: the "predicted by simulation" figure is the selection's
 own CV, so it carries the (small) optimism of picking among four.
 """
 
@@ -284,25 +284,6 @@ def tap_references(rest: np.ndarray, pts: np.ndarray, depth: np.ndarray, task: s
                          "draws": REFERENCE_DRAWS}
 
 
-def pool_rows(parts: list[Rows]) -> Rows:
-    """One :class:`Rows` of the taps of several (each draw's taps featured from its own rest
-    state), in the layout of one: training row ``c * n + i`` is pooled tap ``i``'s turned copy
-    ``c``, the taps in the order of ``parts``."""
-    copies = parts[0].copies
-    if any(p.copies != copies for p in parts):
-        raise ValueError(f"pool_rows: the parts hold {[p.copies for p in parts]} turned copies "
-                         "per tap; pooled rows need one count")
-
-    def block(a: np.ndarray, p: Rows, c: int) -> np.ndarray:
-        n = len(p.x)
-        return a[c * n:(c + 1) * n]
-
-    return Rows(np.concatenate([p.x for p in parts]),
-                np.concatenate([block(p.xa, p, c) for c in range(copies) for p in parts]),
-                np.concatenate([block(p.ya, p, c) for c in range(copies) for p in parts]),
-                copies)
-
-
 def fit_model(task: str, targets: list[str], size, rest, pts, y, fitted_on=None, *,
               n_components: int | None = None, rows: Rows | None = None) -> FieldModel:
     """A :class:`FieldModel` on simulated taps, augmented by turns for the edge
@@ -358,26 +339,41 @@ def few_shot(pred: np.ndarray, y: np.ndarray, targets: list[str], k: int, seed: 
     return rest, out, corr
 
 
-def cv_predict_rows(rows: Rows, y: np.ndarray, targets: list[str], image_size, *,
-                    task: str = "", seed: int = 0, n_components: int | None = None
+def cv_predict_rows(rows: Rows | list[Rows], y: np.ndarray, targets: list[str], image_size,
+                    *, task: str = "", seed: int = 0, n_components: int | None = None
                     ) -> np.ndarray:
     """5-fold cross-validated predictions of the task's model on taps whose features are
     ``rows`` (:func:`training_rows`): folds of taps, shuffled, seeded; with ``task`` the
     training folds hold every tap's turned copies, and the held-out fold is predicted as the
-    saved model predicts (the mean over the same turns, from its own turned copies)."""
+    saved model predicts (the mean over the same turns, from its own turned copies).
+
+    With a list of :class:`Rows`, one per simulated draw, the model is the saved one's kind:
+    every draw's taps are split into the same folds, one model per draw is fitted on that
+    draw's taps outside fold f, and every draw's fold-f taps are predicted by the mean of
+    those models (the members' mean, as the saved model predicts). The predictions are
+    the draws' taps in order, ``y`` their targets (rule 14b, docs/sim2real.md)."""
     from sklearn.model_selection import KFold
 
-    n = len(rows.x)
+    parts = [rows] if isinstance(rows, Rows) else list(rows)
     kw = {} if n_components is None else {"n_components": int(n_components)}
+    starts = np.cumsum([0] + [len(p.x) for p in parts])
     pred = np.full(np.shape(y), np.nan)
-    for tr, te in KFold(FOLDS, shuffle=True, random_state=seed).split(rows.x):
-        r = (np.arange(rows.copies)[:, None] * n + tr[None, :]).ravel()
-        m = FieldModel(task or "cv", targets, tuple(image_size), **kw,
-                       **_turns(task, rows)).fit(rows.xa[r], rows.ya[r])
-        if m.turn_steps:  # copy c of tap i is row c * n + i, turned by 360 c / copies
-            pred[te] = m.predict_turned([rows.xa[c * n + te] for c in range(rows.copies)])
-        else:
-            pred[te] = m.predict(rows.x[te])
+    splits = [list(KFold(FOLDS, shuffle=True, random_state=seed).split(p.x)) for p in parts]
+    for f in range(FOLDS):
+        models = []
+        for p, folds in zip(parts, splits, strict=True):
+            n, tr = len(p.x), folds[f][0]
+            r = (np.arange(p.copies)[:, None] * n + tr[None, :]).ravel()
+            models.append(FieldModel(task or "cv", targets, tuple(image_size), **kw,
+                                     **_turns(task, p)).fit(p.xa[r], p.ya[r]))
+        m = models[0]
+        m.members = models[1:]
+        for p, folds, at in zip(parts, splits, starts, strict=False):
+            n, te = len(p.x), folds[f][1]
+            if m.turn_steps:  # copy c of tap i is row c * n + i, turned by 360 c / copies
+                pred[at + te] = m.predict_turned([p.xa[c * n + te] for c in range(p.copies)])
+            else:
+                pred[at + te] = m.predict(p.x[te])
     return pred
 
 
@@ -415,14 +411,15 @@ def cv_tap_losses(y: np.ndarray, pred: np.ndarray, targets: list[str]) -> np.nda
     return out
 
 
-def choose_components_rows(rows: Rows, y: np.ndarray, targets: list[str], image_size, *,
+def choose_components_rows(rows: Rows | list[Rows], y: np.ndarray, targets: list[str],
+                           image_size, *,
                            task: str = "", seed: int = 0,
                            grid: tuple[int, ...] = COMPONENT_GRID
                            ) -> tuple[int, np.ndarray, dict[int, dict[str, float]]]:
-    """The PCA component count for taps of features ``rows`` (:func:`training_rows`,
-    :func:`pool_rows`) by :func:`cv_loss` in :func:`cv_predict_rows`. Returns (the count, its
-    CV predictions, per count tried the CV MAE of every target, the loss and its standard
-    error). The choice is the fewest
+    """The PCA component count for taps of features ``rows`` (:func:`training_rows`; a list
+    of them, one per simulated draw) by :func:`cv_loss` in :func:`cv_predict_rows`. Returns
+    (the count, its CV predictions, per count tried the CV MAE of every target, the loss and
+    its standard error). The choice is the fewest
     components whose :func:`cv_loss` is within one standard error (over the taps) of the
     lowest: counts whose losses differ by less than their own noise are a tie, and a tie goes
     to the simpler model (the one-standard-error rule, Hastie, Tibshirani & Friedman, *The
@@ -430,7 +427,8 @@ def choose_components_rows(rows: Rows, y: np.ndarray, targets: list[str], image_
     fewest count tried, half that count is tried too, down to :data:`COMPONENT_FLOOR`. A count
     the training folds cannot support (as many as their rows, or more) is not tried (the
     smallest of the grid is, whatever the count)."""
-    fold_rows = len(rows.xa) * (FOLDS - 1) // FOLDS
+    fold_rows = min(len(p.xa) for p in ([rows] if isinstance(rows, Rows) else rows)
+                    ) * (FOLDS - 1) // FOLDS
     tried = [k for k in sorted(grid) if k < fold_rows] or [min(grid)]
     preds, table = {}, {}
 
@@ -599,13 +597,13 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
                                          cfg.folder_size or FOLDER_SIZE[fmt], cfg.seed)
             drawn["members"] = REFERENCE_MEMBERS
         rows = training_rows(cfg.task, targets, refs, pts, y_sim)
-        # the count is chosen for the taps the model is fitted on: with K draws, all of them
-        # (rule 14, docs/sim2real.md "The component count chosen on every draw")
+        # the count is chosen for the model as saved: with K draws, the mean of one model
+        # per draw, cross-validated on every draw's taps (rule 14b, docs/sim2real.md)
         parts = [rows] + ([training_rows(cfg.task, targets, *d["points"][fmt], y)
                            for d, y in zip(draws[1:], ys[1:], strict=True)]
                           if drawn is None else [])
         y_cv = np.concatenate(ys[:len(parts)])
-        k, pred, tried = choose_components_rows(pool_rows(parts), y_cv, targets, size,
+        k, pred, tried = choose_components_rows(parts, y_cv, targets, size,
                                                 task=cfg.task, seed=cfg.seed)
         save_sim_cv(out / f"sim_cv_{fmt}.npz", y_cv, pred, targets, k, {
             c: np.concatenate([d["cols"][c] for d in draws[:len(parts)]]) for c in cols})
