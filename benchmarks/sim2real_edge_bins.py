@@ -18,7 +18,11 @@ over the block):
   mean).
 
 Then the angle alone per cell of ``pose_2`` bin by ``pose_3`` bin (:data:`DEPTH_BINS_MM`):
-median error and MAE (deg, wrapped), real beside sim CV on the folder's slice.
+median error and MAE (deg, wrapped), real beside sim CV on the folder's slice. Last, how the
+press over the block grows with the depth label, real beside each simulated draw
+(:func:`field_growth`: the tracked points the run cached, ``real_<name>_points.npz`` and
+``sim128[_d<j>]_points.npz``): the onset (``pose_3`` where the mean marker displacement
+extrapolates to zero; the third session's descriptor of the depth convention) and the slope.
 
 A bias the real taps carry and the simulated ones do not is lost in the transfer; one both
 carry is the model's. No model is fitted and nothing is simulated.
@@ -90,6 +94,22 @@ def _print_grid(title: str, grid: list[list[dict[str, float]]]) -> None:
             f"  {c['median']:+6.1f} / {c['mae']:5.1f} ({c['n']:3d})" for c in row))
 
 
+OVER_BLOCK_MM = 3.0
+"""Taps with ``pose_2`` beyond this (mm, the sensor's centre over the block) in
+:func:`field_growth`: a nearly flat press, as the depth convention was measured."""
+
+
+def field_growth(rest: np.ndarray, pts: np.ndarray, depth: np.ndarray, lateral: np.ndarray
+                 ) -> dict[str, float]:
+    """The mean marker displacement (px, from ``rest``) of the taps over the block
+    (``lateral`` > :data:`OVER_BLOCK_MM`) against their ``depth`` label, least squares: its
+    ``slope`` (px/mm), its ``onset`` (the depth where the line meets zero) and ``n``."""
+    size = np.nanmean(np.linalg.norm(np.asarray(pts) - np.asarray(rest)[None], axis=2), axis=1)
+    s = (lateral > OVER_BLOCK_MM) & np.isfinite(size) & np.isfinite(depth)
+    a, b = np.polyfit(depth[s], size[s], 1)
+    return {"n": int(s.sum()), "slope": float(a), "onset": float(-b / a)}
+
+
 def in_slice(angles: np.ndarray, span_of: np.ndarray) -> np.ndarray:
     """Which ``angles`` (deg) lie within the span of ``span_of`` about its circular mean."""
     mean = circular_mean_deg(span_of)
@@ -134,6 +154,21 @@ def report(run: Path, real: Path) -> None:
     _print_grid("real, zero-shot", depth_grid(truth[:, 0], truth, zero, cols["pose_3"]))
     _print_grid("sim CV, the real folder's slice",
                 depth_grid(st[keep, 0], st[keep], sp[keep], depth[keep]))
+    print(f"  the press over the block (pose_2 > {OVER_BLOCK_MM:g} mm): mean marker "
+          "displacement against pose_3")
+    rp = np.load(run / f"real_{real.name}_points.npz")
+    g = field_growth(rp["rest"], rp["pts"], cols["pose_3"], cols["pose_2"])
+    print(f"    real             {g['n']:4d} taps  onset {g['onset']:.2f} mm  slope "
+          f"{g['slope']:.3f} px/mm")
+    j = 0
+    while (run / (f"sim128{'' if j == 0 else f'_d{j}'}_points.npz")).is_file():
+        tag = "" if j == 0 else f"_d{j}"
+        sp_ = np.load(run / f"sim128{tag}_points.npz")
+        sc = folder_columns(run / f"sim{tag}")
+        g = field_growth(sp_["rest"], sp_["pts"], sc["pose_3"], sc["pose_2"])
+        print(f"    simulated draw {j} {g['n']:4d} taps  onset {g['onset']:.2f} mm  slope "
+              f"{g['slope']:.3f} px/mm")
+        j += 1
 
 
 def main(argv: list[str]) -> int:

@@ -1402,6 +1402,20 @@ def test_edge_bins_break_errors_down_by_position_and_take_a_slice_across_the_sea
     assert grid[3][2]["n"] == 2 and grid[3][2]["median"] == pytest.approx(-3.0)
     assert grid[3][2]["mae"] == pytest.approx(3.0) and grid[3][1]["n"] == 0
     assert bins.depth_grid(lateral[:1], truth[:1], pred[:1], np.array([5.0]))[0][3]["n"] == 1
+    # the press over the block: every marker moved 0.6 px per mm beyond 2.4 mm (each tap
+    # in its own direction) gives that slope and onset; taps beside the block (moved 5 px)
+    # and a lost marker (NaN) do not enter
+    rng = np.random.default_rng(4)
+    rest = rng.uniform(0, 128, (50, 2))
+    dep = rng.uniform(3.0, 5.0, 30)
+    lat = np.r_[rng.uniform(3.5, 6.0, 20), rng.uniform(-6.0, 2.0, 10)]
+    mag = np.where(lat > 3.0, 0.6 * (dep - 2.4), 5.0)
+    turn = rng.uniform(0, 2 * np.pi, 30)
+    moved = rest[None] + (mag * np.stack([np.cos(turn), np.sin(turn)], axis=1).T).T[:, None]
+    moved[0, 3] = np.nan
+    g = bins.field_growth(rest, moved, dep, lat)
+    assert g["n"] == 20
+    assert g["slope"] == pytest.approx(0.6, rel=1e-9) and g["onset"] == pytest.approx(2.4)
     span = np.array([170.0, 180.0, -170.0, -150.0])
     got = bins.in_slice(np.array([175.0, -160.0, -140.0, 160.0, 0.0, -150.0]), span)
     assert got.tolist() == [True, True, False, False, False, True]
