@@ -170,6 +170,50 @@ def test_cache_hit_returns_identical_mesh(tmp_path, monkeypatch, scene):
     assert n >= 1 and not d.exists()
 
 
+def test_a_build_that_snapping_would_invert_is_built_again_and_never_cached(
+        tmp_path, monkeypatch, scene, mesh):
+    """pytetwild gives another mesh on every build: one whose snapping would invert an
+    element (here its first tet given the other orientation) is built again and not cached;
+    after :data:`~tactip_sim.mesh.tetra.BUILD_ATTEMPTS` such builds the error names the
+    parameter and the attempts, and nothing is cached; a cache entry that does not snap (left
+    before builds were checked) is rebuilt, and the good build replaces it."""
+    from tactip_sim import cache
+    from tactip_sim.mesh import tetra
+    from tactip_sim.mesh.snap import SnapError
+
+    monkeypatch.setenv("TACTIP_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(tetra, "BUNDLED_DIR", tmp_path / "bundled")
+    good = (mesh.mesher_nodes, mesh.tets, mesh.regions)
+    bad_tets = mesh.tets.copy()
+    bad_tets[0, [0, 1]] = bad_tets[0, [1, 0]]
+    bad = (mesh.mesher_nodes, bad_tets, mesh.regions)
+    plan: list[tuple] = []
+    monkeypatch.setattr(tetra, "_build", lambda sc: plan.pop(0))
+
+    plan[:] = [bad, good]
+    got = ts.tetrahedralise(scene)
+    assert plan == [] and not got.from_cache
+    np.testing.assert_array_equal(got.tets, mesh.tets)
+    stored = cache.path_for("mesh", got.key, ".npz")
+    with np.load(stored) as data:
+        np.testing.assert_array_equal(data["tets"], mesh.tets)  # the build that snapped
+
+    stored.unlink()
+    plan[:] = [bad] * tetra.BUILD_ATTEMPTS + [good]
+    with pytest.raises(SnapError, match=rf"tetwild_epsilon \(in each of "
+                                         rf"{tetra.BUILD_ATTEMPTS} builds\)"):
+        ts.tetrahedralise(scene)
+    assert plan == [good] and not stored.exists()
+
+    cache.save_npz(stored, nodes=bad[0], tets=bad[1], regions=bad[2])
+    plan[:] = [good]
+    again = ts.tetrahedralise(scene)
+    assert plan == [] and not again.from_cache
+    with np.load(stored) as data:
+        np.testing.assert_array_equal(data["tets"], mesh.tets)
+    assert ts.tetrahedralise(scene).from_cache  # and now it is read, not built
+
+
 def test_bundled_mesh_wins_over_a_cache_entry_of_the_same_key(tmp_path, monkeypatch, scene):
     # another build of a bundled key, left in this machine's cache, must not shadow the
     # bundled mesh (pytetwild builds a different mesh every time: results would differ from

@@ -43,6 +43,10 @@ def _onto_dome(points: np.ndarray, shape: DomeShape) -> np.ndarray:
     return p
 
 
+class SnapError(ValueError):
+    """Snapping a mesh onto the pad's surfaces would invert elements (:func:`snap_nodes`)."""
+
+
 def snap_nodes(nodes: np.ndarray, tets: np.ndarray, regions: np.ndarray, scene: Scene, *,
                label: str = "") -> np.ndarray:
     """A copy of ``nodes`` with the outer (and skin/gel interface) vertices on the analytic
@@ -100,7 +104,7 @@ def snap_nodes(nodes: np.ndarray, tets: np.ndarray, regions: np.ndarray, scene: 
         nodes[iface] = _onto_dome(nodes[iface], inner_shape)
     vol = tet_volumes(nodes, tets)
     if vol.min() <= 0:
-        raise ValueError(
+        raise SnapError(
             f"snapping the mesh {label} onto the pad's surfaces would invert "
             f"{int(np.sum(vol <= 0))} elements; mesh finer or lower fidelity.tetwild_epsilon")
     return nodes
