@@ -16,11 +16,12 @@ Per real folder (``--real DIR``, repeatable), the figures of docs/sim2real.md:
 Hyper-parameters: the kernel ridge's ``alpha`` and the kernel width rule are fixed
 (:class:`~tactip_lab.fitting.field_model.FieldModel`'s defaults); the number of PCA components
 is chosen from :data:`COMPONENT_GRID` by 5-fold cross-validation within the training taps
-(:func:`choose_components_rows`: the simulated taps for the saved models, every draw's
-with the saved model's mean over draws when there are several, the real folder's own for
-the real-trained figure; the fewest within one standard error of the best). None is chosen
-on a score of the data a figure is about: the "predicted by simulation" figure is the selection's
-own CV, so it carries the (small) optimism of picking among four.
+(:func:`choose_components_rows`: the simulated taps for the saved models, with several
+draws all of them, each fold predicted by the mean of one model per draw as the saved model
+is; the real folder's own for the real-trained figure; the fewest within one standard error
+of the best). None is chosen on a score of the data a figure is about: the "predicted by
+simulation" figure is the selection's own CV, so it carries the (small) optimism of picking
+among four.
 """
 
 from __future__ import annotations
