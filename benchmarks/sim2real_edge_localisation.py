@@ -1,7 +1,7 @@
 """How local the marker field of an edge tap is: simulated against real taps (docs/sim2real.md).
 
     python benchmarks/sim2real_edge_localisation.py [VARIANT ...] [--no-real]
-        [--centre | --tilt | --split RUN]
+        [--centre | --tilt | --split RUN [--depth-bins]]
 
 A tap beside an edge presses one side of the pad. Two numbers say how much of the marker
 field stays on that side, each independent of the frame's scale and of the field's size:
@@ -49,7 +49,9 @@ radii, image axes), and ``c = R(a) (normal, along) + (x, y)`` is fitted by least
 (normal, along) turns with the block, (x, y) stays with the camera. For the real folder
 (``--real``) and for the simulated taps of a ``tactip sim2real --task edge`` run ``RUN``
 (its ``sim/targets.csv`` and ``sim128_points.npz``: the whole circle, and the real folder's
-slice of it). Nothing is simulated.
+slice of it). Nothing is simulated. With ``--depth-bins`` the same table once per ``pose_3`` bin
+of :data:`SPLIT_DEPTH_BINS_MM` instead of once for ``pose_3`` >= 4 mm (docs/sim2real.md: the
+press centre per depth, real against simulated).
 """
 
 from __future__ import annotations
@@ -89,6 +91,11 @@ TILT_POSITIONS_MM = (3.0, 5.0)
 TILTS_DEG = (0.0, 2.0, 4.0)
 TILT_VARIANT = "P2, rod pins"
 """The edge task's default pins (``task_run``: rods on P2)."""
+SPLIT_DEPTH_MM = (4.0, np.inf)
+"""The ``pose_3`` span (mm, from inclusive, to exclusive) of the ``--split`` taps."""
+SPLIT_DEPTH_BINS_MM = (3.0, 3.5, 4.0, 4.5, 5.0)
+"""``--depth-bins``: the ``pose_3`` bins (mm) of the ``--split`` table, the last one closed
+(the labels reach 5 mm)."""
 SPLIT_BINS = {"real": 6, "simulated": 12}
 """Bins of the contact side's angle in ``--split``: the real folder spans ~80 deg, the
 simulated taps the full circle."""
@@ -166,15 +173,23 @@ def split_centre(rest: np.ndarray, pts: np.ndarray, side_deg: np.ndarray, bins: 
     return sol, float(np.sqrt(np.mean((design @ sol - rhs) ** 2)))
 
 
-def _over_block(cols: dict[str, np.ndarray]) -> np.ndarray:
-    return (cols["pose_2"] > 2.0) & (cols["pose_3"] >= 4.0)
+def _over_block(cols: dict[str, np.ndarray], depth: tuple[float, float] = SPLIT_DEPTH_MM
+                ) -> np.ndarray:
+    """The taps 2 mm or more over the block pressed ``depth[0]`` <= ``pose_3`` < ``depth[1]``
+    (<= at the last of :data:`SPLIT_DEPTH_BINS_MM`)."""
+    d = cols["pose_3"]
+    below = d <= depth[1] if depth[1] == SPLIT_DEPTH_BINS_MM[-1] else d < depth[1]
+    return (cols["pose_2"] > 2.0) & (d >= depth[0]) & below
 
 
-def split_rows(folder: Path | None, run: Path) -> list[str]:
+def split_rows(folder: Path | None, run: Path, depth: tuple[float, float] = SPLIT_DEPTH_MM,
+               real_taps: tuple | None = None) -> list[str]:
     """The ``--split`` table's rows: the real folder (None: skipped), ``run``'s simulated taps
-    over the whole circle and over the real folder's slice of it. The real taps' yaws are the
+    over the whole circle and over the real folder's slice of it, each of the taps over the
+    block pressed within ``depth`` (:func:`_over_block`). The real taps' yaws are the
     convention in use; the simulated ones' are those the run made them with (its
-    ``sim/protocol.json``)."""
+    ``sim/protocol.json``). ``real_taps``: the folder's (columns, reference, points) when
+    already tracked (:func:`_real_taps`)."""
     import json
 
     from tactip_lab.real.task_run import folder_columns
@@ -184,17 +199,17 @@ def split_rows(folder: Path | None, run: Path) -> list[str]:
 
     def row(name: str, rest, pts, cols, bins: int, conv: EdgeConvention) -> str:
         side = conv.yaw(cols["pose_6"]) + CONTACT_SIDE_DEG
-        keep = _over_block(cols)
+        keep = _over_block(cols, depth)
         (nrm, along, x, y), rms = split_centre(rest, pts[keep], side[keep], bins)
         return (f"| {name} ({int(keep.sum())} taps) | {nrm:+.3f}, {along:+.3f} | "
                 f"{x:+.3f}, {y:+.3f} | {rms:.3f} |")
 
     out, real_yaw = [], None
     if folder is not None:
-        cols, rest, pts = _real_taps(folder)
+        cols, rest, pts = real_taps if real_taps is not None else _real_taps(folder)
         out.append(row(f"real {folder.name}", rest, pts, cols, SPLIT_BINS["real"],
                        EDGE_CONVENTION))
-        real_yaw = EDGE_CONVENTION.yaw(cols["pose_6"][_over_block(cols)])
+        real_yaw = EDGE_CONVENTION.yaw(cols["pose_6"][_over_block(cols, depth)])
     z = np.load(run / "sim128_points.npz")
     rest, pts = z["rest"], z["pts"]
     cols = {k: v[:len(pts)] for k, v in folder_columns(run / "sim").items()}
@@ -384,7 +399,10 @@ def main(argv: list[str] | None = None) -> int:
                                 flags={"--centre": "where the press is centred over the block "
                                        "(field radii toward it) instead",
                                        "--tilt": "identify the block's top-face tilt from "
-                                       f"that centre ({TILT_VARIANT}; VARIANT ignored)"},
+                                       f"that centre ({TILT_VARIANT}; VARIANT ignored)",
+                                       "--depth-bins": "with --split: one table per pose_3 bin "
+                                       f"({', '.join(f'{v:g}' for v in SPLIT_DEPTH_BINS_MM)} "
+                                       "mm) instead of pose_3 >= 4 mm"},
                                 paths={"--split": ("RUN", "split the press centre over the "
                                                    "block into parts fixed to the block and to "
                                                    "the sensor, real and RUN's simulated taps "
@@ -393,12 +411,21 @@ def main(argv: list[str] | None = None) -> int:
         if not (args.split / "sim128_points.npz").is_file():
             raise SystemExit(f"--split {args.split}: no sim128_points.npz there (the --out "
                              "of a tactip sim2real --task edge run)")
-        print("| taps | fixed to the block (normal, along) | fixed to the sensor (x, y) "
-              "| RMS residual |")
-        print("|---|---|---|---|")
-        for row in split_rows(None if args.no_real else args.real, args.split):
-            print(row, flush=True)
+        folder = None if args.no_real else args.real
+        spans = (list(zip(SPLIT_DEPTH_BINS_MM[:-1], SPLIT_DEPTH_BINS_MM[1:], strict=True))
+                 if args.depth_bins else [SPLIT_DEPTH_MM])
+        real = None if folder is None else _real_taps(folder)
+        for lo, hi in spans:
+            if args.depth_bins:
+                print(f"\npose_3 {lo:g} ... {hi:g} mm")
+            print("| taps | fixed to the block (normal, along) | fixed to the sensor (x, y) "
+                  "| RMS residual |")
+            print("|---|---|---|---|")
+            for row in split_rows(folder, args.split, (lo, hi), real):
+                print(row, flush=True)
         return 0
+    if args.depth_bins:
+        raise SystemExit("--depth-bins splits the --split table: give --split RUN")
     if args.tilt:
         if args.no_real:
             raise SystemExit("--tilt identifies the tilt from the real folder: drop --no-real")

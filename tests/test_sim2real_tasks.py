@@ -1327,12 +1327,8 @@ def test_surface_taps_are_frictionless_unless_a_friction_is_given(tmp_path, monk
         tasks.simulate_task(scene, tmp_path / "a", "surface", 3, friction=0.7, progress=False)
 
 
-def test_the_press_centre_split_finds_a_known_press_and_its_two_parts():
-    """``sim2real_edge_localisation.py --split``: a radial press at the array's centre is found
-    there, one placed off it is found in its direction (nearer the centre: the feature removes
-    the array's median shift, which a one-sided press has), and presses at ``R(a) u + o`` for
-    turned ``a`` give back the part that turns (``u``) apart from the part that stays
-    (``o``), each read with that same gain."""
+def _benchmark(name: str):
+    """The module ``benchmarks/NAME.py``, imported as its script would be."""
     import importlib
     import sys
 
@@ -1340,9 +1336,18 @@ def test_the_press_centre_split_finds_a_known_press_and_its_two_parts():
 
     sys.path.insert(0, str(ROOT / "benchmarks"))
     try:
-        loc = importlib.import_module("sim2real_edge_localisation")
+        return importlib.import_module(name)
     finally:
         sys.path.remove(str(ROOT / "benchmarks"))
+
+
+def test_the_press_centre_split_finds_a_known_press_and_its_two_parts():
+    """``sim2real_edge_localisation.py --split``: a radial press at the array's centre is found
+    there, one placed off it is found in its direction (nearer the centre: the feature removes
+    the array's median shift, which a one-sided press has), and presses at ``R(a) u + o`` for
+    turned ``a`` give back the part that turns (``u``) apart from the part that stays
+    (``o``), each read with that same gain."""
+    loc = _benchmark("sim2real_edge_localisation")
     rest = _lattice(n_side=31, spacing=4.0)
     c0 = rest.mean(axis=0)
     s = np.sqrt(np.mean(np.sum((rest - c0) ** 2, axis=1)))
@@ -1367,22 +1372,63 @@ def test_the_press_centre_split_finds_a_known_press_and_its_two_parts():
     assert 0.5 < gain < 1.0
     np.testing.assert_allclose(sol, gain * np.r_[turning, staying], atol=0.003)
     assert rms < 0.01
+    # --depth-bins: each tap over the block in exactly one bin, the last bin closed at 5 mm;
+    # beside the block (pose_2 <= 2 mm) in none
+    cols = {"pose_2": np.array([3.0, 3.0, 3.0, 3.0, 3.0, 1.9]),
+            "pose_3": np.array([3.0, 3.49, 3.5, 4.99, 5.0, 4.2])}
+    bins = loc.SPLIT_DEPTH_BINS_MM
+    member = np.array([loc._over_block(cols, (lo, hi))
+                       for lo, hi in zip(bins[:-1], bins[1:], strict=True)])
+    np.testing.assert_array_equal(member.argmax(axis=0)[:5], [0, 0, 1, 3, 3])
+    np.testing.assert_array_equal(member.sum(axis=0), [1, 1, 1, 1, 1, 0])
+    np.testing.assert_array_equal(loc._over_block(cols), [False, False, False, True, True, False])
+
+
+def test_turn_readout_recovers_unseen_edge_angles_and_ignores_a_symmetric_difference():
+    """``sim2real_edge_turn_readout.py``: the turned fields at once equal the feature of the
+    frame turned first (a lost marker included); templates of presses off the centre at 36
+    known angles read presses at angles between them back within 1 deg (label = minus the
+    image angle, the edge's label turn), and a press at the centre added to every frame
+    (its field the same at any turn) does not move the reading."""
+    from tactip_lab.fitting.field_model import field_features, grid_nodes
+
+    tr = _benchmark("sim2real_edge_turn_readout")
+    rest = _lattice(n_side=31, spacing=4.0)
+    c0 = rest.mean(axis=0)
+    s = np.sqrt(np.mean(np.sum((rest - c0) ** 2, axis=1)))
+
+    def tap(deg, centre_amp=0.0):
+        t = np.radians(deg)
+        p = _bump(rest, c0 + 0.45 * s * np.array([np.cos(t), np.sin(t)]), width=0.5 * s)
+        return p + (_bump(rest, c0, amp=centre_amp, width=0.6 * s) - rest)
+
+    k = len(grid_nodes())
+    frame = tap(20.0)
+    frame[7] = np.nan
+    turned = tr.TurnedFields(rest, np.array([0.0, 33.0, 250.0]))(frame)
+    for row, deg in zip(turned, (0.0, 33.0, 250.0), strict=True):
+        want = field_features(rest, frame, rotation_deg=deg)[:2 * k]
+        np.testing.assert_allclose(row, want / np.linalg.norm(want), atol=1e-9)
+
+    train = np.arange(0.0, 360.0, 10.0)
+    pts = np.stack([tap(a) for a in train])
+    labels = -train  # an image turn of +d moves the label by -d (label_turn -1)
+    pats = tr.aligned_patterns(rest, pts, labels, -1.0)
+    templates, centres = tr.build_templates(pats, np.full(len(train), 0.5),
+                                            np.full(len(train), 4.2))
+    assert templates.shape[0] == 1 and np.allclose(centres, [[0.5, 4.25]])
+    unseen = np.array([37.3, -121.8, 178.6, 4.4])
+    for amp in (0.0, 1.2):  # the second: a centred press the templates never held
+        got = tr.read_angles(templates, rest, np.stack([tap(a, amp) for a in unseen]), -1.0)
+        err = (got + unseen + 180.0) % 360.0 - 180.0
+        assert np.all(np.abs(err) < 1.0), (amp, err)
 
 
 def test_edge_bins_break_errors_down_by_position_and_take_a_slice_across_the_seam():
     """``sim2real_edge_bins.py``: set errors per tap come back per 2 mm bin (angles wrapped:
     a prediction of -178 for 178 is 4 deg off), and the real folder's slice of edge angles
     (170 ... -150 across the seam) keeps the angles inside it only."""
-    import importlib
-    import sys
-
-    from .conftest import ROOT
-
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        bins = importlib.import_module("sim2real_edge_bins")
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
+    bins = _benchmark("sim2real_edge_bins")
     lateral = np.array([-5.0, -5.0, 1.0, 1.0, 5.5])
     truth = np.c_[lateral, [178.0, 10.0, 20.0, 30.0, 40.0]]
     pred = np.c_[lateral + [0.5, -0.5, 1.0, 1.0, 0.2], [-178.0, 12.0, 20.0, 24.0, 40.0]]
@@ -1425,17 +1471,9 @@ def test_draw_spread_groups_members_by_draw_and_splits_draws_into_halves():
     """``draw_spread.py``: a model of 3 draws x 2 members groups as [head, m1], [m2, m3],
     [m4, m5] (the head without its members); four draws split into halves three ways, each
     once; an angle's difference is wrapped (179 against -179 is 2 deg)."""
-    import importlib
-    import sys
     from types import SimpleNamespace
 
-    from .conftest import ROOT
-
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        ds = importlib.import_module("draw_spread")
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
+    ds = _benchmark("draw_spread")
     members = [SimpleNamespace(name=f"m{i}", members=[]) for i in range(1, 6)]
     model = SimpleNamespace(name="head", members=members,
                             fitted_on={"bagged": {"draws": [0, 1, 2]}})
