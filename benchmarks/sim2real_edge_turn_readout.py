@@ -2,6 +2,7 @@
 kernel ridge model (docs/sim2real.md, "A turn-alignment readout of the edge angle").
 
     python benchmarks/sim2real_edge_turn_readout.py RUN [--shifted RUN ...] [--real DIR]
+        [--chart PNG]
 
 ``RUN`` is a ``tactip sim2real --task edge [--shear] --out RUN`` folder. Its simulated taps
 (every draw: ``sim128[_d<j>]_points.npz`` with ``sim[_d<j>]/targets.csv``) make the
@@ -20,7 +21,9 @@ Printed, angle MAE (deg) of the readout beside that of ``RUN/model.json`` (as
   with other physical values (their labels moved to ``RUN``'s angle origin, from each run's
   ``sim/protocol.json``);
 - ``--real DIR``: on a real folder's taps as ``RUN`` tracked them
-  (``RUN/real_<name>_points.npz``, written when the run scored ``DIR``).
+  (``RUN/real_<name>_points.npz``, written when the run scored ``DIR``); with ``--chart``
+  its angle error per cell of ``pose_2`` × ``pose_3`` (``sim2real_edge_bins.depth_grid``),
+  the saved model beside the readout, one row per real folder.
 
 No model is fitted and nothing is simulated.
 """
@@ -183,7 +186,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="runs of the same task made with other physical values")
     p.add_argument("--real", type=Path, nargs="*", default=[], metavar="DIR",
                    help="real folders the run scored (its real_<name>_points.npz)")
+    p.add_argument("--chart", type=Path, default=None, metavar="PNG",
+                   help="the real folders' angle error per pose_2 x pose_3 cell, both readouts")
     args = p.parse_args(argv)
+    if args.chart is not None and not args.real:
+        p.error("--chart draws the real folders' errors: give --real DIR")
     from tactip_lab.fitting.field_model import load_field_model
 
     model = load_field_model(args.run / "model.json")
@@ -208,15 +215,61 @@ def main(argv: list[str] | None = None) -> int:
                      wrap_deg(lab["pose_6"] + origin - _origin(other))))
     for folder in args.real:
         z = np.load(args.run / f"real_{folder.name}_points.npz")
-        sets.append((f"real {folder.name}", z["rest"], z["pts"],
-                     _labels(folder / "targets.csv")["pose_6"]))
+        sets.append((f"real {folder.name}", z["rest"], z["pts"], _labels(folder / "targets.csv")))
+    charted = []
     for name, rest, pts, truth in sets:
+        labels = truth if isinstance(truth, dict) else None
+        angle = labels["pose_6"] if labels is not None else truth
         got = read_angles(templates, rest, pts, turn)
         saved = model.predict_points(rest, pts)[:, model.targets.index("pose_6")]
-        e, es = wrap_deg(got - truth), wrap_deg(saved - truth)
-        print(f"| {name} | {len(truth)} | {np.nanmean(np.abs(e)):.2f} | "
+        e, es = wrap_deg(got - angle), wrap_deg(saved - angle)
+        print(f"| {name} | {len(angle)} | {np.nanmean(np.abs(e)):.2f} | "
               f"{np.nanmean(np.abs(es)):.2f} | {np.nanmedian(e):+.2f} |", flush=True)
+        if labels is not None:
+            charted.append((name, labels, saved, got))
+    if args.chart is not None:
+        chart(args.chart, charted)
+        print(f"chart: {args.chart}")
     return 0
+
+
+def chart(path: Path, rows: list[tuple[str, dict[str, np.ndarray], np.ndarray, np.ndarray]]
+          ) -> None:
+    """Per real folder (a row): the median angle error (colour) and MAE (text) per cell of
+    ``pose_2`` by ``pose_3``, the saved model's beside the turn readout's."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from sim2real_edge_bins import BINS_MM, DEPTH_BINS_MM, depth_grid
+
+    fig, axes = plt.subplots(len(rows), 2, figsize=(10, 3.8 * len(rows)), squeeze=False,
+                             layout="constrained")
+    image = None
+    for (name, lab, saved, got), pair in zip(rows, axes, strict=True):
+        truth = np.c_[lab["pose_2"], lab["pose_6"]]
+        for ax, pred, what in zip(pair, (saved, got), ("saved model", "turn readout"),
+                                  strict=True):
+            grid = depth_grid(lab["pose_2"], truth, np.c_[lab["pose_2"], pred], lab["pose_3"])
+            med = np.array([[c["median"] for c in row] for row in grid])
+            image = ax.imshow(med, cmap="RdBu_r", vmin=-25, vmax=25, aspect="auto",
+                              origin="lower")
+            for i, row in enumerate(grid):
+                for j, c in enumerate(row):
+                    ax.text(j, i, f"{c['mae']:.1f}", ha="center", va="center", fontsize=8)
+            mae = np.nanmean(np.abs(wrap_deg(pred - lab["pose_6"])))
+            ax.set_title(f"{name}\n{what}: angle MAE {mae:.2f} deg", fontsize=9)
+            ax.set_xticks(range(len(DEPTH_BINS_MM) - 1),
+                          [f"{a:g}-{b:g}" for a, b in zip(DEPTH_BINS_MM[:-1], DEPTH_BINS_MM[1:],
+                                                          strict=True)])
+            ax.set_yticks(range(len(BINS_MM) - 1),
+                          [f"{a:+g}..{b:+g}" for a, b in zip(BINS_MM[:-1], BINS_MM[1:],
+                                                            strict=True)])
+            ax.set_xlabel("pose_3, depth label (mm)")
+        pair[0].set_ylabel("pose_2 (mm; + over the block)")
+    fig.colorbar(image, ax=axes, label="median angle error (deg); text: MAE", shrink=0.8)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
