@@ -18,8 +18,8 @@ Printed, angle MAE (deg) of the readout beside that of ``RUN/model.json`` (as
 ``tactip evaluate`` reads frames):
 
 - ``--shifted RUN2``: on the simulated taps of another run of the same task (draw 0), made
-  with other physical values (their labels moved to ``RUN``'s angle origin, from each run's
-  ``sim/protocol.json``);
+  with other physical values or another model of the sensor (their labels moved to ``RUN``'s
+  angle origin, from each run's ``sim/protocol.json``);
 - ``--real DIR``: on a real folder's taps as ``RUN`` tracked them
   (``RUN/real_<name>_points.npz``, written when the run scored ``DIR``); with ``--chart``
   its angle error per cell of ``pose_2`` × ``pose_3`` (``sim2real_edge_bins.depth_grid``),
@@ -183,7 +183,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("run", type=Path, help="a tactip sim2real --task edge [--shear] --out folder")
     p.add_argument("--shifted", type=Path, nargs="*", default=[], metavar="RUN",
-                   help="runs of the same task made with other physical values")
+                   help="runs of the same task simulated with other values or another "
+                   "model of the sensor (draw 0 of each is read)")
     p.add_argument("--real", type=Path, nargs="*", default=[], metavar="DIR",
                    help="real folders the run scored (its real_<name>_points.npz)")
     p.add_argument("--chart", type=Path, default=None, metavar="PNG",
@@ -207,26 +208,25 @@ def main(argv: list[str] | None = None) -> int:
     print("| taps | n | turn readout, angle MAE (deg) | saved model | turn readout, median error |")
     print("|---|---:|---:|---:|---:|")
     origin = _origin(args.run)
-    sets = []
+    sets = []  # (name, reference, frames, labels, real)
     for other in args.shifted:
         rest, pts, lab = draws(other)[0]
         # the block's yaw is -pose_6 + origin: the same yaw is pose_6 + (origin - other's)
-        sets.append((f"simulated {other}", rest, pts,
-                     wrap_deg(lab["pose_6"] + origin - _origin(other))))
+        lab = {**lab, "pose_6": wrap_deg(lab["pose_6"] + origin - _origin(other))}
+        sets.append((f"simulated {other}", rest, pts, lab, False))
     for folder in args.real:
         z = np.load(args.run / f"real_{folder.name}_points.npz")
-        sets.append((f"real {folder.name}", z["rest"], z["pts"], _labels(folder / "targets.csv")))
+        sets.append((f"real {folder.name}", z["rest"], z["pts"], _labels(folder / "targets.csv"),
+                     True))
     charted = []
-    for name, rest, pts, truth in sets:
-        labels = truth if isinstance(truth, dict) else None
-        angle = labels["pose_6"] if labels is not None else truth
+    for name, rest, pts, lab, real in sets:
         got = read_angles(templates, rest, pts, turn)
         saved = model.predict_points(rest, pts)[:, model.targets.index("pose_6")]
-        e, es = wrap_deg(got - angle), wrap_deg(saved - angle)
-        print(f"| {name} | {len(angle)} | {np.nanmean(np.abs(e)):.2f} | "
+        e, es = wrap_deg(got - lab["pose_6"]), wrap_deg(saved - lab["pose_6"])
+        print(f"| {name} | {len(e)} | {np.nanmean(np.abs(e)):.2f} | "
               f"{np.nanmean(np.abs(es)):.2f} | {np.nanmedian(e):+.2f} |", flush=True)
-        if labels is not None:
-            charted.append((name, labels, saved, got))
+        if real:
+            charted.append((name, lab, saved, got))
     if args.chart is not None:
         chart(args.chart, charted)
         print(f"chart: {args.chart}")
