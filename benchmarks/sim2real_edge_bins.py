@@ -24,6 +24,17 @@ press over the block grows with the depth label, real beside each simulated draw
 ``sim128[_d<j>]_points.npz``): the onset (``pose_3`` where the mean marker displacement
 extrapolates to zero; the third session's descriptor of the depth convention) and the slope.
 
+Then the taps' history (:func:`history_correlations`): the rows of a Bristol folder are the
+order the robot visited the poses in (the lab sorts its random poses by ``pose_6`` before
+collecting them, docs/sim2real.md "The protocols"), so the previous row is the previous tap.
+Each error less the median of its own cell (``pose_2`` by :data:`HISTORY_CELL_MM`), correlated
+with the previous row's ``pose_2`` and ``pose_3`` and, as a control, with the next row's
+(a later tap cannot leave a trace), for the zero-shot and the real-trained predictions, beside
+the spread of the correlation with a shuffled row (:data:`HISTORY_SHUFFLES`); and the shallow
+taps over the block (``pose_2`` >= 0, ``pose_3`` < 4 mm) by the previous tap's ``pose_2``. A
+simulated tap is pressed from rest: a trace of the previous tap is a difference the
+simulation does not make.
+
 A bias the real taps carry and the simulated ones do not is lost in the transfer; one both
 carry is the model's. No model is fitted and nothing is simulated.
 """
@@ -110,6 +121,69 @@ def field_growth(rest: np.ndarray, pts: np.ndarray, depth: np.ndarray, lateral: 
     return {"n": int(s.sum()), "slope": float(a), "onset": float(-b / a)}
 
 
+HISTORY_CELL_MM = (1.0, 0.25)
+"""Cell widths (``pose_2``, ``pose_3``; mm) whose median error is taken out before the
+history correlations: a tap's own pose explains most of its error."""
+HISTORY_SHUFFLES = 300
+
+
+def cell_residuals(err: np.ndarray, lateral: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """``err`` less the median error of its cell of ``lateral`` by ``depth``
+    (:data:`HISTORY_CELL_MM` wide, from each label's minimum)."""
+    ci = np.floor((lateral - lateral.min()) / HISTORY_CELL_MM[0]).astype(np.int64)
+    cj = np.floor((depth - depth.min()) / HISTORY_CELL_MM[1]).astype(np.int64)
+    cell = ci * (cj.max() + 1) + cj
+    out = np.asarray(err, dtype=float).copy()
+    for c in np.unique(cell):
+        m = cell == c
+        out[m] = err[m] - np.median(err[m])
+    return out
+
+
+def history_correlations(res: np.ndarray, label: np.ndarray, seed: int = 0
+                         ) -> dict[str, float]:
+    """Pearson correlation of residuals ``res`` (one per row, in row order) with ``label`` of
+    the previous row (``previous``) and of the next row (``next``, the control), and ``null``:
+    the standard deviation of the correlation with a shuffled ``label``."""
+    res, label = np.asarray(res, dtype=float), np.asarray(label, dtype=float)
+    rng = np.random.default_rng(seed)
+    n = len(res)
+    return {"previous": float(np.corrcoef(res[1:], label[:-1])[0, 1]),
+            "next": float(np.corrcoef(res[:-1], label[1:])[0, 1]),
+            "null": float(np.std([np.corrcoef(res[1:], rng.permutation(label)[:n - 1])[0, 1]
+                                  for _ in range(HISTORY_SHUFFLES)]))}
+
+
+def _print_history(z, cols: dict[str, np.ndarray], targets: list[str]) -> None:
+    print("  the previous tap: each error less its own cell's median (pose_2 1 mm x pose_3 "
+          "0.25 mm), correlated with the previous / next row's label")
+    lat, dep = cols["pose_2"], cols["pose_3"]
+    for j, t in enumerate(targets):
+        for kind, what in (("zero_shot", "zero-shot"), ("real_cv", "real-trained")):
+            e = z[kind][:, j] - z["truth"][:, j]
+            if t == "pose_6":
+                e = wrap_deg(e)
+            res = cell_residuals(e, lat, dep)
+            parts = []
+            for lab in ("pose_2", "pose_3"):
+                h = history_correlations(res, cols[lab])
+                parts.append(f"{lab} {h['previous']:+.3f} / {h['next']:+.3f}")
+            print(f"    {t} {what:12s}  " + ";  ".join(parts)
+                  + f"   (shuffled: sd {h['null']:.3f})")
+    a = targets.index("pose_6")
+    e = wrap_deg(z["zero_shot"][:, a] - z["truth"][:, a])
+    res = cell_residuals(e, lat, dep)
+    shallow = np.flatnonzero((lat >= 0) & (dep < 4.0))
+    shallow = shallow[shallow > 0]
+    print("    shallow taps over the block (pose_2 >= 0, pose_3 < 4 mm), zero-shot pose_6 by the "
+          "previous tap's pose_2: taps, median error, median less own cell")
+    for lo, hi in zip(BINS_MM[:-1:2], BINS_MM[2::2], strict=True):
+        m = (lat[shallow - 1] >= lo) & (lat[shallow - 1] < hi)
+        if m.any():
+            print(f"      previous {lo:+4.0f} … {hi:+4.0f} mm  {int(m.sum()):4d}  "
+                  f"{np.median(e[shallow][m]):+6.1f}  {np.median(res[shallow][m]):+6.1f}")
+
+
 def in_slice(angles: np.ndarray, span_of: np.ndarray) -> np.ndarray:
     """Which ``angles`` (deg) lie within the span of ``span_of`` about its circular mean."""
     mean = circular_mean_deg(span_of)
@@ -154,6 +228,7 @@ def report(run: Path, real: Path) -> None:
     _print_grid("real, zero-shot", depth_grid(truth[:, 0], truth, zero, cols["pose_3"]))
     _print_grid("sim CV, the real folder's slice",
                 depth_grid(st[keep, 0], st[keep], sp[keep], depth[keep]))
+    _print_history(z, cols, targets)
     print(f"  the press over the block (pose_2 > {OVER_BLOCK_MM:g} mm): mean marker "
           "displacement against pose_3")
     rp = np.load(run / f"real_{real.name}_points.npz")

@@ -1467,6 +1467,30 @@ def test_edge_bins_break_errors_down_by_position_and_take_a_slice_across_the_sea
     assert got.tolist() == [True, True, False, False, False, True]
 
 
+def test_edge_bins_history_finds_a_trace_of_the_previous_tap_and_none_of_the_next():
+    """``sim2real_edge_bins.py``'s tap history: an error of the cell's own (a constant per
+    cell) is taken out whole; an error that carries 0.3 of the previous row's label, in noise
+    of the same size, correlates with the previous row's label by ~0.3 (the value the
+    construction gives: 0.3 sd(label) / sd(error)) and with the next row's by no more than
+    the shuffled spread allows."""
+    bins = _benchmark("sim2real_edge_bins")
+    rng = np.random.default_rng(7)
+    n = 2000
+    lateral = rng.uniform(-6.0, 6.0, n)
+    depth = rng.uniform(3.0, 5.0, n)
+    # cells of 1 mm x 0.25 mm counted from each label's smallest value
+    own = (2.0 * np.floor((lateral - lateral.min()) / 1.0)
+           + 5.0 * np.floor((depth - depth.min()) / 0.25))
+    np.testing.assert_allclose(bins.cell_residuals(own, lateral, depth), 0.0, atol=1e-12)
+    noise = rng.normal(0.0, 0.3 * lateral.std(), n)
+    err = own + noise
+    err[1:] += 0.3 * lateral[:-1]
+    h = bins.history_correlations(bins.cell_residuals(err, lateral, depth), lateral)
+    want = 0.3 * lateral.std() / np.hypot(0.3 * lateral.std(), noise.std())
+    assert abs(h["previous"] - want) < 0.06 and want > 0.6
+    assert abs(h["next"]) < 3 * h["null"] and 0.01 < h["null"] < 0.04
+
+
 def test_draw_spread_groups_members_by_draw_and_splits_draws_into_halves():
     """``draw_spread.py``: a model of 3 draws x 2 members groups as [head, m1], [m2, m3],
     [m4, m5] (the head without its members); four draws split into halves three ways, each
