@@ -27,8 +27,9 @@ extrapolates to zero; the third session's descriptor of the depth convention) an
 Then the taps' history (:func:`history_correlations`): the rows of a Bristol folder are the
 order the robot visited the poses in (the lab sorts its random poses by ``pose_6`` before
 collecting them, docs/sim2real.md "The protocols"), so the previous row is the previous tap.
-Each error less the median of its own cell (``pose_2`` by :data:`HISTORY_CELL_MM`), correlated
-with the previous row's ``pose_2`` and ``pose_3`` and, as a control, with the next row's
+Each error less the median of its own cell (``pose_2`` by ``pose_3``,
+:data:`HISTORY_CELL_MM`), correlated with the previous row's ``pose_2`` and ``pose_3`` and,
+as a control, with the next row's
 (a later tap cannot leave a trace), for the zero-shot and the real-trained predictions, beside
 the spread of the correlation with a shuffled row (:data:`HISTORY_SHUFFLES`); and the shallow
 taps over the block (``pose_2`` >= 0, ``pose_3`` < 4 mm) by the previous tap's ``pose_2``. A
@@ -167,9 +168,9 @@ def _print_history(z, cols: dict[str, np.ndarray], targets: list[str]) -> None:
             parts = []
             for lab in ("pose_2", "pose_3"):
                 h = history_correlations(res, cols[lab])
-                parts.append(f"{lab} {h['previous']:+.3f} / {h['next']:+.3f}")
-            print(f"    {t} {what:12s}  " + ";  ".join(parts)
-                  + f"   (shuffled: sd {h['null']:.3f})")
+                parts.append(f"{lab} {h['previous']:+.3f} / {h['next']:+.3f} "
+                             f"(shuffled sd {h['null']:.3f})")
+            print(f"    {t} {what:12s}  " + ";  ".join(parts))
     a = targets.index("pose_6")
     e = wrap_deg(z["zero_shot"][:, a] - z["truth"][:, a])
     res = cell_residuals(e, lat, dep)
