@@ -369,7 +369,7 @@ def cv_predict_rows(rows: Rows | list[Rows], y: np.ndarray, targets: list[str], 
                                      **_turns(task, p)).fit(p.xa[r], p.ya[r]))
         m = models[0]
         m.members = models[1:]
-        for p, folds, at in zip(parts, splits, starts, strict=False):
+        for p, folds, at in zip(parts, splits, starts[:-1], strict=True):
             n, te = len(p.x), folds[f][1]
             if m.turn_steps:  # copy c of tap i is row c * n + i, turned by 360 c / copies
                 pred[at + te] = m.predict_turned([p.xa[c * n + te] for c in range(p.copies)])
