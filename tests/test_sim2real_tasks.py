@@ -1491,6 +1491,27 @@ def test_edge_bins_history_finds_a_trace_of_the_previous_tap_and_none_of_the_nex
     assert abs(h["next"]) < 3 * h["null"] and 0.01 < h["null"] < 0.04
 
 
+def test_field_shape_pairs_wrap_the_angle_and_a_changed_variant_is_refused(tmp_path):
+    """``sim2real_edge_field_shape.py``: taps at 179 and -179 deg are 2 deg apart (a pair),
+    at 0 and 5 deg not, nor 0.5 mm apart laterally; a field and its scaled copy are at
+    distance 0, a field and its negative at 2; a cache made for other keys is refused, not
+    read as the variant."""
+    fs = _benchmark("sim2real_edge_field_shape")
+    labels = {"pose_2": np.array([0.0, 0.1, 0.0, 0.0, 0.5, 0.0]),
+              "pose_3": np.array([4.0, 4.05, 4.0, 4.0, 4.0, 3.0]),
+              "pose_6": np.array([179.0, -179.0, 0.0, 5.0, 0.0, 179.0])}
+    pairs = fs.near_pairs(labels, np.arange(6))
+    assert pairs.tolist() == [[0, 1]]
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(2, 2 * len(fs.grid_nodes()) + 1))
+    np.testing.assert_allclose(fs.shape_distance(a, 3.0 * a), 0.0, atol=1e-12)
+    np.testing.assert_allclose(fs.shape_distance(a, -a), 2.0, atol=1e-12)
+    rows = np.arange(3)
+    np.savez(tmp_path / "beams.npz", stamp=json.dumps({"keys": {}, "rows": [0, 1, 2]}))
+    with pytest.raises(SystemExit, match="other keys or rows"):
+        fs.cached_states(tmp_path, "beams", {"pins.model": '"beam"'}, labels, rows)
+
+
 def test_draw_spread_groups_members_by_draw_and_splits_draws_into_halves():
     """``draw_spread.py``: a model of 3 draws x 2 members groups as [head, m1], [m2, m3],
     [m4, m5] (the head without its members); four draws split into halves three ways, each
