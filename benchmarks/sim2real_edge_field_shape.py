@@ -105,21 +105,24 @@ def projected_fields(scene, states: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def cached_states(cache: Path, name: str, keys: dict[str, str], labels, rows) -> dict:
-    """``pose_states`` of a variant, computed once into ``cache/<name>.npz``."""
+    """``pose_states`` of a variant, computed once into ``cache/<name>.npz``; a cache made
+    for other keys, rows or another scene (its hash) is refused, not read."""
+    from tactip_lab.real.tasks import FRICTION_ASSUMED
+    from tactip_sim.scene.load import scene_hash
+
+    scene = variant_scene({k: v for k, v in keys.items() if k != "friction"})
+    mu = float(keys.get("friction", FRICTION_ASSUMED))
     path = cache / f"{name}.npz"
-    stamp = json.dumps({"keys": keys, "rows": rows.tolist()}, sort_keys=True)
+    stamp = json.dumps({"keys": keys, "rows": rows.tolist(), "scene": scene_hash(scene),
+                        "friction": mu}, sort_keys=True)
     if path.exists():
         z = np.load(path)
         if str(z["stamp"]) != stamp:
-            raise SystemExit(f"{path}: made for other keys or rows than variant {name!r} "
-                             f"{keys}: give another --states folder or another name")
-        return {k: z[k] for k in z.files}
-    scene_keys = {k: v for k, v in keys.items() if k != "friction"}
-    from tactip_lab.real.tasks import FRICTION_ASSUMED
-
-    mu = float(keys.get("friction", FRICTION_ASSUMED))
+            raise SystemExit(f"{path}: made for other keys, rows or scene than variant "
+                             f"{name!r} {keys}: give another --states folder or another name")
+        return {k: z[k] for k in z.files if k != "stamp"}
     t0 = time.perf_counter()
-    st = pose_states(variant_scene(scene_keys), labels, rows, mu)
+    st = pose_states(scene, labels, rows, mu)
     cache.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npz")
     np.savez(tmp, stamp=stamp, **st)
@@ -166,6 +169,9 @@ def parse_variants(raw: list[list[str]]) -> list[tuple[str, dict[str, str]]]:
                 raise SystemExit(f"--variant {v[0]}: {kv!r} is not KEY=VALUE")
             k, val = kv.split("=", 1)
             keys[k] = val
+        if not v[0] or Path(v[0]).name != v[0] or v[0] in (".", ".."):
+            raise SystemExit(f"--variant {v[0]!r}: a name, not a path (it names the cache "
+                             "file in --states)")
         out.append((v[0], keys))
     return out
 

@@ -1495,7 +1495,7 @@ def test_field_shape_pairs_wrap_the_angle_and_a_changed_variant_is_refused(tmp_p
     """``sim2real_edge_field_shape.py``: taps at 179 and -179 deg are 2 deg apart (a pair),
     at 0 and 5 deg not, nor 0.5 mm apart laterally; a field and its scaled copy are at
     distance 0, a field and its negative at 2; a cache made for other keys is refused, not
-    read as the variant."""
+    read as the variant, and a variant's name cannot lead its cache out of its folder."""
     fs = _benchmark("sim2real_edge_field_shape")
     labels = {"pose_2": np.array([0.0, 0.1, 0.0, 0.0, 0.5, 0.0]),
               "pose_3": np.array([4.0, 4.05, 4.0, 4.0, 4.0, 3.0]),
@@ -1508,8 +1508,10 @@ def test_field_shape_pairs_wrap_the_angle_and_a_changed_variant_is_refused(tmp_p
     np.testing.assert_allclose(fs.shape_distance(a, -a), 2.0, atol=1e-12)
     rows = np.arange(3)
     np.savez(tmp_path / "beams.npz", stamp=json.dumps({"keys": {}, "rows": [0, 1, 2]}))
-    with pytest.raises(SystemExit, match="other keys or rows"):
+    with pytest.raises(SystemExit, match="other keys, rows or scene"):
         fs.cached_states(tmp_path, "beams", {"pins.model": '"beam"'}, labels, rows)
+    with pytest.raises(SystemExit, match="a name, not a path"):
+        fs.parse_variants([["../beams", 'pins.model="beam"']])
 
 
 def test_draw_spread_groups_members_by_draw_and_splits_draws_into_halves():
