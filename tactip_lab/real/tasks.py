@@ -208,11 +208,11 @@ shared real folders, two draws where the margin was small):
 - edge taps, with and without shear: rigid rods, whose field beside the block is the most
   one-sided, as the real one is (the localisation benchmark); with beams the lateral position
   is read 3.7 mm off (few-shot offset), zero-shot 2.25 mm against 1.03 mm (the fourth
-  session). Put to a rule
-  again on the sixteenth session's pipeline (docs/sim2real.md, "The edge's pin model put to
-  a rule"), although the beams' fields are the nearest to the real ones in shape at the
-  real folder's own poses: plain edge taps zero-shot 0.84 mm / 7.71 deg with beams against
-  0.61 mm / 7.60 deg with rods, under shear 1.07 mm / 7.19 deg against 0.79 mm / 6.93 deg.
+  session). Put to a rule again on the sixteenth session's pipeline (docs/sim2real.md, "The
+  edge's pin model put to a rule"): although the beams' fields are the nearest to the real
+  ones in shape at the real folder's own poses, the plain edge taps read zero-shot 0.84 mm /
+  7.71 deg with beams against 0.61 mm / 7.60 deg with rods, under shear 1.07 mm / 7.19 deg
+  against 0.79 mm / 6.93 deg.
 
 That one sensor's tasks prefer different pin models is the measure of what the pin model
 still lacks (the pins' push back on the gel, the skin at the corner)."""
