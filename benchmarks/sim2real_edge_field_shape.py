@@ -12,8 +12,9 @@ computed (:func:`pose_states`): the edge task's scene as ``tactip sim2real`` bui
 it, the depth offset the middle of :data:`~tactip_lab.real.tasks.EDGE_DEPTH_OFFSET_MM`, the
 tap pressed in two steps with :data:`~tactip_lab.real.tasks.FRICTION_ASSUMED` (or
 ``friction=MU`` among the variant's keys). The states are kept in ``CACHE/<NAME>.npz`` (with
-their keys: a changed variant is refused, not mixed) and projected through the variant's own
-camera without a render (the analytic blob centroids). Nothing is fitted.
+their keys, rows, friction and scene hash: a changed variant is refused, not mixed) and
+projected through the variant's own camera without a render (the analytic blob centroids).
+Nothing is fitted.
 
 Printed per variant, each feature field
 (:func:`~tactip_lab.fitting.field_model.field_features`, its grid part at unit norm) against
@@ -104,21 +105,28 @@ def projected_fields(scene, states: dict[str, np.ndarray]) -> np.ndarray:
     return np.array(out)
 
 
-def cached_states(cache: Path, name: str, keys: dict[str, str], labels, rows) -> dict:
-    """``pose_states`` of a variant, computed once into ``cache/<name>.npz``; a cache made
-    for other keys, rows or another scene (its hash) is refused, not read."""
+def variant(keys: dict[str, str]) -> tuple:
+    """A variant's scene (its scene keys over the edge task's) and friction (``friction=MU``
+    among its keys, else :data:`~tactip_lab.real.tasks.FRICTION_ASSUMED`)."""
     from tactip_lab.real.tasks import FRICTION_ASSUMED
+
+    return (variant_scene({k: v for k, v in keys.items() if k != "friction"}),
+            float(keys.get("friction", FRICTION_ASSUMED)))
+
+
+def cached_states(cache: Path, name: str, keys: dict[str, str], scene, mu: float, labels,
+                  rows) -> dict:
+    """``pose_states`` of a variant, computed once into ``cache/<name>.npz``; a cache made
+    for other keys, rows, friction or another scene (its hash) is refused, not read."""
     from tactip_sim.scene.load import scene_hash
 
-    scene = variant_scene({k: v for k, v in keys.items() if k != "friction"})
-    mu = float(keys.get("friction", FRICTION_ASSUMED))
     path = cache / f"{name}.npz"
     stamp = json.dumps({"keys": keys, "rows": rows.tolist(), "scene": scene_hash(scene),
                         "friction": mu}, sort_keys=True)
     if path.exists():
         z = np.load(path)
         if str(z["stamp"]) != stamp:
-            raise SystemExit(f"{path}: made for other keys, rows or scene than variant "
+            raise SystemExit(f"{path}: made for other keys, rows, friction or scene than variant "
                              f"{name!r} {keys}: give another --states folder or another name")
         return {k: z[k] for k in z.files if k != "stamp"}
     t0 = time.perf_counter()
@@ -196,7 +204,14 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--every {args.every}: must be >= 1")
     variants = parse_variants(args.variant)
     labels = folder_columns(args.real)
-    z = np.load(args.run / f"real_{args.real.name}_points.npz")
+    tracked = args.run / f"real_{args.real.name}_points.npz"
+    if not tracked.exists():
+        raise SystemExit(f"{tracked}: not found; RUN must be a tactip sim2real --task edge "
+                         f"run that scored {args.real} (its --real)")
+    z = np.load(tracked)
+    if len(z["pts"]) != len(labels["pose_2"]):
+        raise SystemExit(f"{tracked} holds {len(z['pts'])} taps, {args.real}/targets.csv "
+                         f"{len(labels['pose_2'])}: the run scored another folder of that name")
     rows = np.arange(0, len(z["pts"]), args.every)
     real = np.array([field_features(z["rest"], z["pts"][i]) for i in rows])
     depth, over = labels["pose_3"][rows], labels["pose_2"][rows] > OVER_BLOCK_MM
@@ -208,9 +223,9 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---|---:|---:|---:|---:|")
     base, first = None, None
     for name, keys in variants:
-        fields = projected_fields(variant_scene({k: v for k, v in keys.items()
-                                                 if k != "friction"}),
-                                  cached_states(args.states, name, keys, labels, rows))
+        scene, mu = variant(keys)
+        fields = projected_fields(scene, cached_states(args.states, name, keys, scene, mu,
+                                                       labels, rows))
         dist = shape_distance(fields, real)
         if base is None:
             base, first = dist, fields

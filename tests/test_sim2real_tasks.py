@@ -1508,8 +1508,9 @@ def test_field_shape_pairs_wrap_the_angle_and_a_changed_variant_is_refused(tmp_p
     np.testing.assert_allclose(fs.shape_distance(a, -a), 2.0, atol=1e-12)
     rows = np.arange(3)
     np.savez(tmp_path / "beams.npz", stamp=json.dumps({"keys": {}, "rows": [0, 1, 2]}))
-    with pytest.raises(SystemExit, match="other keys, rows or scene"):
-        fs.cached_states(tmp_path, "beams", {"pins.model": '"beam"'}, labels, rows)
+    keys = {"pins.model": '"beam"'}
+    with pytest.raises(SystemExit, match="other keys, rows, friction or scene"):
+        fs.cached_states(tmp_path, "beams", keys, *fs.variant(keys), labels, rows)
     with pytest.raises(SystemExit, match="a name, not a path"):
         fs.parse_variants([["../beams", 'pins.model="beam"']])
 
