@@ -56,12 +56,11 @@ PAIR_TOLERANCE = {"pose_2": 0.4, "pose_3": 0.2, "pose_6": 4.0}
 
 def variant_scene(keys: dict[str, str]):
     """The edge task's scene as ``tactip sim2real`` builds it, ``keys`` (JSON values) over it."""
-    from tactip_lab.real.tasks import TASK_SCENE_DEFAULTS
+    from tactip_lab.real.tasks import task_overrides
     from tactip_sim.commands.args import load_scene_args
 
-    over = {k: json.dumps(v) for k, v in TASK_SCENE_DEFAULTS["edge"].items()} | keys
-    return load_scene_args(argparse.Namespace(
-        scene=str(SCENE), fidelity="fast", overrides=[f"{k}={v}" for k, v in over.items()]))
+    return load_scene_args(argparse.Namespace(scene=str(SCENE), fidelity="fast", overrides=(
+        task_overrides("edge", [f"{k}={v}" for k, v in keys.items()]))))
 
 
 def pose_states(scene, labels: dict[str, np.ndarray], rows: np.ndarray, friction: float

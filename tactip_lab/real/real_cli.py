@@ -199,7 +199,7 @@ def _depth_range(text: str) -> tuple[float, float]:
 def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
     """Field models (tactip_lab.real.task_run): every task's default."""
     from tactip_lab.real.task_run import TaskConfig, run_task
-    from tactip_lab.real.tasks import TASK_SCENE_DEFAULTS
+    from tactip_lab.real.tasks import task_overrides
 
     depth = None
     if args.depth_range is not None:
@@ -222,8 +222,7 @@ def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
             raise ValueError(f"--real {d}: no such folder (a labelled Bristol-layout folder)")
     if args.fidelity is None:
         args.fidelity = "fast"
-        args.overrides = [f"{k}={json.dumps(v)}" for k, v in
-                          TASK_SCENE_DEFAULTS.get(task, {}).items()] + list(args.overrides)
+        args.overrides = task_overrides(task, args.overrides)
     scene = load_scene_args(args)
     _clear_earlier_task_scores(Path(args.out))
     s = run_task(scene, args.out, cfg, real=args.real or [], real_raw=args.real_raw or [],

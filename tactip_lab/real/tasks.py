@@ -216,6 +216,16 @@ shared real folders, two draws where the margin was small):
 
 That one sensor's tasks prefer different pin models is the measure of what the pin model
 still lacks (the pins' push back on the gel, the skin at the corner)."""
+
+
+def task_overrides(task: str, overrides: list[str] | tuple[str, ...] = ()) -> list[str]:
+    """The ``--set KEY=VALUE`` list ``tactip sim2real --task`` applies over the ``fast``
+    preset when given no ``--fidelity``: :data:`TASK_SCENE_DEFAULTS` of ``task`` first, then
+    ``overrides`` (JSON values), which win."""
+    return [f"{k}={json.dumps(v)}" for k, v in TASK_SCENE_DEFAULTS.get(task, {}).items()
+            ] + list(overrides)
+
+
 EDGE_TAP_NOTE = """Edge taps are pressed with friction (:data:`FRICTION_ASSUMED`, ``tap_steps``
 load steps), not frictionless: at the block's corner the contact pushes the skin away from the
 block, and without friction on the top face the whole skin slides sideways. Measured on the
