@@ -647,8 +647,14 @@ def test_sim2real_edge_command_end_to_end(tmp_path):
     assert s["simulated"]["n"] == 40 and (out / "sim128_d1_points.npz").is_file()
     assert not np.allclose(folder_columns(out / "sim")["pose_2"],
                            folder_columns(out / "sim_d1")["pose_2"])
-    assert len(load_field_model(out / "model.json").members) + 1 == 6
+    saved = load_field_model(out / "model.json")
+    assert len(saved.members) + 1 == 6
     assert s["formats"]["raw"]["members"] == 6
+    # the plain edge reads its angle as the frame's mirror line (rule 20), both formats
+    for name in ("model.json", "model_raw.json"):
+        r = load_field_model(out / name).readout
+        assert r["kind"] == "mirror" and r["target"] == "pose_6"
+        assert np.isfinite(r["axis_deg"]) and r["fitted_on"]["taps"] >= 3
     z = s["real"][str(sub)]["zero_shot"]
     assert set(z) == {"pose_2", "pose_6"} and z["pose_2"]["unit"] == "mm"
     ev = tmp_path / "ev.json"
@@ -1553,3 +1559,55 @@ def test_a_bagged_member_keeps_every_turned_copy_of_its_taps_and_no_other():
         assert sorted(idx[taps == i] // n) == list(range(copies))
     np.testing.assert_array_equal(idx, bag_rows(n, copies, (0, 1)))
     assert set(np.unique(bag_rows(n, copies, (0, 2)) % n)) != set(kept)
+
+
+def test_handedness_parts_of_a_field_are_split_and_made_symmetric_at_known_answers():
+    """``sim2real_edge_handedness.py``: on the feature grid, a field symmetric about the x axis
+    has no antisymmetric part and a swirl about a point on the axis (reversed by the mirror)
+    no symmetric part; their sum at equal size has an antisymmetric share of 1/sqrt(2). On
+    a hexagonal array symmetric about a line at 30 deg, a swirl about a point on that line is
+    taken out whole by :func:`symmetrize` and a symmetric press is left as it is; a region
+    mask leaves the rest untouched, and the regions split the array."""
+    hd = _benchmark("sim2real_edge_handedness")
+    nodes = hd.grid_nodes()
+    q = nodes - [0.3, 0.0]
+    bump = np.exp(-np.sum(q ** 2, axis=1) / 0.2)
+    sym = bump[:, None] * q
+    swirl = bump[:, None] * np.stack([-q[:, 1], q[:, 0]], axis=1)
+    swirl *= np.sqrt(np.mean(sym ** 2) / np.mean(swirl ** 2))
+
+    def feature(g):
+        return np.r_[g[:, 0], g[:, 1], 0.0]
+
+    s_part, a_part = hd.split_mirror(feature(sym))
+    np.testing.assert_allclose(a_part, 0.0, atol=1e-12)
+    s_part, a_part = hd.split_mirror(feature(swirl))
+    np.testing.assert_allclose(s_part, 0.0, atol=1e-12)
+    assert hd.antisymmetric_share(feature(sym)[None]) < 1e-12
+    assert hd.antisymmetric_share(feature(swirl)[None]) == pytest.approx(1.0)
+    assert hd.antisymmetric_share(feature(sym + swirl)[None]) == pytest.approx(2 ** -0.5)
+    # a hexagonal array with a row along 30 deg: its own mirror image about that line
+    a = np.deg2rad(30.0)
+    e1, e2 = np.array([np.cos(a), np.sin(a)]), np.array([np.cos(a + np.pi / 3),
+                                                          np.sin(a + np.pi / 3)])
+    ij = np.array([(i, j) for i in range(-8, 9) for j in range(-8, 9)], dtype=float)
+    p = 10.0 * ij @ np.stack([e1, e2])
+    rest = 100.0 + p[np.hypot(p[:, 0], p[:, 1]) <= 65.0]  # no lattice point at 65
+    partner, far = hd.mirror_partner(rest, 30.0)
+    assert far < 1e-9 and np.array_equal(partner[partner], np.arange(len(rest)))
+    r = (rest - rest.mean(axis=0)) / 40.0
+    on_line = r - 0.4 * e1
+    w = np.exp(-np.sum(on_line ** 2, axis=1) / 0.3)[:, None]
+    press = w * on_line
+    turn = w * np.stack([-on_line[:, 1], on_line[:, 0]], axis=1)
+    np.testing.assert_allclose(hd.symmetrize(rest, rest + press + turn, 30.0), rest + press,
+                               atol=1e-9)
+    core = hd.region_mask(rest, 30.0, "core")
+    half = hd.symmetrize(rest, rest + turn, 30.0, core)
+    np.testing.assert_allclose(half[~core], (rest + turn)[~core])
+    np.testing.assert_allclose(half[core], rest[core], atol=1e-9)
+    for a_, b_ in (("core", "rim"), ("block side", "other side")):
+        m1, m2 = hd.region_mask(rest, 30.0, a_), hd.region_mask(rest, 30.0, b_)
+        assert not np.any(m1 & m2) and np.all(m1 | m2)
+    with pytest.raises(ValueError, match="region='middle'"):
+        hd.region_mask(rest, 30.0, "middle")

@@ -293,6 +293,121 @@ def unpack_array(v: Any, what: str) -> np.ndarray:
     return np.frombuffer(raw, dtype="<f8").reshape(shape).astype(float)
 
 
+MIRROR_SPAN_DEG = 40.0
+MIRROR_STEP_DEG = 2.0
+"""The mirror readout's search (:func:`mirror_axis`): lines within +-``MIRROR_SPAN_DEG`` of the
+model's own reading, every ``MIRROR_STEP_DEG``, refined by a parabola through the best three.
+The first values tried (docs/sim2real.md, "The edge's shallow error over the block is a
+handedness of the real fields"), not tuned."""
+MIRROR_AXIS_DEPTH_MM = 4.5
+"""Simulated taps pressed at least this deep (the depth label, mm) set the readout's axis
+(:func:`mirror_axis_of_taps`): the deepest quarter of the lab's 3-5 mm edge taps, where every
+field shows its edge."""
+
+
+def mirror_partners(nodes: np.ndarray) -> np.ndarray:
+    """(k,) the index of the node nearest each node's mirror image across the x axis (the grid
+    of :func:`grid_nodes` is its own mirror image: exact partners)."""
+    return np.array([int(np.argmin(np.hypot(nodes[:, 0] - x, nodes[:, 1] + y)))
+                     for x, y in nodes])
+
+
+def mirror_asymmetry(rest: np.ndarray, points: np.ndarray, lines_deg: np.ndarray
+                     ) -> np.ndarray:
+    """(L,) for each line through the rest array's centre at image angle ``lines_deg`` (L,),
+    how far one frame's displacement field is from mirror-symmetric about it: the field as the
+    features see it (shift and affine map removed, :func:`remove_affine`; smoothed onto the
+    grid turned so the line is its x axis), the energy of its antisymmetric part over the
+    field's. 0 for a field symmetric about the line; NaN with fewer than half the markers."""
+    rest = np.asarray(rest, dtype=float)
+    points = np.asarray(points, dtype=float)
+    lines = np.atleast_1d(np.asarray(lines_deg, dtype=float))
+    ok = np.all(np.isfinite(points), axis=1)
+    if ok.sum() < len(rest) / 2:
+        return np.full(len(lines), np.nan)
+    c = rest.mean(axis=0)
+    s = float(np.sqrt(np.mean(np.sum((rest - c) ** 2, axis=1))))
+    r = (rest[ok] - c) / s
+    d = remove_affine(r, (points[ok] - rest[ok]) / s)
+    nodes = grid_nodes()
+    mir = mirror_partners(nodes)
+    out = np.empty(len(lines))
+    for j, a in enumerate(lines):
+        g = rotate(smooth_field(rotate(nodes, a), r, d), -a)  # the field in the line's frame
+        anti = g - g[mir] * np.array([1.0, -1.0])
+        total = float(np.sum(g ** 2))
+        out[j] = float(np.sum(anti ** 2)) / (4.0 * total) if total > 0 else np.nan
+    return out
+
+
+def mirror_axis(rest: np.ndarray, points: np.ndarray, start_deg: float,
+                span_deg: float = MIRROR_SPAN_DEG, step_deg: float = MIRROR_STEP_DEG) -> float:
+    """The image angle (deg) of the line through the array's centre about which one frame's
+    field is most nearly mirror-symmetric (:func:`mirror_asymmetry`), searched within
+    ``span_deg`` of ``start_deg``; NaN when the frame cannot be read."""
+    offsets = np.arange(-span_deg, span_deg + 1e-9, step_deg)
+    e = mirror_asymmetry(rest, points, start_deg + offsets)
+    if not np.all(np.isfinite(e)):
+        return float("nan")
+    j = int(np.argmin(e))
+    shift = 0.0
+    if 0 < j < len(e) - 1:
+        den = e[j - 1] - 2.0 * e[j] + e[j + 1]
+        if den > 0:
+            shift = 0.5 * (e[j - 1] - e[j + 1]) / den
+    return float(start_deg + offsets[j] + shift * step_deg)
+
+
+def mirror_axis_of_taps(rest: np.ndarray, pts: np.ndarray, values: np.ndarray, turn: float,
+                        step_deg: float = MIRROR_STEP_DEG) -> tuple[float, float, int]:
+    """(axis, spread, n): the image angle of the mirror line at a target value of 0, from taps
+    ``pts`` (n, m, 2) tracked from ``rest`` with known values ``values`` (n,) of a target that
+    turns by ``turn`` per image degree: each tap's own line (:func:`mirror_axis` over the whole
+    half circle) less ``values / turn``, their circular mean as lines (mod 180 deg), the
+    spread (deg, circular standard deviation) and the taps read."""
+    lines = []
+    for p, v in zip(pts, np.asarray(values, dtype=float), strict=True):
+        coarse = np.arange(0.0, 180.0, 4.0 * step_deg)
+        e = mirror_asymmetry(rest, p, coarse)
+        if not np.all(np.isfinite(e)):
+            continue
+        a = mirror_axis(rest, p, float(coarse[int(np.argmin(e))]), 4.0 * step_deg, step_deg)
+        if np.isfinite(a):
+            lines.append(a - v / turn)
+    if not lines:
+        raise ValueError("no simulated tap could be read to set the mirror readout's axis")
+    z = np.mean(np.exp(2j * np.deg2rad(np.asarray(lines))))
+    spread = float(np.rad2deg(np.sqrt(-2.0 * np.log(max(abs(z), 1e-12)))) / 2.0)
+    return float(np.rad2deg(np.angle(z)) / 2.0), spread, len(lines)
+
+
+READOUT_KINDS = ("mirror",)
+
+
+def check_readout(readout: dict[str, Any], label_turn: dict[str, float]) -> None:
+    """A :class:`FieldModel`'s ``readout``: its kind known, its target one that turns with the
+    frame, its axis finite, its span within (0, 90) deg and its step positive and no wider;
+    otherwise ValueError naming the key and what is allowed."""
+    kind = readout.get("kind")
+    if kind not in READOUT_KINDS:
+        raise ValueError(f"readout kind {kind!r} is not known: one of "
+                         f"{', '.join(READOUT_KINDS)} (a model of a newer version?)")
+    if readout.get("target") not in label_turn:
+        raise ValueError(f"readout target {readout.get('target')!r}: the mirror readout reads "
+                         f"a target that turns with the frame ({', '.join(label_turn) or 'none'})")
+    try:
+        axis, span, step = (float(readout[k]) for k in ("axis_deg", "span_deg", "step_deg"))
+    except (KeyError, TypeError, ValueError):
+        raise ValueError("readout needs numbers axis_deg, span_deg and step_deg") from None
+    if not np.isfinite(axis):
+        raise ValueError(f"readout axis_deg={axis}: a finite angle")
+    if not 0 < span < 90:
+        raise ValueError(f"readout span_deg={span}: in (0, 90) (a mirror line repeats every "
+                         "180 deg)")
+    if not 0 < step <= span:
+        raise ValueError(f"readout step_deg={step}: in (0, span_deg={span}]")
+
+
 @dataclass
 class FieldModel:
     """Standardise -> PCA -> kernel ridge (RBF) on :func:`field_features`, one output per
@@ -319,6 +434,12 @@ class FieldModel:
     members : other fitted models of the same targets (without members of their own) whose
         regression outputs are averaged with this one's: the same simulated taps measured
         from other draws of references (``tactip sim2real``'s surface tasks)
+    readout : empty, or how :meth:`predict_points` reads a turning target after the
+        regression: ``{"kind": "mirror", "target", "axis_deg", "span_deg", "step_deg", ...}``
+        moves the regression's reading to the line the frame's field is most nearly
+        mirror-symmetric about (:func:`mirror_axis`, searched within ``span_deg`` of the
+        reading; ``axis_deg`` the line at a target value of 0, :func:`mirror_axis_of_taps`):
+        the edge taps' readout since 2026-11-30's seventeenth session (docs/sim2real.md)
     """
 
     task: str
@@ -333,6 +454,7 @@ class FieldModel:
     turn_steps: int = 0
     invariance: str = INVARIANCE
     members: list[FieldModel] = field(default_factory=list)
+    readout: dict[str, Any] = field(default_factory=dict)
     _scaler: Any = None
     _pca: Any = None
     _krr: Any = None
@@ -349,6 +471,8 @@ class FieldModel:
             raise ValueError(f"turn_steps={self.turn_steps}: 0, or >= 1 with a label_turn")
         if self.invariance not in INVARIANCES:
             raise ValueError(f"invariance={self.invariance!r}: one of {', '.join(INVARIANCES)}")
+        if self.readout:
+            check_readout(self.readout, self.label_turn)
 
     def fit(self, x: np.ndarray, y: np.ndarray) -> FieldModel:
         from sklearn.decomposition import PCA
@@ -424,10 +548,34 @@ class FieldModel:
 
     def predict_points(self, rest: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """(n, t) predictions of frames ``pts`` (n, m, 2) tracked from ``rest`` (m, 2): the
-        mean over :meth:`turns_deg` (:meth:`predict_turned`), or the frames as seen."""
-        return self.predict_turned([fields_of(rest, pts, rotation_deg=d,
+        mean over :meth:`turns_deg` (:meth:`predict_turned`), or the frames as seen; then the
+        model's :attr:`readout`, if it has one (:meth:`read_out`)."""
+        pred = self.predict_turned([fields_of(rest, pts, rotation_deg=d,
                                               invariance=self.invariance)
                                     for d in self.turns_deg()])
+        return self.read_out(rest, pts, pred) if self.readout else pred
+
+    def read_out(self, rest: np.ndarray, pts: np.ndarray, pred: np.ndarray) -> np.ndarray:
+        """``pred`` (n, t), the regression's readings of frames ``pts`` (n, m, 2) tracked from
+        ``rest`` (m, 2; or one per frame), with the :attr:`readout`'s target moved to the
+        frame's mirror line: the line at the reading is ``axis_deg + value / turn``; the one
+        :func:`mirror_axis` finds within ``span_deg`` of it moves the value by ``turn`` times
+        the difference (a line cannot tell the block's side from the other, the reading can).
+        A frame the readout cannot read keeps the regression's value."""
+        r = self.readout
+        k = self.targets.index(r["target"])
+        turn = self.label_turn[r["target"]]
+        out = np.array(pred, dtype=float, copy=True)
+        rest = np.asarray(rest, dtype=float)
+        refs = rest if rest.ndim == 3 else [rest] * len(pts)
+        for i, (ref, p) in enumerate(zip(refs, pts, strict=True)):
+            if not np.isfinite(out[i, k]):
+                continue
+            start = float(r["axis_deg"]) + out[i, k] / turn
+            line = mirror_axis(ref, p, start, float(r["span_deg"]), float(r["step_deg"]))
+            if np.isfinite(line):
+                out[i, k] = float(wrap_deg(out[i, k] + turn * (line - start)))
+        return out
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -446,6 +594,7 @@ class FieldModel:
             "krr": {"x_fit": pack_array(self._krr.X_fit_),
                     "dual_coef": pack_array(self._krr.dual_coef_)},
             "members": [m.to_json() for m in self.members],
+            "readout": dict(self.readout),
         }
 
     def save(self, path: str | Path) -> Path:
@@ -479,6 +628,12 @@ class FieldModel:
                 label_turn={str(k): float(v) for k, v in d.get("label_turn", {}).items()},
                 turn_steps=int(d.get("turn_steps", 0)),
                 invariance=str(d.get("invariance", "shift")))
+        if d.get("readout"):
+            try:
+                check_readout(d["readout"], m.label_turn)
+            except ValueError as exc:
+                raise ValueError(f"{source}: {exc}") from None
+            m.readout = dict(d["readout"])
         if d.get("rest_px") is not None:
             rest = np.asarray(d["rest_px"], dtype=float)
             if rest.ndim != 2 or rest.shape[1] != 2 or not np.all(np.isfinite(rest)):

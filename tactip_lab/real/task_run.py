@@ -35,11 +35,15 @@ import numpy as np
 
 import tactip_sim as ts
 from tactip_lab.fitting.field_model import (
+    MIRROR_AXIS_DEPTH_MM,
+    MIRROR_SPAN_DEG,
+    MIRROR_STEP_DEG,
     TARGETS,
     FieldModel,
     augment,
     circular_mean_deg,
     fields_of,
+    mirror_axis_of_taps,
     target_scores,
     task_targets,
     wrap_deg,
@@ -107,6 +111,14 @@ as their errors. The mean over K draws is the expectation over the draw; K by th
 costs, 2 400 simulated taps for either task (edge 2 x 1 200, under shear 4 x 600), not by a
 score. Measured since (``benchmarks/draw_spread.py``): halves of the four draws under shear
 read the frames 0.37 mm / 4.6 deg apart, the single draws' spread over sqrt(2)."""
+MIRROR_READOUT_TASKS = ("edge",)
+"""Tasks whose saved model reads its angle as the frame's mirror line
+(:meth:`~tactip_lab.fitting.field_model.FieldModel.read_out`, :func:`mirror_readout`): the
+plain edge taps, whose press is mirror-symmetric about the edge's normal through the sensor's
+axis. The real edge taps' fields carry a handedness the simulated ones do not (mirrored real
+frames are read with the opposite bias; docs/sim2real.md, "The edge's shallow error over the
+block is a handedness of the real fields"); adopted by a rule written before its test (rule
+20). Not the edge under shear: a move along the edge or a twist breaks the symmetry."""
 DRAWN_REFERENCE_RULES = ("shallowest",)
 """The reference rules whose error the training taps are given (:func:`tap_references`): the
 surface tasks' median of the shallowest presses, which keeps their tilts and depth (a
@@ -295,6 +307,26 @@ def fit_model(task: str, targets: list[str], size, rest, pts, y, fitted_on=None,
     return FieldModel(task, targets, tuple(size), fitted_on=fitted_on or {},
                       rest=np.asarray(rest, dtype=float), **kw,
                       **_turns(task, r)).fit(r.xa, r.ya)
+
+
+def mirror_readout(model: FieldModel, rest: np.ndarray, pts: np.ndarray, cols: dict[str, Any]
+                   ) -> dict[str, Any]:
+    """The mirror readout of an edge ``model`` (its :attr:`~tactip_lab.fitting.field_model.
+    FieldModel.readout`): the line at ``pose_6`` = 0 from the simulated taps ``pts`` (n, m, 2)
+    tracked from ``rest`` pressed at least :data:`~tactip_lab.fitting.field_model.
+    MIRROR_AXIS_DEPTH_MM` deep by label (``cols``: their columns; the deepest quarter, at
+    least three, when fewer are: a run of few taps or of other depths), with how it was
+    read."""
+    depth = np.asarray(cols["pose_3"], dtype=float)
+    least = MIRROR_AXIS_DEPTH_MM
+    if (depth >= least).sum() < 3:
+        least = float(np.sort(depth)[::-1][min(len(depth), max(3, len(depth) // 4)) - 1])
+    deep = depth >= least
+    axis, spread, n = mirror_axis_of_taps(rest, pts[deep], np.asarray(cols["pose_6"])[deep],
+                                          model.label_turn["pose_6"])
+    return {"kind": "mirror", "target": "pose_6", "axis_deg": axis,
+            "span_deg": MIRROR_SPAN_DEG, "step_deg": MIRROR_STEP_DEG,
+            "fitted_on": {"taps": n, "spread_deg": spread, "depth_mm": least}}
 
 
 def bag_rows(n: int, copies: int, seed: int | tuple[int, ...]) -> np.ndarray:
@@ -606,8 +638,6 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
         y_cv = np.concatenate(ys[:len(parts)])
         k, pred, tried = choose_components_rows(parts, y_cv, targets, size,
                                                 task=cfg.task, seed=cfg.seed)
-        save_sim_cv(out / f"sim_cv_{fmt}.npz", y_cv, pred, targets, k, {
-            c: np.concatenate([d["cols"][c] for d in draws[:len(parts)]]) for c in cols})
         m = fit_model(cfg.task, targets, size, rest, pts, y_sim, fitted_on={
             "simulated": str(sim), "format": fmt, "scene": scene_source,
             "scene_hash": scene_hash(scene), "n_sim": int(summary["simulated"]["n"]),
@@ -635,6 +665,16 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
                     m.members.append(FieldModel(cfg.task, targets, tuple(size), n_components=k,
                                                 **_turns(cfg.task, dj)).fit(dj.xa[idx],
                                                                             dj.ya[idx]))
+        if cfg.task in MIRROR_READOUT_TASKS:
+            # the saved model's reading, and the CV's read out as the model will read them
+            m.readout = mirror_readout(m, rest, pts, cols)
+            points = [d["points"][fmt] for d in draws[:len(parts)]]
+            at = 0
+            for r_j, p_j in points:
+                pred[at:at + len(p_j)] = m.read_out(r_j, p_j, pred[at:at + len(p_j)])
+                at += len(p_j)
+        save_sim_cv(out / f"sim_cv_{fmt}.npz", y_cv, pred, targets, k, {
+            c: np.concatenate([d["cols"][c] for d in draws[:len(parts)]]) for c in cols})
         m.save(out / name)
         models[fmt] = m
         summary["formats"][fmt] = {"model": str(out / name), "frames_usable": int(

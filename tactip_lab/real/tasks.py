@@ -212,7 +212,8 @@ shared real folders, two draws where the margin was small):
   edge's pin model put to a rule"): although the beams' fields are the nearest to the real
   ones in shape at the real folder's own poses, the plain edge taps read zero-shot 0.84 mm /
   7.71 deg with beams against 0.61 mm / 7.60 deg with rods, under shear 1.07 mm / 7.19 deg
-  against 0.79 mm / 6.93 deg.
+  against 0.79 mm / 6.93 deg (the regression's own readings, before the plain edge's mirror
+  readout of the seventeenth session).
 
 That one sensor's tasks prefer different pin models is the measure of what the pin model
 still lacks (the pins' push back on the gel, the skin at the corner)."""
