@@ -546,16 +546,18 @@ class FieldModel:
             acc = z if acc is None else acc + z
         return decode(acc / len(turns), self.targets)
 
-    def predict_points(self, rest: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    def predict_points(self, rest: np.ndarray, pts: np.ndarray, *, progress: bool = False
+                       ) -> np.ndarray:
         """(n, t) predictions of frames ``pts`` (n, m, 2) tracked from ``rest`` (m, 2): the
         mean over :meth:`turns_deg` (:meth:`predict_turned`), or the frames as seen; then the
-        model's :attr:`readout`, if it has one (:meth:`read_out`)."""
+        model's :attr:`readout`, if it has one (:meth:`read_out`; ``progress``: its bar)."""
         pred = self.predict_turned([fields_of(rest, pts, rotation_deg=d,
                                               invariance=self.invariance)
                                     for d in self.turns_deg()])
-        return self.read_out(rest, pts, pred) if self.readout else pred
+        return self.read_out(rest, pts, pred, progress=progress) if self.readout else pred
 
-    def read_out(self, rest: np.ndarray, pts: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    def read_out(self, rest: np.ndarray, pts: np.ndarray, pred: np.ndarray, *,
+                 progress: bool = False) -> np.ndarray:
         """``pred`` (n, t), the regression's readings of frames ``pts`` (n, m, 2) tracked from
         ``rest`` (m, 2; or one per frame), with the :attr:`readout`'s target moved to the
         frame's mirror line: the line at the reading is ``axis_deg + value / turn``; the one
@@ -568,7 +570,12 @@ class FieldModel:
         out = np.array(pred, dtype=float, copy=True)
         rest = np.asarray(rest, dtype=float)
         refs = rest if rest.ndim == 3 else [rest] * len(pts)
-        for i, (ref, p) in enumerate(zip(refs, pts, strict=True)):
+        frames = enumerate(zip(refs, pts, strict=True))
+        if progress:
+            from tqdm import tqdm
+
+            frames = tqdm(frames, total=len(pts), desc=f"{r['kind']} readout", unit="frame")
+        for i, (ref, p) in frames:
             if not np.isfinite(out[i, k]):
                 continue
             start = float(r["axis_deg"]) + out[i, k] / turn

@@ -226,7 +226,7 @@ def _evaluate_field(args: argparse.Namespace) -> int:
         rest, pts, _ = folder_points(f, expected_count=args.expected_count,
                                      progress=not args.no_progress, reference=rule,
                                      prior=model.rest)
-        pred = model.predict_points(rest, pts)
+        pred = model.predict_points(rest, pts, progress=not args.no_progress)
         s = target_scores(y, pred, targets)
         rows.append({"dataset": str(d), "n_rows": len(y),
                      "n_used": int(np.all(np.isfinite(pred), axis=1).sum()),

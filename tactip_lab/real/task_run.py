@@ -671,7 +671,8 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
             points = [d["points"][fmt] for d in draws[:len(parts)]]
             at = 0
             for r_j, p_j in points:
-                pred[at:at + len(p_j)] = m.read_out(r_j, p_j, pred[at:at + len(p_j)])
+                pred[at:at + len(p_j)] = m.read_out(r_j, p_j, pred[at:at + len(p_j)],
+                                                    progress=progress)
                 at += len(p_j)
         save_sim_cv(out / f"sim_cv_{fmt}.npz", y_cv, pred, targets, k, {
             c: np.concatenate([d["cols"][c] for d in draws[:len(parts)]]) for c in cols})
@@ -717,7 +718,7 @@ def score_real(model: FieldModel, folder: Path, out: Path, cfg: TaskConfig, fmt:
                               expected_count=331, reference=rule, prior=model.rest)
     features = training_rows("", targets, rest, pts, y)  # the real taps as they are
     x = features.x
-    zero = model.predict_points(rest, pts)
+    zero = model.predict_points(rest, pts, progress=progress)
     rows, few, corr = few_shot(zero, y, targets, cfg.k, cfg.seed)
     k_real, real_cv, _ = choose_components_rows(features, y, targets, model.image_size,
                                                 seed=cfg.seed)
