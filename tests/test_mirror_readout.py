@@ -124,7 +124,8 @@ def test_the_readout_moves_a_biased_reading_to_the_mirror_line_and_keeps_the_sid
 
 def test_a_readout_survives_the_model_file_and_a_wrong_one_is_refused(tmp_path):
     """Saved and loaded, a model keeps its readout and reads the same; a readout of an unknown
-    kind, a span of 90 deg or more, or a target that does not turn is refused, naming it."""
+    kind, a span of 90 deg or more, a smoothing of no width or a target that does not turn is
+    refused, naming it."""
     rest = _lattice()
     rng = np.random.default_rng(5)
     values = rng.uniform(-180.0, 180.0, 24)
@@ -146,6 +147,9 @@ def test_a_readout_survives_the_model_file_and_a_wrong_one_is_refused(tmp_path):
     with pytest.raises(ValueError, match="span_deg=95"):
         FieldModel("edge", ["pose_2", "pose_6"], (128, 128), label_turn={"pose_6": -1.0},
                    turn_steps=12, readout={**m.readout, "span_deg": 95.0})
+    with pytest.raises(ValueError, match="readout bandwidth=0"):
+        FieldModel("edge", ["pose_2", "pose_6"], (128, 128), label_turn={"pose_6": -1.0},
+                   turn_steps=12, readout={**m.readout, "bandwidth": 0})
     with pytest.raises(ValueError, match="readout target 'pose_2'"):
         FieldModel("edge", ["pose_2", "pose_6"], (128, 128), label_turn={"pose_6": -1.0},
                    turn_steps=12, readout={**m.readout, "target": "pose_2"})

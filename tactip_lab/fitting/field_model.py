@@ -299,6 +299,11 @@ MIRROR_STEP_DEG = 2.0
 model's own reading, every ``MIRROR_STEP_DEG``, refined by a parabola through the best three.
 The first values tried (docs/sim2real.md, "The edge's shallow error over the block is a
 handedness of the real fields"), not tuned."""
+MIRROR_BANDWIDTH = 0.18
+"""The mirror readout's smoothing (field radii; 1.5 times the feature's :data:`BANDWIDTH`):
+chosen among 0.12, 0.18 and 0.24 by simulation's own CV alone (rule 21, docs/sim2real.md).
+With the feature's 0.12 a weak field's line was pinned to the lines the array's sampling and
+the markers' noise favour."""
 MIRROR_AXIS_DEPTH_MM = 4.5
 """Simulated taps pressed at least this deep (the depth label, mm) set the readout's axis
 (:func:`mirror_axis_of_taps`): the deepest quarter of the lab's 3-5 mm edge taps, where every
@@ -312,13 +317,14 @@ def mirror_partners(nodes: np.ndarray) -> np.ndarray:
                      for x, y in nodes])
 
 
-def mirror_asymmetry(rest: np.ndarray, points: np.ndarray, lines_deg: np.ndarray
-                     ) -> np.ndarray:
+def mirror_asymmetry(rest: np.ndarray, points: np.ndarray, lines_deg: np.ndarray,
+                     bandwidth: float = BANDWIDTH) -> np.ndarray:
     """(L,) for each line through the rest array's centre at image angle ``lines_deg`` (L,),
     how far one frame's displacement field is from mirror-symmetric about it: the field as the
     features see it (shift and affine map removed, :func:`remove_affine`; smoothed onto the
-    grid turned so the line is its x axis), the energy of its antisymmetric part over the
-    field's. 0 for a field symmetric about the line; NaN with fewer than half the markers."""
+    grid turned so the line is its x axis, by a kernel ``bandwidth`` field radii wide), the
+    energy of its antisymmetric part over the field's. 0 for a field symmetric about the line;
+    NaN with fewer than half the markers."""
     rest = np.asarray(rest, dtype=float)
     points = np.asarray(points, dtype=float)
     lines = np.atleast_1d(np.asarray(lines_deg, dtype=float))
@@ -333,7 +339,7 @@ def mirror_asymmetry(rest: np.ndarray, points: np.ndarray, lines_deg: np.ndarray
     mir = mirror_partners(nodes)
     out = np.empty(len(lines))
     for j, a in enumerate(lines):
-        g = rotate(smooth_field(rotate(nodes, a), r, d), -a)  # the field in the line's frame
+        g = rotate(smooth_field(rotate(nodes, a), r, d, bandwidth), -a)  # in the line's frame
         anti = g - g[mir] * np.array([1.0, -1.0])
         total = float(np.sum(g ** 2))
         out[j] = float(np.sum(anti ** 2)) / (4.0 * total) if total > 0 else np.nan
@@ -341,12 +347,13 @@ def mirror_asymmetry(rest: np.ndarray, points: np.ndarray, lines_deg: np.ndarray
 
 
 def mirror_axis(rest: np.ndarray, points: np.ndarray, start_deg: float,
-                span_deg: float = MIRROR_SPAN_DEG, step_deg: float = MIRROR_STEP_DEG) -> float:
+                span_deg: float = MIRROR_SPAN_DEG, step_deg: float = MIRROR_STEP_DEG,
+                bandwidth: float = BANDWIDTH) -> float:
     """The image angle (deg) of the line through the array's centre about which one frame's
     field is most nearly mirror-symmetric (:func:`mirror_asymmetry`), searched within
     ``span_deg`` of ``start_deg``; NaN when the frame cannot be read."""
     offsets = np.arange(-span_deg, span_deg + 1e-9, step_deg)
-    e = mirror_asymmetry(rest, points, start_deg + offsets)
+    e = mirror_asymmetry(rest, points, start_deg + offsets, bandwidth)
     if not np.all(np.isfinite(e)):
         return float("nan")
     j = int(np.argmin(e))
@@ -359,7 +366,8 @@ def mirror_axis(rest: np.ndarray, points: np.ndarray, start_deg: float,
 
 
 def mirror_axis_of_taps(rest: np.ndarray, pts: np.ndarray, values: np.ndarray, turn: float,
-                        step_deg: float = MIRROR_STEP_DEG) -> tuple[float, float, int]:
+                        step_deg: float = MIRROR_STEP_DEG, bandwidth: float = BANDWIDTH
+                        ) -> tuple[float, float, int]:
     """(axis, spread, n): the image angle of the mirror line at a target value of 0, from taps
     ``pts`` (n, m, 2) tracked from ``rest`` with known values ``values`` (n,) of a target that
     turns by ``turn`` per image degree: each tap's own line (:func:`mirror_axis` over the whole
@@ -368,10 +376,11 @@ def mirror_axis_of_taps(rest: np.ndarray, pts: np.ndarray, values: np.ndarray, t
     lines = []
     for p, v in zip(pts, np.asarray(values, dtype=float), strict=True):
         coarse = np.arange(0.0, 180.0, 4.0 * step_deg)
-        e = mirror_asymmetry(rest, p, coarse)
+        e = mirror_asymmetry(rest, p, coarse, bandwidth)
         if not np.all(np.isfinite(e)):
             continue
-        a = mirror_axis(rest, p, float(coarse[int(np.argmin(e))]), 4.0 * step_deg, step_deg)
+        a = mirror_axis(rest, p, float(coarse[int(np.argmin(e))]), 4.0 * step_deg, step_deg,
+                        bandwidth)
         if np.isfinite(a):
             lines.append(a - v / turn)
     if not lines:
@@ -406,6 +415,13 @@ def check_readout(readout: dict[str, Any], label_turn: dict[str, float]) -> None
                          "180 deg)")
     if not 0 < step <= span:
         raise ValueError(f"readout step_deg={step}: in (0, span_deg={span}]")
+    try:
+        width = float(readout.get("bandwidth", BANDWIDTH))
+    except (TypeError, ValueError):
+        width = float("nan")
+    if not 0 < width <= 1:
+        raise ValueError(f"readout bandwidth={readout.get('bandwidth')!r}: in (0, 1] field "
+                         "radii")
 
 
 @dataclass
@@ -579,7 +595,8 @@ class FieldModel:
             if not np.isfinite(out[i, k]):
                 continue
             start = float(r["axis_deg"]) + out[i, k] / turn
-            line = mirror_axis(ref, p, start, float(r["span_deg"]), float(r["step_deg"]))
+            line = mirror_axis(ref, p, start, float(r["span_deg"]), float(r["step_deg"]),
+                               float(r.get("bandwidth", BANDWIDTH)))
             if np.isfinite(line):
                 out[i, k] = float(wrap_deg(out[i, k] + turn * (line - start)))
         return out

@@ -36,6 +36,7 @@ import numpy as np
 import tactip_sim as ts
 from tactip_lab.fitting.field_model import (
     MIRROR_AXIS_DEPTH_MM,
+    MIRROR_BANDWIDTH,
     MIRROR_SPAN_DEG,
     MIRROR_STEP_DEG,
     TARGETS,
@@ -118,7 +119,9 @@ plain edge taps, whose press is mirror-symmetric about the edge's normal through
 axis. The real edge taps' fields carry a handedness the simulated ones do not (mirrored real
 frames are read with the opposite bias; docs/sim2real.md, "The edge's shallow error over the
 block is a handedness of the real fields"); adopted by a rule written before its test (rule
-20). Not the edge under shear: a move along the edge or a twist breaks the symmetry."""
+20), its smoothing (:data:`~tactip_lab.fitting.field_model.MIRROR_BANDWIDTH`) chosen on
+simulation alone (rule 21). Not the edge under shear: a move along the edge or a twist breaks
+the symmetry."""
 DRAWN_REFERENCE_RULES = ("shallowest",)
 """The reference rules whose error the training taps are given (:func:`tap_references`): the
 surface tasks' median of the shallowest presses, which keeps their tilts and depth (a
@@ -323,9 +326,11 @@ def mirror_readout(model: FieldModel, rest: np.ndarray, pts: np.ndarray, cols: d
         least = float(np.sort(depth)[::-1][min(len(depth), max(3, len(depth) // 4)) - 1])
     deep = depth >= least
     axis, spread, n = mirror_axis_of_taps(rest, pts[deep], np.asarray(cols["pose_6"])[deep],
-                                          model.label_turn["pose_6"])
+                                          model.label_turn["pose_6"],
+                                          bandwidth=MIRROR_BANDWIDTH)
     return {"kind": "mirror", "target": "pose_6", "axis_deg": axis,
             "span_deg": MIRROR_SPAN_DEG, "step_deg": MIRROR_STEP_DEG,
+            "bandwidth": MIRROR_BANDWIDTH,
             "fitted_on": {"taps": n, "spread_deg": spread, "depth_mm": least}}
 
 
