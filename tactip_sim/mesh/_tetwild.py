@@ -15,7 +15,13 @@ import numpy as np
 
 
 def main(argv: list[str]) -> int:
+    import signal
+
     import pytetwild
+
+    # the parent holds SIGINT and SIGTERM while it starts this process, which inherits the
+    # mask: take them again, so that an interrupt reaches the mesher as it would any command
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
 
     src, dst = argv
     with np.load(src) as data:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import io
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -383,6 +384,10 @@ def _build(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return nodes, tets, regions
 
 
+INTERRUPTS = {signal.SIGINT, signal.SIGTERM}
+"""The signals that interrupt a command (Ctrl-C, and SIGTERM as the commands handle it)."""
+
+
 def _run_tetwild(**kwargs: object) -> tuple[np.ndarray, np.ndarray]:
     """``pytetwild.tetrahedralize(**kwargs)`` in a child process started in a temporary
     directory (:mod:`tactip_sim.mesh._tetwild`): pytetwild writes ``__tracked_surface.stl``
@@ -395,11 +400,21 @@ def _run_tetwild(**kwargs: object) -> tuple[np.ndarray, np.ndarray]:
         np.savez(src, **{k: np.asarray(v) for k, v in kwargs.items()})
         # the clock shows on a terminal (a mesh can take minutes)
         with clock(f"meshing the pad (pytetwild, edge {kwargs['edge_length_abs']} mm)"):
-            with subprocess.Popen([sys.executable, "-m", "tactip_sim.mesh._tetwild",
-                                   str(src), str(dst)], cwd=tmp, env=env,
-                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                  text=True) as proc:
+            # an interrupt while the child starts would orphan it (Popen raises before the
+            # child is ours to kill): held until it is, and taken again in the child
+            # (tactip_sim.mesh._tetwild unblocks them)
+            held = signal.pthread_sigmask(signal.SIG_BLOCK, INTERRUPTS)
+            try:
+                proc = subprocess.Popen([sys.executable, "-m", "tactip_sim.mesh._tetwild",
+                                         str(src), str(dst)], cwd=tmp, env=env,
+                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                        text=True)
+            except BaseException:
+                signal.pthread_sigmask(signal.SIG_SETMASK, held)
+                raise
+            with proc:
                 try:
+                    signal.pthread_sigmask(signal.SIG_SETMASK, held)  # a held one lands here
                     _, err = proc.communicate()
                 except BaseException:
                     # interrupted (Ctrl-C, or SIGTERM as the commands handle it): the child
