@@ -1,7 +1,7 @@
 """Whether an edge model's error on real taps is the model's or the real fields': the run's
-saved model reads the real folder's tracked points turned, mirrored and made mirror-symmetric
-(docs/sim2real.md, "The edge's shallow error over the block is a handedness of the real
-fields").
+saved model reads the real folder's frames turned and mirrored, and its tracked taps made
+mirror-symmetric (docs/sim2real.md, "The edge's shallow error over the block is a
+handedness of the real fields").
 
     python benchmarks/sim2real_edge_handedness.py RUN=REAL_DIR [RUN=REAL_DIR ...] [--picture PNG]
 
@@ -59,6 +59,7 @@ from tactip_lab.fitting.field_model import (  # noqa: E402
     circular_mean_deg,
     field_features,
     grid_nodes,
+    mirror_partners,
     wrap_deg,
 )
 
@@ -160,8 +161,7 @@ def split_mirror(feature: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     by it no symmetric part."""
     nodes = grid_nodes()
     k = len(nodes)
-    mir = np.array([int(np.argmin(np.hypot(nodes[:, 0] - x, nodes[:, 1] + y)))
-                    for x, y in nodes])
+    mir = mirror_partners(nodes)
     g = np.stack([feature[:k], feature[k:2 * k]], axis=1)
     m = g[mir] * np.array([1.0, -1.0])
     return 0.5 * (g + m), 0.5 * (g - m)
@@ -219,6 +219,9 @@ def report(run: Path, real: Path) -> float:
     from tactip_lab.fitting.field_model import load_field_model
     from tactip_lab.real.task_run import folder_columns
 
+    if not (run / "model.json").is_file():
+        raise SystemExit(f"{run}: no model.json (RUN is a tactip sim2real --task edge --out "
+                         "folder)")
     model = load_field_model(run / "model.json")
     if model.targets[:2] != ["pose_2", "pose_6"]:
         raise SystemExit(f"{run}: targets {model.targets}; an edge run predicts "
