@@ -59,7 +59,7 @@ from tactip_lab.fitting.field_model import (  # noqa: E402
     circular_mean_deg,
     field_features,
     grid_nodes,
-    mirror_partners,
+    mirror_parts,
     wrap_deg,
 )
 
@@ -159,12 +159,8 @@ def split_mirror(feature: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     field of one feature (2k [+ 1]; :func:`field_features`' layout, aligned so the mirror line
     is the x axis): a field equal to its mirror image has no antisymmetric part, one reversed
     by it no symmetric part."""
-    nodes = grid_nodes()
-    k = len(nodes)
-    mir = mirror_partners(nodes)
-    g = np.stack([feature[:k], feature[k:2 * k]], axis=1)
-    m = g[mir] * np.array([1.0, -1.0])
-    return 0.5 * (g + m), 0.5 * (g - m)
+    k = len(grid_nodes())
+    return mirror_parts(np.stack([feature[:k], feature[k:2 * k]], axis=1))
 
 
 def antisymmetric_share(features: np.ndarray) -> float:

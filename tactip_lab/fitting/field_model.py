@@ -37,6 +37,7 @@ pickle); :func:`load_field_model` checks the format.
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -317,6 +318,22 @@ def mirror_partners(nodes: np.ndarray) -> np.ndarray:
                      for x, y in nodes])
 
 
+@functools.lru_cache(maxsize=1)
+def _mirror_grid() -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`grid_nodes`, their :func:`mirror_partners`), found once: every frame the
+    mirror readout reads uses them, dozens of times."""
+    nodes = grid_nodes()
+    return nodes, mirror_partners(nodes)
+
+
+def mirror_parts(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((k, 2), (k, 2)) the part of a field ``g`` (k, 2) on :func:`grid_nodes` that the mirror
+    across the x axis (y to -y) keeps, and the part it reverses; they sum to ``g``."""
+    _, mir = _mirror_grid()
+    m = np.asarray(g, dtype=float)[mir] * np.array([1.0, -1.0])
+    return 0.5 * (g + m), 0.5 * (g - m)
+
+
 def mirror_asymmetry(rest: np.ndarray, points: np.ndarray, lines_deg: np.ndarray,
                      bandwidth: float = BANDWIDTH) -> np.ndarray:
     """(L,) for each line through the rest array's centre at image angle ``lines_deg`` (L,),
@@ -335,14 +352,13 @@ def mirror_asymmetry(rest: np.ndarray, points: np.ndarray, lines_deg: np.ndarray
     s = float(np.sqrt(np.mean(np.sum((rest - c) ** 2, axis=1))))
     r = (rest[ok] - c) / s
     d = remove_affine(r, (points[ok] - rest[ok]) / s)
-    nodes = grid_nodes()
-    mir = mirror_partners(nodes)
+    nodes, _ = _mirror_grid()
     out = np.empty(len(lines))
     for j, a in enumerate(lines):
         g = rotate(smooth_field(rotate(nodes, a), r, d, bandwidth), -a)  # in the line's frame
-        anti = g - g[mir] * np.array([1.0, -1.0])
+        _, anti = mirror_parts(g)
         total = float(np.sum(g ** 2))
-        out[j] = float(np.sum(anti ** 2)) / (4.0 * total) if total > 0 else np.nan
+        out[j] = float(np.sum(anti ** 2)) / total if total > 0 else np.nan
     return out
 
 
