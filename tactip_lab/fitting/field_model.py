@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import functools
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -162,11 +163,25 @@ def smooth_field(nodes: np.ndarray, r: np.ndarray, d: np.ndarray, bandwidth: flo
     ``nodes`` (k, 2) by a Gaussian kernel; 0 at a node with no marker near it. The feature's
     smoothing (:func:`field_features`), and how
     :func:`~tactip_lab.fitting.references.scene_reference` weighs a reference's error."""
+    return smoother(nodes, r, bandwidth)(d)
+
+
+def smoother(nodes: np.ndarray, r: np.ndarray, bandwidth: float = BANDWIDTH
+             ) -> Callable[[np.ndarray], np.ndarray]:
+    """:func:`smooth_field` of vectors at fixed positions ``r`` onto fixed ``nodes``, the kernel
+    computed once: a function of the vectors ``d`` (m, 2) alone, for callers that smooth many
+    fields of one array (the same arithmetic, so the same values)."""
     w = np.exp(-np.sum((nodes[:, None, :] - r[None]) ** 2, axis=2) / (2 * bandwidth ** 2))
     wsum = w.sum(axis=1)
-    g = (w @ d) / np.maximum(wsum, 1e-12)[:, None]
-    g[wsum < 1e-3] = 0.0  # no marker near the node
-    return g
+    den = np.maximum(wsum, 1e-12)[:, None]
+    empty = wsum < 1e-3  # no marker near the node
+
+    def apply(d: np.ndarray) -> np.ndarray:
+        g = (w @ d) / den
+        g[empty] = 0.0
+        return g
+
+    return apply
 
 
 def wrap_deg(a: Any) -> np.ndarray:
@@ -785,5 +800,5 @@ __all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "INVAR
            "INVARIANCES", "TARGETS", "FieldModel", "affine_design", "augment", "decode",
            "deviation_from_mean", "encode", "field_features", "fields_of", "grid_nodes",
            "is_field_model", "load_field_model", "median_gamma", "pack_array", "remove_affine",
-           "rotate", "smooth_field", "target_scores", "task_targets", "unpack_array",
+           "rotate", "smooth_field", "smoother", "target_scores", "task_targets", "unpack_array",
            "wrap_deg"]
