@@ -36,6 +36,7 @@ _LAZY = {
     "Plate": ".fem",
     "Sphere": ".fem",
     "Cylinder": ".fem",
+    "Block": ".fem",
     "Edge": ".fem",
     "MeshIndenter": ".fem",
     "ContactError": ".fem",

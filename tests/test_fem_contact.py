@@ -81,7 +81,10 @@ def test_bad_poses_name_the_value_and_range(kwargs, name):
 @pytest.mark.parametrize("make", [lambda: ts.Sphere(radius_mm=-1.0),
                                   lambda: ts.Cylinder(radius_mm=2.0, length_mm=0.0),
                                   lambda: ts.Edge(radius_mm=float("nan")),
-                                  lambda: ts.Edge(angle_deg=180.0)])
+                                  lambda: ts.Edge(angle_deg=180.0),
+                                  lambda: ts.Block(edge_radius_mm=-0.1),
+                                  lambda: ts.Block(width_mm=4.0, edge_radius_mm=4.0),
+                                  lambda: ts.Block(height_mm=0.0)])
 def test_bad_indenter_parameters(make):
     with pytest.raises(IndenterError, match="out of range|must be"):
         make()
@@ -108,7 +111,7 @@ def _sample_surface_points(ind, n, rng):
 
 @pytest.mark.parametrize("ind", [ts.Sphere(4.0), ts.Cylinder(3.0, 4.0),
                                  ts.Edge(radius_mm=0.5, length_mm=4.0, angle_deg=60.0),
-                                 ts.Plate()])
+                                 ts.Plate(), ts.Block(5.0, 4.0, 3.0, 1.2), ts.Block(5.0, 4.0, 3.0)])
 def test_lower_surface_lies_on_the_zero_level_set(ind):
     rng = np.random.default_rng(0)
     pts = _sample_surface_points(ind, 400, rng)
@@ -123,13 +126,63 @@ def test_lower_surface_lies_on_the_zero_level_set(ind):
 def test_sdf_gradient_matches_finite_differences():
     rng = np.random.default_rng(1)
     q = rng.uniform([-3, -3, -1], [3, 3, 4], (300, 3))
-    for ind in (ts.Sphere(3.0), ts.Cylinder(2.0, 3.0), ts.Edge(0.4, 3.0, 90.0)):
+    for ind in (ts.Sphere(3.0), ts.Cylinder(2.0, 3.0), ts.Edge(0.4, 3.0, 90.0),
+                ts.Block(4.0, 3.0, 2.0, 0.7), ts.Block(4.0, 3.0, 2.0)):
         d, n = ind.sdf(q)
         h = 1e-6
         fd = np.stack([(ind.sdf(q + h * e)[0] - ind.sdf(q - h * e)[0]) / (2 * h)
                        for e in np.eye(3)], axis=1)
         smooth = np.linalg.norm(fd, axis=1) > 0.999  # away from the SDF's creases
         np.testing.assert_allclose(n[smooth], fd[smooth], atol=1e-5)
+
+
+def test_block_distances_at_hand_computed_points():
+    """Block(10, 8, 6): |x| <= 5, |y| <= 4, 0 <= z <= 6, the edge at y = 4, z = 0."""
+    sharp, round_ = ts.Block(10.0, 8.0, 6.0), ts.Block(10.0, 8.0, 6.0, edge_radius_mm=2.0)
+    q = np.array([[0.0, 0.0, -2.0],   # below the face: 2 mm, straight down
+                  [0.0, 7.0, 3.0],    # beside the edge's side face: 3 mm
+                  [0.0, 7.0, -4.0],   # beyond the sharp edge: a 3-4-5 triangle
+                  [0.0, 0.0, 1.0],    # inside, 1 mm above the face
+                  [7.0, 0.0, 3.0]])   # beyond the end face: 2 mm along x
+    d, n = sharp.sdf(q)
+    np.testing.assert_allclose(d, [2.0, 3.0, 5.0, -1.0, 2.0], atol=1e-12)
+    np.testing.assert_allclose(n, [[0, 0, -1], [0, 1, 0], [0, 0.6, -0.8], [0, 0, -1],
+                                   [1, 0, 0]], atol=1e-12)
+    # rounded by 2 mm: the arc's centre is at y = 2, z = 2
+    d, n = round_.sdf(np.array([[0.0, 5.0, -1.0], [0.0, 3.0, 1.0], [0.0, 0.0, -2.0]]))
+    np.testing.assert_allclose(d, [np.hypot(3, 3) - 2, np.hypot(1, 1) - 2, 2.0], atol=1e-12)
+    np.testing.assert_allclose(n[0], [0, 0.5 ** 0.5, -(0.5 ** 0.5)], atol=1e-12)
+    # the arc's height: 2 (1 - cos a) at y = 2 + 2 sin a
+    a = np.radians([0.0, 30.0, 60.0, 89.0])
+    np.testing.assert_allclose(round_.lower_z(np.c_[np.zeros(4), 2 + 2 * np.sin(a)]),
+                               2 * (1 - np.cos(a)), atol=1e-12)
+    assert np.isnan(sharp.lower_z(np.array([[0.0, 4.01], [5.01, 0.0]]))).all()
+
+
+def test_block_matches_a_mesh_of_the_same_box_and_of_its_rounding():
+    """The second method: trimesh's closest points on a box (sharp, exact) and on a convex
+    hull of the rounded section with 64 segments (within its chord's sagitta)."""
+    import trimesh
+
+    rng = np.random.default_rng(5)
+    q = np.r_[rng.uniform([-7, -6, -3], [7, 6, 9], (600, 3)),
+              rng.uniform([-2, 2, -2], [2, 6, 3], (600, 3))]  # crowded about the edge
+    box = ts.MeshIndenter(trimesh.creation.box(extents=(10.0, 8.0, 6.0)))
+    d_mesh, n_mesh = box.sdf(q)
+    d, n = ts.Block(10.0, 8.0, 6.0).sdf(q)
+    np.testing.assert_allclose(d, d_mesh, atol=1e-9)
+    clear = np.abs(d) > 1e-6
+    assert np.all(np.einsum("ij,ij->i", n[clear], n_mesh[clear]) > 1 - 1e-9)
+    r, k = 2.0, 64
+    t = np.linspace(-np.pi / 2, 0.0, k + 1)
+    section = np.r_[[[-4.0, 0.0]], np.c_[2 + r * np.cos(t), r + r * np.sin(t)],
+                    [[4.0, 6.0], [-4.0, 6.0]]]
+    hull = trimesh.convex.convex_hull(np.r_[np.c_[np.full(len(section), -5.0), section],
+                                            np.c_[np.full(len(section), 5.0), section]])
+    d_mesh, _ = ts.MeshIndenter(hull).sdf(q)
+    d, _ = ts.Block(10.0, 8.0, 6.0, edge_radius_mm=r).sdf(q)
+    sagitta = r * (1 - np.cos(np.pi / 4 / k))
+    np.testing.assert_allclose(d, d_mesh, atol=sagitta + 1e-9)
 
 
 def test_mesh_sphere_matches_the_analytic_sphere():

@@ -907,6 +907,31 @@ def test_an_edge_folder_simulated_with_another_depth_offset_does_not_resume(tmp_
     assert (out / "images" / "image_00001.png").read_bytes() == b"frame"
 
 
+def test_an_edge_folder_of_another_block_does_not_resume(tmp_path, monkeypatch):
+    """A block other than the default (here one with a rounded edge) is part of an edge
+    folder's protocol: the default block refuses to resume it, keeping its frames; a surface
+    task given a block is refused before anything is written."""
+    import tactip_sim as ts
+    from tactip_lab.real import tasks
+
+    scene = _stop_at_simulation(monkeypatch)
+    out = tmp_path / "sim"
+    rounded = ts.Block(*tasks.BLOCK_MM, edge_radius_mm=0.5)
+    with pytest.raises(_Stop):
+        tasks.simulate_task(scene, out, "edge", 3, indenter=rounded, progress=False)
+    assert "edge_radius_mm=0.5" in json.loads((out / "protocol.json").read_text())["indenter"]
+    (out / "images" / "image_00001.png").write_bytes(b"frame")
+    with pytest.raises(ValueError, match="differs in indenter"):
+        tasks.simulate_task(scene, out, "edge", 3, progress=False)
+    assert (out / "images" / "image_00001.png").read_bytes() == b"frame"
+    with pytest.raises(_Stop):  # the same block resumes
+        tasks.simulate_task(scene, out, "edge", 3, indenter=rounded, progress=False)
+    with pytest.raises(ValueError, match="only the edge tasks press a block"):
+        tasks.simulate_task(scene, tmp_path / "surface", "surface", 3, indenter=rounded,
+                            progress=False)
+    assert not (tmp_path / "surface").exists()
+
+
 def test_an_edge_tap_that_misses_the_block_is_the_rest_state_with_its_own_noise(tmp_path,
                                                                                 monkeypatch):
     """A drawn edge pose that leaves the pad clear of the block is not dropped: its frame is

@@ -2,7 +2,16 @@
 frictionless rigid indenters, a reduced surface-compliance model for sweeps, a compressible
 neo-Hookean reference, and the pin-tip (marker) kinematics. See ``docs/fem.md``."""
 
-from .contact.indenters import Cylinder, Edge, IndenterError, MeshIndenter, Plate, Sphere, place
+from .contact.indenters import (
+    Block,
+    Cylinder,
+    Edge,
+    IndenterError,
+    MeshIndenter,
+    Plate,
+    Sphere,
+    place,
+)
 from .contact.lcp import ContactError, solve_lcp
 from .contact.pose import Pose, PoseError
 from .contact.state import ContactState
@@ -19,6 +28,7 @@ __all__ = [
     "TOL",
     "ContactError",
     "ContactState",
+    "Block",
     "Cylinder",
     "Edge",
     "IndenterError",

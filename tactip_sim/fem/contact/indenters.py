@@ -164,6 +164,71 @@ class Edge:
         return _extrude(d2, g2, q[:, 0], self.length_mm / 2)
 
 
+@dataclass(frozen=True)
+class Block:
+    """A rigid box whose lowest face meets the pad, one edge of that face (the *edge*) rounded
+    by ``edge_radius_mm`` (0: sharp): ``length_mm`` along local x, ``width_mm`` along y,
+    ``height_mm`` up z, occupying ``|x| <= length/2``, ``|y| <= width/2``, ``0 <= z <= height``,
+    the edge along local x at ``y = +width/2``. The lab's edge stimulus
+    (:func:`tactip_lab.real.tasks.block_indenter`) as an exact signed distance: the same surface
+    as a :class:`MeshIndenter` of the box when sharp, without its closest-triangle search."""
+
+    length_mm: float = 80.0
+    width_mm: float = 40.0
+    height_mm: float = 20.0
+    edge_radius_mm: float = 0.0
+    flat = False
+
+    def __post_init__(self) -> None:
+        for name in ("length_mm", "width_mm", "height_mm"):
+            object.__setattr__(self, name, _positive(name, getattr(self, name)))
+        try:
+            r = float(self.edge_radius_mm)
+        except (TypeError, ValueError):
+            raise IndenterError(f"edge_radius_mm={self.edge_radius_mm!r} must be a number"
+                                ) from None
+        top = min(self.width_mm, self.height_mm)
+        if not (math.isfinite(r) and 0.0 <= r < top):
+            raise IndenterError(f"edge_radius_mm={self.edge_radius_mm!r} is out of range: "
+                                f"allowed [0, {top:g}) mm (below the block's width and height)")
+        object.__setattr__(self, "edge_radius_mm", r)
+
+    def lower_z(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        r, y = self.edge_radius_mm, xy[:, 1]
+        start = self.width_mm / 2 - r  # where the rounding begins
+        with np.errstate(invalid="ignore"):
+            z = np.where(y > start, r - np.sqrt(np.maximum(r**2 - (y - start) ** 2, 0.0)), 0.0)
+        hit = (np.abs(xy[:, 0]) <= self.length_mm / 2) & (np.abs(y) <= self.width_mm / 2)
+        return np.where(hit, z, np.nan)
+
+    def sdf(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = np.asarray(q, dtype=float).reshape(-1, 3)
+        # the section (y, z): a rectangle about its centre
+        p = np.stack([q[:, 1], q[:, 2] - self.height_mm / 2], axis=1)
+        excess = np.abs(p) - np.array([self.width_mm / 2, self.height_mm / 2])
+        side = np.where(p >= 0, 1.0, -1.0)
+        beyond = np.maximum(excess, 0.0)
+        out = np.linalg.norm(beyond, axis=1)
+        outside = out > 0
+        rows = np.arange(len(p))
+        nearest = np.argmax(excess, axis=1)  # inside: the nearest side
+        g_in = np.zeros_like(p)
+        g_in[rows, nearest] = side[rows, nearest]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            g = np.where(outside[:, None], beyond * side / out[:, None], g_in)
+        d = np.where(outside, out, excess[rows, nearest])
+        r = self.edge_radius_mm
+        if r > 0:  # the quarter next to the edge: the distance to the rounding's arc
+            centre = np.array([self.width_mm / 2 - r, r])
+            v = q[:, 1:3] - centre
+            arc = (v[:, 0] > 0) & (v[:, 1] < 0)
+            norm = np.linalg.norm(v[arc], axis=1)
+            d[arc] = norm - r
+            g[arc] = v[arc] / np.maximum(norm, 1e-300)[:, None]
+        return _extrude(d, g, q[:, 0], self.length_mm / 2)
+
+
 _MESH_FORMATS = "a closed triangle mesh (.stl, .obj, .ply, .off, .glb)"
 
 
@@ -263,7 +328,7 @@ class MeshIndenter:
         return np.where(inside, -dist, dist), n
 
 
-Indenter = Plate | Sphere | Cylinder | Edge | MeshIndenter
+Indenter = Plate | Sphere | Cylinder | Edge | Block | MeshIndenter
 
 
 def indenter_from_scene(scene) -> Indenter:
