@@ -83,7 +83,7 @@ def test_bad_poses_name_the_value_and_range(kwargs, name):
                                   lambda: ts.Edge(radius_mm=float("nan")),
                                   lambda: ts.Edge(angle_deg=180.0),
                                   lambda: ts.Block(edge_radius_mm=-0.1),
-                                  lambda: ts.Block(width_mm=4.0, edge_radius_mm=4.0),
+                                  lambda: ts.Block(width_mm=4.0, edge_radius_mm=2.01),
                                   lambda: ts.Block(height_mm=0.0)])
 def test_bad_indenter_parameters(make):
     with pytest.raises(IndenterError, match="out of range|must be"):
@@ -173,14 +173,14 @@ def test_block_matches_a_mesh_of_the_same_box_and_of_its_rounding():
     np.testing.assert_allclose(d, d_mesh, atol=1e-9)
     clear = np.abs(d) > 1e-6
     assert np.all(np.einsum("ij,ij->i", n[clear], n_mesh[clear]) > 1 - 1e-9)
-    r, k = 2.0, 64
+    r, k = 2.0, 64  # the largest radius allowed: half the 4 mm height
     t = np.linspace(-np.pi / 2, 0.0, k + 1)
     section = np.r_[[[-4.0, 0.0]], np.c_[2 + r * np.cos(t), r + r * np.sin(t)],
-                    [[4.0, 6.0], [-4.0, 6.0]]]
+                    [[4.0, 4.0], [-4.0, 4.0]]]
     hull = trimesh.convex.convex_hull(np.r_[np.c_[np.full(len(section), -5.0), section],
                                             np.c_[np.full(len(section), 5.0), section]])
     d_mesh, _ = ts.MeshIndenter(hull).sdf(q)
-    d, _ = ts.Block(10.0, 8.0, 6.0, edge_radius_mm=r).sdf(q)
+    d, _ = ts.Block(10.0, 8.0, 4.0, edge_radius_mm=r).sdf(q)
     sagitta = r * (1 - np.cos(np.pi / 4 / k))
     np.testing.assert_allclose(d, d_mesh, atol=sagitta + 1e-9)
 

@@ -26,9 +26,9 @@ point)."""
 __all__ = [
     "RESULTS_VERSION",
     "TOL",
+    "Block",
     "ContactError",
     "ContactState",
-    "Block",
     "Cylinder",
     "Edge",
     "IndenterError",

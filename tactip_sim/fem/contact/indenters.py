@@ -167,11 +167,12 @@ class Edge:
 @dataclass(frozen=True)
 class Block:
     """A rigid box whose lowest face meets the pad, one edge of that face (the *edge*) rounded
-    by ``edge_radius_mm`` (0: sharp): ``length_mm`` along local x, ``width_mm`` along y,
-    ``height_mm`` up z, occupying ``|x| <= length/2``, ``|y| <= width/2``, ``0 <= z <= height``,
-    the edge along local x at ``y = +width/2``. The lab's edge stimulus
-    (:func:`tactip_lab.real.tasks.block_indenter`) as an exact signed distance: the same surface
-    as a :class:`MeshIndenter` of the box when sharp, without its closest-triangle search."""
+    by ``edge_radius_mm`` (0: sharp; at most half the width and height): ``length_mm`` along
+    local x, ``width_mm`` along y, ``height_mm`` up z, occupying ``|x| <= length/2``,
+    ``|y| <= width/2``, ``0 <= z <= height``, the edge along local x at ``y = +width/2``. The
+    lab's edge stimulus (:func:`tactip_lab.real.tasks.block_indenter`) as an exact signed
+    distance: the same surface as a :class:`MeshIndenter` of the box when sharp, without its
+    closest-triangle search."""
 
     length_mm: float = 80.0
     width_mm: float = 40.0
@@ -187,10 +188,12 @@ class Block:
         except (TypeError, ValueError):
             raise IndenterError(f"edge_radius_mm={self.edge_radius_mm!r} must be a number"
                                 ) from None
-        top = min(self.width_mm, self.height_mm)
-        if not (math.isfinite(r) and 0.0 <= r < top):
+        top = min(self.width_mm, self.height_mm) / 2
+        if not (math.isfinite(r) and 0.0 <= r <= top):
+            # beyond half the width or height a point inside, by the rounding's centre, is
+            # nearer another face than the arc: the distance below would not be exact
             raise IndenterError(f"edge_radius_mm={self.edge_radius_mm!r} is out of range: "
-                                f"allowed [0, {top:g}) mm (below the block's width and height)")
+                                f"allowed [0, {top:g}] mm (half the block's width and height)")
         object.__setattr__(self, "edge_radius_mm", r)
 
     def lower_z(self, xy: np.ndarray) -> np.ndarray:
