@@ -12,7 +12,7 @@ The same ``--n`` edge taps of the lab's protocol (poses, depth offsets and noise
 ``--seed``; :func:`~tactip_lab.real.tasks.simulate_task`, raw frames) are simulated on:
 
 - *sharp*: the block the edge tasks press (:func:`~tactip_lab.real.tasks.block_indenter`);
-- *floor*: the same block 2e-12 mm wider on each side, its edge moved by 1e-12 mm: what
+- *floor*: the same block 2e-12 mm wider, its edge moved out by 1e-12 mm: what
   changes an edge tap's simulated markers that no physical difference explains (the
   friction solve at the block's corner has more than one converged state, and which one it
   finds turns on the last bits of the gap);
@@ -111,12 +111,16 @@ def main(argv: list[str] | None = None) -> int:
         if models[fmt][1].task != "edge":
             p.error(f"{path}: a model of task {models[fmt][1].task!r}; this reads plain "
                     "edge taps")
+    try:
+        blocks = variants(radii)
+    except ValueError as exc:  # IndenterError
+        p.error(f"--radii {args.radii!r}: {exc}")
     scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes"
                           / "tactip_331_identified.toml")
     with tempfile.TemporaryDirectory() as tmp:
         root = args.out or Path(tmp)
         read, seconds = {}, {}
-        for name, block in variants(radii).items():
+        for name, block in blocks.items():
             folder = root / name.replace(" = ", "_r").replace(" ", "_")
             t0 = time.perf_counter()
             tasks.simulate_task(scene, folder, "edge", args.n, seed=args.seed,

@@ -295,7 +295,8 @@ measured by a tribometer."""
 def block_indenter():
     """The block, :data:`BLOCK_MM`, whose top face's edge along local x is the edge: it spans
     local y in [-BLOCK_MM[1]/2, +BLOCK_MM[1]/2] and its edge is at local y = +BLOCK_MM[1]/2,
-    sharp (the lab's CAD stimulus has a sharp top edge, docs/sim2real.md "The block's corner").
+    sharp (as the lab's own simulator models its edge stimulus; the data sets' block is not
+    described: docs/sim2real.md, "The block's corner, and an edge tap's floor").
 
     An exact signed distance (:class:`~tactip_sim.fem.contact.indenters.Block`), the same
     surface as the watertight box mesh used until 2026-11-30 (eighteenth session) without its
