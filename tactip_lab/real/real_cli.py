@@ -172,7 +172,10 @@ surface tap here (``fast``, render included), 0.42 s an edge tap (rods on P2):
   time; with P1 embedded tips it had been 1.66 mm / 53.7 deg with 200, 1.50 / 38.0 with 600).
 
 The edge tasks' taps come in ``task_run.TASK_DRAWS`` draws of this many each (since the
-thirteenth session: the draw, not the count, is what moved their zero-shot figures)."""
+thirteenth session: the draw, not the count, is what moved their zero-shot figures). The
+times above are of the box mesh the edge tasks pressed until the eighteenth session; with the
+block as an exact signed distance an edge tap takes 0.13-0.16 s and one under shear
+0.22-0.26 s (docs/sim2real.md, "The block's corner, and an edge tap's floor")."""
 COP_N = 300
 """Default simulated taps of ``--task surface --model cop``."""
 
