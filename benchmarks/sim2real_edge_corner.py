@@ -3,13 +3,15 @@ an edge tap depends on the last bits of its gap (docs/sim2real.md, "The block's 
 an edge tap's floor").
 
     python benchmarks/sim2real_edge_corner.py RUN [--n 150] [--radii 0.2,0.5,1.0] [--seed 11]
-                                              [--out DIR]
+                                              [--tap-steps K] [--out DIR]
 
 ``RUN`` is a ``tactip sim2real --task edge`` folder; its ``model.json`` reads the taps in the
 lab's 128x128 processed format (converted as the run converts its own,
 :func:`~tactip_lab.real.tasks.convert_128`) and its ``model_raw.json`` the raw frames.
 The same ``--n`` edge taps of the lab's protocol (poses, depth offsets and noise seeded by
-``--seed``; :func:`~tactip_lab.real.tasks.simulate_task`, raw frames) are simulated on:
+``--seed``; :func:`~tactip_lab.real.tasks.simulate_task`, raw frames; each tap pressed in
+``--tap-steps`` load steps, default the edge tasks' :data:`~tactip_lab.real.tasks.EDGE_TAP_STEPS`)
+are simulated on:
 
 - *sharp*: the block the edge tasks press (:func:`~tactip_lab.real.tasks.block_indenter`);
 - *floor*: the same block 2e-12 mm wider, its edge moved out by 1e-12 mm: what
@@ -86,6 +88,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="edge radii of the rounded variants, mm (comma-separated)")
     p.add_argument("--seed", type=int, default=11,
                    help="seed of the taps (the shipped runs' draws are 0 and up)")
+    p.add_argument("--tap-steps", type=int, default=None,
+                   help="load steps of each tap (default: the edge tasks', EDGE_TAP_STEPS)")
     p.add_argument("--out", type=Path, default=None,
                    help="keep the simulated folders here (default: a temporary folder)")
     args = p.parse_args(argv)
@@ -102,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--radii {args.radii!r}: comma-separated numbers (mm)")
     if args.n < 10:
         p.error(f"--n {args.n}: at least 10 taps")
+    if args.tap_steps is not None and args.tap_steps < 1:
+        p.error(f"--tap-steps {args.tap_steps}: at least 1")
     models = {}
     for fmt, name in (("128x128", "model.json"), ("raw", "model_raw.json")):
         path = args.run / name
@@ -124,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
             folder = root / name.replace(" = ", "_r").replace(" ", "_")
             t0 = time.perf_counter()
             tasks.simulate_task(scene, folder, "edge", args.n, seed=args.seed,
+                                tap_steps=args.tap_steps,
                                 indenter=None if name == "sharp" else block, progress=True)
             timing = json.loads((folder / "timing.json").read_text())
             seconds[name] = (timing.get("seconds_per_tap"), time.perf_counter() - t0)

@@ -51,3 +51,37 @@ def test_a_tilted_block_slid_in_contact_settles_where_two_faces_meet():
         else:
             with pytest.raises(ts.ContactError, match="closest-point updates did not converge"):
                 sim.continue_path(poses, friction=1.0, indenter=block)
+
+
+@pytest.mark.slow
+def test_an_edge_taps_load_path_converges_with_its_steps():
+    """The edge tasks' vertical tap at μ 1 depends on its load path (``tasks.EDGE_TAP_STEPS``,
+    2): over twelve taps within 3 mm of the edge (seed 5, independent of the 150 the load
+    path was measured on), the markers after 6 steps lie nearer those of a 12-step path than
+    after 2 steps, on average by more than a third."""
+    from tactip_lab.real import tasks
+
+    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes"
+                          / "tactip_331_identified.toml")
+    sim, block = ts.Simulator(scene), tasks.block_indenter()
+    rows = tasks.draw_poses("edge", 40, 5, None)
+    offsets = np.random.default_rng([5, 53, 2]).uniform(*tasks.EDGE_DEPTH_OFFSET_MM, 40)
+    steps = (2, 6, 12)
+    markers = {k: [] for k in steps}
+    for row, offset in zip(rows, offsets, strict=True):
+        pose = tasks.sim_pose("edge", row, sim=sim, indenter=block, depth_offset_mm=offset)
+        if pose.depth_mm <= 0 or abs(row[1]) > 3:  # clear of the block, or far from its edge
+            continue
+        for k in steps:
+            states, _ = sim.continue_path(tasks.tap_poses(pose, k), friction=1.0,
+                                          indenter=block)
+            markers[k].append(states[-1].markers_mm)
+        if len(markers[12]) == 12:
+            break
+    assert len(markers[12]) == 12
+
+    def rms_from_fine(k):
+        return np.mean([np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1)))
+                        for a, b in zip(markers[k], markers[12], strict=True)])
+
+    assert rms_from_fine(6) < 0.65 * rms_from_fine(2)
