@@ -241,7 +241,7 @@ is not converged: on 150 edge taps (seed 11) read by the shipped edge model, 2, 
 steps read the lateral position 0.07-0.26, 0.08-0.39, 0.07-0.21 and 0.06-0.15 mm (sd per
 2 mm bin of ``pose_2``) from 12 steps, and two taps 1e-12 mm apart 0.11-0.33 mm apart with 2
 steps, 0.02-0.13 with 6; 0.107 s a tap against 0.077. 6 steps were not adopted in the
-eighteenth session only because the edge's rerun did not end within it (rule 23;
+eighteenth session only because the edge's rerun ended too late in it (rule 23;
 docs/sim2real.md, "The block's corner, and an edge tap's floor")."""
 MISSED_TAPS_NOTE = """An edge tap whose pose leaves the pad clear of the block (beside the edge
 and shallow: the dome's drop at the edge exceeds the tip's depth) is kept, rendered as the
