@@ -69,15 +69,13 @@ def read_folder(model, folder: Path) -> tuple[np.ndarray, np.ndarray]:
     """(labels (n, t), predictions (n, t)) of a simulated folder, read as ``tactip evaluate``
     reads it."""
     from tactip_lab.fitting.bristol import BristolFolder
-    from tactip_lab.fitting.references import folder_points, reference_rule
+    from tactip_lab.fitting.references import predict_folder
 
     f = BristolFolder.open(folder)
     with (f.root / "targets.csv").open(newline="") as fh:
         table = list(csv.DictReader(fh))
     y = np.array([[float(r[t]) for t in model.targets] for r in table])
-    rest, pts, _ = folder_points(f, reference=reference_rule(model.task), prior=model.rest,
-                                 progress=False)
-    return y, model.predict_points(rest, pts)
+    return y, predict_folder(model, f)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -93,7 +93,7 @@ def read_copy(model, real: Path, transform, tmp: Path) -> np.ndarray:
     import cv2
 
     from tactip_lab.fitting.bristol import BristolFolder
-    from tactip_lab.fitting.references import folder_points, reference_rule
+    from tactip_lab.fitting.references import predict_folder
 
     src = BristolFolder.open(real)
     (tmp / "images").mkdir(parents=True, exist_ok=True)
@@ -105,9 +105,7 @@ def read_copy(model, real: Path, transform, tmp: Path) -> np.ndarray:
     folder = BristolFolder.open(tmp)
     if len(folder) != len(src):
         raise SystemExit(f"{tmp}: {len(folder)} frames read back of {len(src)}")
-    rest, pts, _ = folder_points(folder, expected_count=len(model.rest),
-                                 reference=reference_rule(model.task), prior=model.rest)
-    return model.predict_points(rest, pts)
+    return predict_folder(model, folder, expected_count=len(model.rest))
 
 
 def mirror_partner(rest: np.ndarray, axis_deg: float) -> tuple[np.ndarray, float]:

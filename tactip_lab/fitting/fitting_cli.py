@@ -185,7 +185,7 @@ def _evaluate_field(args: argparse.Namespace) -> int:
 
     from tactip_lab.fitting.bristol import BristolFolder
     from tactip_lab.fitting.field_model import load_field_model, target_scores
-    from tactip_lab.fitting.references import folder_points, reference_label, reference_rule
+    from tactip_lab.fitting.references import predict_folder, reference_label, reference_rule
 
     model = load_field_model(args.model)
     if args.feature not in (None, "field"):
@@ -223,10 +223,8 @@ def _evaluate_field(args: argparse.Namespace) -> int:
                 f"{model.image_size[0]}x{model.image_size[1]} frames (tactip sim2real writes "
                 "model.json for the 128x128 processed frames and model_raw.json for raw ones)")
         rule = reference_rule(model.task)
-        rest, pts, _ = folder_points(f, expected_count=args.expected_count,
-                                     progress=not args.no_progress, reference=rule,
-                                     prior=model.rest)
-        pred = model.predict_points(rest, pts, progress=not args.no_progress)
+        pred = predict_folder(model, f, expected_count=args.expected_count,
+                              progress=not args.no_progress)
         s = target_scores(y, pred, targets)
         rows.append({"dataset": str(d), "n_rows": len(y),
                      "n_used": int(np.all(np.isfinite(pred), axis=1).sum()),

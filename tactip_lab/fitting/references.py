@@ -372,6 +372,17 @@ def simulated_folder_references(rest: np.ndarray, pts: np.ndarray, depth: np.nda
     return np.stack(out)
 
 
+def predict_folder(model: Any, folder: Any, *, expected_count: int | None = None,
+                   progress: bool = False) -> np.ndarray:
+    """(n, t) a field model's predictions of an open Bristol ``folder``, read as ``tactip
+    evaluate`` reads it: the reference by the model's task's rule with the model's rest state
+    (:func:`folder_points`), every frame tracked from it, then
+    :meth:`~tactip_lab.fitting.field_model.FieldModel.predict_points`."""
+    rest, pts, _ = folder_points(folder, expected_count=expected_count, progress=progress,
+                                 reference=reference_rule(model.task), prior=model.rest)
+    return model.predict_points(rest, pts, progress=progress)
+
+
 def _marker_median(pts: np.ndarray, sel: np.ndarray, rest: np.ndarray) -> np.ndarray:
     """(m, 2) the marker-by-marker median of the frames ``sel`` of ``pts`` (n, m, 2); a
     marker none of them tracks keeps its position in ``rest``."""
@@ -391,4 +402,5 @@ def _marker_median(pts: np.ndarray, sel: np.ndarray, rest: np.ndarray) -> np.nda
 
 __all__ = ["REFERENCE_RULES", "SCENE_BOOTSTRAPS", "SCENE_RULES", "densest_reference",
            "folder_points", "least_spread_frames", "marker_median_reference", "pair_markers",
-           "reference_label", "reference_rule", "scene_reference", "simulated_folder_references"]
+           "predict_folder", "reference_label", "reference_rule", "scene_reference",
+           "simulated_folder_references"]
