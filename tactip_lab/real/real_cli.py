@@ -175,7 +175,9 @@ The edge tasks' taps come in ``task_run.TASK_DRAWS`` draws of this many each (si
 thirteenth session: the draw, not the count, is what moved their zero-shot figures). The
 times above are of the box mesh the edge tasks pressed until the eighteenth session; with the
 block as an exact signed distance an edge tap takes 0.13-0.16 s and one under shear
-0.22-0.26 s (docs/sim2real.md, "The block's corner, and an edge tap's floor")."""
+0.22-0.26 s; with the 6 load steps of the nineteenth session (``tasks.EDGE_TAP_STEPS``)
+0.15-0.16 s and 0.22-0.26 s (docs/sim2real.md, "The block's corner, and an edge tap's
+floor")."""
 COP_N = 300
 """Default simulated taps of ``--task surface --model cop``."""
 

@@ -234,15 +234,14 @@ identified scene (``fast``), centre 3 mm inside the edge, 2 mm deep: the mean ma
 the raw frame is 5.1 px frictionless (one press), 0.7 px at mu 0.5 and 0.0-0.5 px at mu 1
 (2 or 4 steps); the real edge taps show a field radial about the contact, no such shift
 (docs/sim2real.md)."""
-EDGE_TAP_STEPS = 2
+EDGE_TAP_STEPS = 6
 """Load steps of an edge task's vertical tap (``simulate_task``'s ``tap_steps`` for the edge
-tasks; 2 for the others). At μ 1 the tap's frictional equilibrium depends on its path, and 2
-is not converged: on 150 edge taps (seed 11) read by the shipped edge model, 2, 3, 4 and 6
-steps read the lateral position 0.07-0.26, 0.08-0.39, 0.07-0.21 and 0.06-0.15 mm (sd per
-2 mm bin of ``pose_2``) from 12 steps, and two taps 1e-12 mm apart 0.11-0.33 mm apart with 2
-steps, 0.02-0.13 with 6; 0.107 s a tap against 0.077. 6 steps were not adopted in the
-eighteenth session only because the edge's rerun ended too late in it (rule 23;
-docs/sim2real.md, "The block's corner, and an edge tap's floor")."""
+tasks; 2 for the others), chosen by convergence alone (no real tap read). At μ 1 the tap's
+frictional equilibrium depends on its path: on 150 edge taps (seed 11) read by the shipped
+edge model, 2, 3, 4 and 6 steps read the lateral position 0.07-0.26, 0.08-0.39, 0.07-0.21 and
+0.06-0.15 mm (sd per 2 mm bin of ``pose_2``) from 12 steps, and two taps 1e-12 mm apart
+0.11-0.33 mm apart with 2 steps, 0.02-0.13 with 6; 0.107 s a tap against 0.077 with 2. Until
+the nineteenth session 2 (docs/sim2real.md, "The block's corner, and an edge tap's floor")."""
 MISSED_TAPS_NOTE = """An edge tap whose pose leaves the pad clear of the block (beside the edge
 and shallow: the dome's drop at the edge exceeds the tip's depth) is kept, rendered as the
 rest state with its own camera noise, not dropped: the lab's edge folders hold such taps (on
