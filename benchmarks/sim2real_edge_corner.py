@@ -13,7 +13,9 @@ The same ``--n`` edge taps of the lab's protocol (poses, depth offsets and noise
 ``--tap-steps`` load steps, default the edge tasks' :data:`~tactip_lab.real.tasks.EDGE_TAP_STEPS`)
 are simulated on:
 
-- *sharp*: the block the edge tasks press (:func:`~tactip_lab.real.tasks.block_indenter`);
+- *sharp*: the block with a sharp edge (:data:`~tactip_lab.real.tasks.BLOCK_MM`; the edge
+  tasks' until the nineteenth session, when its edge was rounded by
+  :data:`~tactip_lab.real.tasks.EDGE_RADIUS_MM`, rule 24);
 - *floor*: the same block 2e-12 mm wider, its edge moved out by 1e-12 mm: what
   changes an edge tap's simulated markers that no physical difference explains (the
   friction solve at the block's corner has more than one converged state, and which one it
@@ -56,7 +58,7 @@ def variants(radii: list[float]) -> dict[str, object]:
 
     length, width, height = tasks.BLOCK_MM
     out: dict[str, object] = {
-        "sharp": tasks.block_indenter(),
+        "sharp": ts.Block(length, width, height),
         "floor": ts.Block(length, width + 2 * FLOOR_MM, height),
         "mesh": ts.MeshIndenter(trimesh.creation.box(extents=tasks.BLOCK_MM), name="box"),
     }
@@ -129,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
             t0 = time.perf_counter()
             tasks.simulate_task(scene, folder, "edge", args.n, seed=args.seed,
                                 tap_steps=args.tap_steps,
-                                indenter=None if name == "sharp" else block, progress=True)
+                                indenter=block, progress=True)
             timing = json.loads((folder / "timing.json").read_text())
             seconds[name] = (timing.get("seconds_per_tap"), time.perf_counter() - t0)
             folder128 = tasks.convert_128(folder, folder.with_name(folder.name + "_128"),

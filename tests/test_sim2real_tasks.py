@@ -396,16 +396,25 @@ def _dome(radius=20.0, n=60000):
     return p[p[:, 2] > 0.75 * radius]
 
 
+def _sharp_block():
+    """The tasks' block with a sharp edge: the closed forms below are a sharp edge's (the
+    default block's edge is rounded, :data:`~tactip_lab.real.tasks.EDGE_RADIUS_MM`)."""
+    import tactip_sim as ts
+    from tactip_lab.real.tasks import BLOCK_MM
+
+    return ts.Block(*BLOCK_MM)
+
+
 @pytest.mark.parametrize("inside,yaw", [(3.0, 0.0), (-4.0, 30.0), (-6.0, -120.0)])
 def test_edge_depth_follows_the_dome_beside_the_block(inside, yaw):
     """Beside the block the first contact is lower on the dome by R - sqrt(R² - e²): the
     indentation beyond first contact is the tip's depth less that drop."""
-    from tactip_lab.real.tasks import block_indenter, edge_contact_depth
+    from tactip_lab.real.tasks import edge_contact_depth
 
     radius = 20.0
     sim = SimpleNamespace(_cand_rest=_dome(radius), tip_mm=np.array([0.0, 0.0, radius]),
                           body=SimpleNamespace(skin_thickness_mm=0.0))
-    d = edge_contact_depth(sim, block_indenter(), inside, yaw, 2.0)
+    d = edge_contact_depth(sim, _sharp_block(), inside, yaw, 2.0)
     drop = 0.0 if inside > 0 else radius - np.sqrt(radius ** 2 - inside ** 2)
     assert d == pytest.approx(2.0 - drop, abs=0.05)  # the points are ~0.2 mm apart
 
@@ -413,9 +422,9 @@ def test_edge_depth_follows_the_dome_beside_the_block(inside, yaw):
 def test_edge_pose_puts_the_edge_where_asked():
     """The block's edge crosses the sensor's axis at ``inside`` mm along the block's normal,
     whatever the yaw: the block's signed distance at the sensor's axis is -inside."""
-    from tactip_lab.real.tasks import block_indenter, edge_pose
+    from tactip_lab.real.tasks import edge_pose
 
-    ind = block_indenter()
+    ind = _sharp_block()
     for inside, yaw in [(2.0, 0.0), (-3.0, 75.0), (4.5, -150.0)]:
         pose = edge_pose(inside, yaw, 0.0)
         rot = pose.rotation
@@ -431,11 +440,11 @@ def test_a_tilted_top_face_moves_first_contact_into_the_block(tilt, yaw):
     """A sphere's first contact with a plane turned by tau lies R sin(tau) from its apex, up
     the slope: with the top face rising away from the edge (tau > 0) that is into the block,
     along the block's inward normal (sin yaw, -cos yaw) in the sensor frame."""
-    from tactip_lab.real.tasks import EdgeConvention, block_indenter, edge_pose
+    from tactip_lab.real.tasks import EdgeConvention, edge_pose
     from tactip_sim.fem import place
 
     radius = 20.0
-    pl = place(block_indenter(), edge_pose(9.0, yaw, 0.0, tilt_deg=tilt), _dome(radius),
+    pl = place(_sharp_block(), edge_pose(9.0, yaw, 0.0, tilt_deg=tilt), _dome(radius),
                skin_thickness_mm=0.0)
     y = np.radians(yaw)
     want = radius * np.sin(np.radians(tilt)) * np.array([np.sin(y), -np.cos(y)])
@@ -908,28 +917,71 @@ def test_an_edge_folder_simulated_with_another_depth_offset_does_not_resume(tmp_
 
 
 def test_an_edge_folder_of_another_block_does_not_resume(tmp_path, monkeypatch):
-    """A block other than the default (here one with a rounded edge) is part of an edge
-    folder's protocol: the default block refuses to resume it, keeping its frames; a surface
-    task given a block is refused before anything is written."""
+    """The block is part of an edge folder's protocol, the default one too: a folder of
+    another block (here the sharp one of the eighteenth session) is not resumed with the
+    default block, nor a default folder with another block, and the frames are kept; a
+    surface task given a block is refused before anything is written."""
     import tactip_sim as ts
     from tactip_lab.real import tasks
 
     scene = _stop_at_simulation(monkeypatch)
     out = tmp_path / "sim"
-    rounded = ts.Block(*tasks.BLOCK_MM, edge_radius_mm=0.5)
+    sharp = ts.Block(*tasks.BLOCK_MM)
+    assert tasks.EDGE_RADIUS_MM > 0  # else the default is this block
     with pytest.raises(_Stop):
-        tasks.simulate_task(scene, out, "edge", 3, indenter=rounded, progress=False)
-    assert "edge_radius_mm=0.5" in json.loads((out / "protocol.json").read_text())["indenter"]
+        tasks.simulate_task(scene, out, "edge", 3, indenter=sharp, progress=False)
+    assert "edge_radius_mm=0.0" in json.loads((out / "protocol.json").read_text())["indenter"]
     (out / "images" / "image_00001.png").write_bytes(b"frame")
     with pytest.raises(ValueError, match="differs in indenter"):
         tasks.simulate_task(scene, out, "edge", 3, progress=False)
     assert (out / "images" / "image_00001.png").read_bytes() == b"frame"
     with pytest.raises(_Stop):  # the same block resumes
-        tasks.simulate_task(scene, out, "edge", 3, indenter=rounded, progress=False)
+        tasks.simulate_task(scene, out, "edge", 3, indenter=sharp, progress=False)
+    default = tmp_path / "default"
+    with pytest.raises(_Stop):
+        tasks.simulate_task(scene, default, "edge+shear", 3, progress=False)
+    assert (json.loads((default / "protocol.json").read_text())["indenter"]
+            == repr(tasks.block_indenter()))
+    (default / "images" / "image_00001.png").write_bytes(b"frame")
+    with pytest.raises(ValueError, match="differs in indenter"):
+        tasks.simulate_task(scene, default, "edge+shear", 3, indenter=sharp, progress=False)
     with pytest.raises(ValueError, match="only the edge tasks press a block"):
-        tasks.simulate_task(scene, tmp_path / "surface", "surface", 3, indenter=rounded,
+        tasks.simulate_task(scene, tmp_path / "surface", "surface", 3, indenter=sharp,
                             progress=False)
     assert not (tmp_path / "surface").exists()
+
+
+def test_a_move_onto_the_block_converges_with_its_steps_only_at_the_rounded_edge():
+    """The edge under shear's move in contact from beside the edge onto the block (labels
+    chosen here, not a run's draw): with the tasks' block, its edge rounded by
+    ``EDGE_RADIUS_MM``, the markers after the move made in 4 steps (the default) lie within
+    0.05 mm RMS of those after 32; with a sharp edge they differ by more than 0.5 mm (at fine
+    steps its vertical side catches the skin, at coarse ones the skin passes the corner): why
+    the edge is rounded (rule 24, docs/sim2real.md)."""
+    from pathlib import Path
+
+    import tactip_sim as ts
+    from tactip_lab.real import tasks
+
+    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes"
+                          / "tactip_331_identified.toml")
+    sim = ts.Simulator(scene)
+    # pose_2 0.5 mm over the block, angle -100 deg; moved -2 mm along, +4.5 mm across it
+    row = np.array([0, 0.5, 4.0, 0, 0, -100.0, -2.0, 4.5, 0, 0, 0, 0.0])
+
+    def moved(block, steps):
+        poses = tasks.shear_path("edge+shear", row, steps, sim=sim, indenter=block,
+                                 depth_offset_mm=2.2)
+        states, _ = sim.continue_path(tasks.contact_path(poses, tasks.EDGE_TAP_STEPS),
+                                      friction=tasks.SHEAR_FRICTION, indenter=block)
+        return np.asarray(states[-1].markers_mm)
+
+    def apart(block):
+        a, b = moved(block, 4), moved(block, 32)
+        return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+
+    assert apart(tasks.block_indenter()) < 0.05
+    assert apart(ts.Block(*tasks.BLOCK_MM)) > 0.5
 
 
 def test_an_edge_tap_that_misses_the_block_is_the_rest_state_with_its_own_noise(tmp_path,
