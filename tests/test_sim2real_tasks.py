@@ -984,6 +984,26 @@ def test_a_move_onto_the_block_converges_with_its_steps_only_at_the_rounded_edge
     assert apart(ts.Block(*tasks.BLOCK_MM)) > 0.5
 
 
+def test_edge_radius_reaches_the_simulated_folders_protocol(tmp_path, monkeypatch):
+    """``tactip sim2real --task edge --edge-radius R`` presses a block rounded by R: its
+    folders' protocol records it, and a folder of the default block is not resumed with it."""
+    import tactip_sim as ts
+    from tactip_lab.real import task_run, tasks
+
+    scene = _stop_at_simulation(monkeypatch)
+    cfg = task_run.TaskConfig(task="edge", n=20, edge_radius_mm=1.25)
+    cfg.check()
+    with pytest.raises(_Stop):
+        task_run.simulate_draw(scene, tmp_path, cfg, 0, progress=False)
+    sim = tmp_path / task_run.draw_names(0)[0]
+    claimed = json.loads((sim / "protocol.json").read_text())["indenter"]
+    assert claimed == repr(ts.Block(*tasks.BLOCK_MM, edge_radius_mm=1.25))
+    (sim / "images" / "image_00001.png").write_bytes(b"frame")
+    with pytest.raises(ValueError, match="differs in indenter"):
+        task_run.simulate_draw(scene, tmp_path, task_run.TaskConfig(task="edge", n=20), 0,
+                               progress=False)
+
+
 def test_an_edge_tap_that_misses_the_block_is_the_rest_state_with_its_own_noise(tmp_path,
                                                                                 monkeypatch):
     """A drawn edge pose that leaves the pad clear of the block is not dropped: its frame is
@@ -1077,7 +1097,14 @@ def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path
                       (["--draws", "2"], "--draws is for the edge tasks"),
                       (["--shear", "--draws", "3"], "--draws is for the edge tasks"),
                       (["--model", "cop", "--draws", "2"], "--draws is for the edge tasks' "
-                       "field models")):
+                       "field models"),
+                      (["--edge-radius", "0.5"], "--edge-radius is for the edge tasks"),
+                      (["--task", "edge", "--edge-radius", "-0.1"],
+                       "--edge-radius=-0.1 is out of range: [0, 10] mm"),
+                      (["--task", "edge", "--shear", "--edge-radius", "10.5"],
+                       "--edge-radius=10.5 is out of range"),
+                      (["--model", "cop", "--edge-radius", "1"],
+                       "--edge-radius is for the edge tasks (--task edge)")):
         out = tmp_path / f"o{len(argv)}{argv[-1]}"
         assert main(["sim2real", scene, "--out", str(out), "--no-progress", *argv]) != 0
         assert msg in capsys.readouterr().err

@@ -220,7 +220,7 @@ def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
     cfg = TaskConfig(task=task, n=args.n or TASK_N[task], seed=args.seed, k=args.k,
                      shear_steps=args.shear_steps, depth_range_mm=depth,
                      friction=args.friction, folder_size=args.folder_size,
-                     draws=args.draws)
+                     draws=args.draws, edge_radius_mm=args.edge_radius)
     cfg.check()
     for d in [*(args.real or []), *(args.real_raw or [])]:
         if not Path(d).is_dir():
@@ -270,6 +270,9 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
     if args.draws is not None:
         raise ValueError("--draws is for the edge tasks' field models (--task edge): the CoP "
                          "model is fitted on one draw of taps")
+    if args.edge_radius is not None:
+        raise ValueError("--edge-radius is for the edge tasks (--task edge): the CoP model "
+                         "presses a flat plate")
     for opt, v in (("--real", args.real), ("--real-raw", args.real_raw)):
         if v and len(v) > 1:
             raise ValueError(f"{opt} given {len(v)} times: the surface taps' run scores one "
@@ -398,6 +401,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulated taps (default 3000 surface, 1200 edge, 3000 surface --shear, "
                    f"600 edge --shear; {COP_N} with --model cop); the edge tasks' in each of "
                    "--draws draws")
+    p.add_argument("--edge-radius", type=float, default=None, metavar="MM",
+                   help="edge tasks: the block's edge rounded by this radius, in [0, 10] mm "
+                   "(0: sharp; default 0.5, chosen by the load path's convergence: "
+                   "tactip_lab/real/tasks.py EDGE_RADIUS_MM); give a measured block's")
     p.add_argument("--draws", type=int, default=None, metavar="K",
                    help="edge tasks: independent simulated draws of --n taps each (seeds "
                    "SEED..SEED+K-1); the saved model is the mean of members fitted on each "

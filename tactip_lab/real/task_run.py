@@ -57,7 +57,7 @@ from tactip_lab.fitting.references import (
 )
 from tactip_lab.sampling.dataset import atomic_write_text
 
-from .tasks import EDGE_CONVENTION, convert_128, label_turn, simulate_task
+from .tasks import BLOCK_MM, EDGE_CONVENTION, convert_128, label_turn, simulate_task
 
 POINTS_VERSION = 2
 """Version of the cached tracked points (2: the marker-wise median reference of a folder
@@ -148,6 +148,8 @@ class TaskConfig:
     folder_size: int | None = None
     # independent simulated draws of n taps (edge tasks); None: TASK_DRAWS
     draws: int | None = None
+    # the block's edge radius, mm (edge tasks); None: tasks.EDGE_RADIUS_MM
+    edge_radius_mm: float | None = None
 
     def check(self) -> None:
         if self.task not in ("surface", "edge", "edge+shear", "surface+shear"):
@@ -177,6 +179,14 @@ class TaskConfig:
                 raise ValueError(f"--draws is for the edge tasks: the {self.task} task's "
                                  "model averages over drawn references of one draw of taps "
                                  "(task_run.REFERENCE_MEMBERS)")
+        if self.edge_radius_mm is not None:
+            r = self.edge_radius_mm
+            if not self.task.startswith("edge"):
+                raise ValueError(f"--edge-radius is for the edge tasks: the {self.task} task "
+                                 "presses the scene's own indenter")
+            if not (np.isfinite(r) and 0.0 <= r <= 10.0):
+                raise ValueError(f"--edge-radius={r:g} is out of range: [0, 10] mm (0: sharp; "
+                                 "at most half the block's height)")
         if not 1 <= self.shear_steps <= 100:
             raise ValueError(f"--shear-steps={self.shear_steps} is out of range: [1, 100]")
         if self.friction is not None:
@@ -563,9 +573,11 @@ def simulate_draw(scene: ts.Scene, out: Path, cfg: TaskConfig, j: int, *, progre
     mu = {} if cfg.friction is None else {"friction": (
         tuple(map(float, cfg.friction)) if isinstance(cfg.friction, tuple)
         else float(cfg.friction))}
+    block = {} if cfg.edge_radius_mm is None else {"indenter": ts.Block(
+        *BLOCK_MM, edge_radius_mm=float(cfg.edge_radius_mm))}
     sim = simulate_task(scene, out / sim_name, cfg.task, cfg.n, seed=draw_seed(cfg, j),
                         shear_steps=cfg.shear_steps, depth_mm=cfg.depth_range_mm,
-                        progress=progress, **mu)
+                        progress=progress, **mu, **block)
     sim128 = convert_128(sim, out / s128_name, count)
     cols = folder_columns(sim)
     try:
