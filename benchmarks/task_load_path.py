@@ -155,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         size = np.sqrt(np.mean([np.mean(np.sum((ref[i] - rest) ** 2, axis=1)) for i in ok_ref]))
         where = f", {block!r}" if task.startswith("edge") else ""
         print(f"\n{task}: {args.n} taps (seed {args.seed}), friction {friction}{where}; reference "
-              f"path {args.ref[0]}x{args.ref[1]}: {len(ok_ref)} taps in contact, RMS marker "
+              f"path {args.ref[0]}x{args.ref[1]}: {len(ok_ref)} taps pressed, RMS marker "
               f"displacement from rest {size:.3f} mm")
         print("| path (tap x shear steps) | RMS from reference (mm) | median | largest | "
               "taps compared | failed / missed | s a tap |")

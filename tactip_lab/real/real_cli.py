@@ -176,8 +176,9 @@ thirteenth session: the draw, not the count, is what moved their zero-shot figur
 times above are of the box mesh the edge tasks pressed until the eighteenth session; with the
 block as an exact signed distance an edge tap takes 0.13-0.16 s and one under shear
 0.22-0.26 s; with the 6 load steps of the nineteenth session (``tasks.EDGE_TAP_STEPS``)
-0.15-0.16 s and 0.22-0.26 s (docs/sim2real.md, "The block's corner, and an edge tap's
-floor")."""
+0.15-0.16 s and 0.22-0.26 s, and with the block's edge rounded (``tasks.EDGE_RADIUS_MM``)
+0.18-0.23 s and 0.64-1.09 s, the two runs side by side (docs/sim2real.md, "The load paths of
+the frictional taps, and the block's edge rounded")."""
 COP_N = 300
 """Default simulated taps of ``--task surface --model cop``."""
 
