@@ -56,9 +56,10 @@ def test_a_tilted_block_slid_in_contact_settles_where_two_faces_meet():
 @pytest.mark.slow
 def test_an_edge_taps_load_path_converges_with_its_steps():
     """The edge tasks' vertical tap at μ 1 depends on its load path (``tasks.EDGE_TAP_STEPS``,
-    6; the tasks' block, its edge rounded since the nineteenth session): over twelve taps within 3 mm of the edge (seed 5, independent of the 150 the load
-    path was measured on), the markers after 6 steps lie nearer those of a 12-step path than
-    after 2 steps, on average by more than a third."""
+    6; the tasks' block, its edge rounded since the nineteenth session): over twelve taps
+    within 3 mm of the edge (seed 5, independent of the 150 the load path was measured on),
+    the markers after 6 steps lie nearer those of a 12-step path than after 2 steps, on
+    average by more than a third."""
     from tactip_lab.real import tasks
 
     scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes"
