@@ -3,7 +3,7 @@ an edge tap depends on the last bits of its gap (docs/sim2real.md, "The block's 
 an edge tap's floor").
 
     python benchmarks/sim2real_edge_corner.py RUN [--n 150] [--radii 0.2,0.5,1.0] [--seed 11]
-                                              [--tap-steps K] [--out DIR]
+                                              [--tap-steps K] [--base-radius R] [--out DIR]
 
 ``RUN`` is a ``tactip sim2real --task edge`` folder; its ``model.json`` reads the taps in the
 lab's 128x128 processed format (converted as the run converts its own,
@@ -15,7 +15,8 @@ are simulated on:
 
 - *sharp*: the block with a sharp edge (:data:`~tactip_lab.real.tasks.BLOCK_MM`; the edge
   tasks' until the nineteenth session, when its edge was rounded by
-  :data:`~tactip_lab.real.tasks.EDGE_RADIUS_MM`, rule 24);
+  :data:`~tactip_lab.real.tasks.EDGE_RADIUS_MM`, rule 24); with ``--base-radius R`` the
+  block rounded by R instead (*base r = R*), which the floor then moves;
 - *floor*: the same block 2e-12 mm wider, its edge moved out by 1e-12 mm: what
   changes an edge tap's simulated markers that no physical difference explains (the
   friction solve at the block's corner has more than one converged state, and which one it
@@ -27,9 +28,9 @@ are simulated on:
 Each folder is read as ``tactip evaluate`` reads it (its rest frame the reference, detected,
 tracked, :meth:`~tactip_lab.fitting.field_model.FieldModel.predict_points`). Printed per
 format, per 2 mm bin of ``pose_2`` (negative beside the edge, positive over the block):
-each variant's lateral reading less the sharp block's, tap by tap (mean and sd, mm), and the
-angle MAE (deg, wrapped); then each variant's simulation time per tap. No real frame is
-read.
+each variant's lateral reading less the sharp (or base) block's, tap by tap (mean and sd,
+mm), and the angle MAE (deg, wrapped); then each variant's simulation time per tap. No real
+frame is read.
 """
 
 from __future__ import annotations
@@ -49,8 +50,9 @@ FLOOR_MM = 1e-12
 """How far the *floor* variant moves the block's edge (mm): far below any physical size."""
 
 
-def variants(radii: list[float]) -> dict[str, object]:
-    """name -> the block each variant presses."""
+def variants(radii: list[float], base_radius: float = 0.0) -> dict[str, object]:
+    """name -> the block each variant presses: the base block (:func:`base_name`: sharp, or
+    rounded by ``base_radius``) first, the floor the base block's."""
     import trimesh
 
     import tactip_sim as ts
@@ -58,13 +60,18 @@ def variants(radii: list[float]) -> dict[str, object]:
 
     length, width, height = tasks.BLOCK_MM
     out: dict[str, object] = {
-        "sharp": ts.Block(length, width, height),
-        "floor": ts.Block(length, width + 2 * FLOOR_MM, height),
+        base_name(base_radius): ts.Block(length, width, height, edge_radius_mm=base_radius),
+        "floor": ts.Block(length, width + 2 * FLOOR_MM, height, edge_radius_mm=base_radius),
         "mesh": ts.MeshIndenter(trimesh.creation.box(extents=tasks.BLOCK_MM), name="box"),
     }
     for r in radii:
         out[f"r = {r:g}"] = ts.Block(length, width, height, edge_radius_mm=r)
     return out
+
+
+def base_name(base_radius: float) -> str:
+    """The base variant's name: ``sharp``, or ``base r = R``."""
+    return "sharp" if base_radius == 0 else f"base r = {base_radius:g}"
 
 
 def read_folder(model, folder: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -90,6 +97,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="seed of the taps (the shipped runs' draws are 0 and up)")
     p.add_argument("--tap-steps", type=int, default=None,
                    help="load steps of each tap (default: the edge tasks', EDGE_TAP_STEPS)")
+    p.add_argument("--base-radius", type=float, default=0.0,
+                   help="the base block's edge radius, mm, which the floor moves and every "
+                   "variant is read against (default 0: sharp; the tasks' default is "
+                   "EDGE_RADIUS_MM)")
     p.add_argument("--out", type=Path, default=None,
                    help="keep the simulated folders here (default: a temporary folder)")
     args = p.parse_args(argv)
@@ -118,9 +129,9 @@ def main(argv: list[str] | None = None) -> int:
             p.error(f"{path}: a model of task {models[fmt][1].task!r}; this reads plain "
                     "edge taps")
     try:
-        blocks = variants(radii)
+        blocks = variants(radii, args.base_radius)
     except ValueError as exc:  # IndenterError
-        p.error(f"--radii {args.radii!r}: {exc}")
+        p.error(f"--radii {args.radii!r} / --base-radius {args.base_radius:g}: {exc}")
     scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes"
                           / "tactip_331_identified.toml")
     with tempfile.TemporaryDirectory() as tmp:
@@ -140,11 +151,12 @@ def main(argv: list[str] | None = None) -> int:
                           "raw": read_folder(models["raw"][1], folder)}
     names = list(read)
     for fmt, (path, model) in models.items():
-        y, sharp = read["sharp"][fmt]
+        y, sharp = read[base_name(args.base_radius)][fmt]
         lateral = model.targets.index("pose_2")
         angle = model.targets.index("pose_6")
         print(f"{args.n} simulated edge taps (seed {args.seed}), {fmt}, read by {path}: "
-              "lateral reading less the sharp block's, tap by tap, mean (sd) mm; angle MAE deg")
+              f"lateral reading less the {base_name(args.base_radius)} block's, tap by tap, "
+              "mean (sd) mm; angle MAE deg")
         print("  pose_2 bin (mm)  taps  " + "  ".join(f"{n:>22s}" for n in names))
         for lo, hi in zip(BINS_MM[:-1], BINS_MM[1:], strict=True):
             m = (y[:, lateral] >= lo) & (y[:, lateral] < hi)
