@@ -61,16 +61,9 @@ def press(task: str, row: np.ndarray, offset: float, mu: float, path: tuple[int,
     from tactip_lab.real import tasks
 
     tap_steps, shear_steps = path
-    if task.endswith("+shear"):
-        indenter = block if task.startswith("edge") else sim.indenter
-        poses = tasks.shear_path(task, row, shear_steps, sim=sim, indenter=indenter,
-                                 depth_offset_mm=offset)
-        steps = (tasks.contact_path(poses, tap_steps) if task.startswith("edge") else
-                 tasks.tap_poses(poses[0], tap_steps) + poses[1:])
-    else:
-        indenter = block
-        pose = tasks.sim_pose(task, row, sim=sim, indenter=block, depth_offset_mm=offset)
-        steps = tasks.tap_poses(pose, tap_steps) if pose.depth_mm > 0 else None
+    indenter = sim.indenter if task == "surface+shear" else block
+    steps = tasks.load_path(task, row, sim=sim, indenter=indenter, tap_steps=tap_steps,
+                            shear_steps=shear_steps, depth_offset_mm=offset)
     if steps is None:
         return None
     states, _ = sim.continue_path(steps, friction=mu, indenter=indenter)

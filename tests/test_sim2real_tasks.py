@@ -970,10 +970,10 @@ def test_a_move_onto_the_block_converges_with_its_steps_only_at_the_rounded_edge
     row = np.array([0, 0.5, 4.0, 0, 0, -100.0, -2.0, 4.5, 0, 0, 0, 0.0])
 
     def moved(block, steps):
-        poses = tasks.shear_path("edge+shear", row, steps, sim=sim, indenter=block,
-                                 depth_offset_mm=2.2)
-        states, _ = sim.continue_path(tasks.contact_path(poses, tasks.EDGE_TAP_STEPS),
-                                      friction=tasks.SHEAR_FRICTION, indenter=block)
+        path = tasks.load_path("edge+shear", row, sim=sim, indenter=block,
+                               tap_steps=tasks.EDGE_TAP_STEPS, shear_steps=steps,
+                               depth_offset_mm=2.2)
+        states, _ = sim.continue_path(path, friction=tasks.SHEAR_FRICTION, indenter=block)
         return np.asarray(states[-1].markers_mm)
 
     def apart(block):

@@ -480,6 +480,25 @@ def contact_path(poses: list[ts.Pose], tap_steps: int) -> list[ts.Pose] | None:
     return tap_poses(poses[first], tap_steps) + poses[first + 1:]
 
 
+def load_path(task: str, row: np.ndarray, *, sim: Any, indenter: Any, tap_steps: int,
+              shear_steps: int = 4, convention: EdgeConvention = EDGE_CONVENTION,
+              axes: str = "-x-y", depth_offset_mm: float = EDGE_DEPTH_OFFSET_MM[0]
+              ) -> list[ts.Pose] | None:
+    """The poses a frictional tap of ``task`` is pressed along, for a label ``row``: the
+    vertical tap in ``tap_steps`` steps, then under shear the move in contact in
+    ``shear_steps`` (:func:`shear_path`, :func:`contact_path`). None when an edge tap's skin
+    ends clear of the block (beside it, shallow: :data:`MISSED_TAPS_NOTE`)."""
+    if task.endswith("+shear"):
+        poses = shear_path(task, row, shear_steps, sim=sim, indenter=indenter,
+                           convention=convention, axes=axes, depth_offset_mm=depth_offset_mm)
+        return (contact_path(poses, tap_steps) if task.startswith("edge") else
+                tap_poses(poses[0], tap_steps) + poses[1:])
+    pose = sim_pose(task, row, sim=sim, indenter=indenter, convention=convention, axes=axes,
+                    depth_offset_mm=depth_offset_mm)
+    clear = task.startswith("edge") and pose.depth_mm <= 0
+    return None if clear else tap_poses(pose, tap_steps)
+
+
 def tap_poses(pose: ts.Pose, steps: int) -> list[ts.Pose]:
     """A vertical tap to ``pose`` in ``steps`` equal steps of depth (from first contact)."""
     return [replace(pose, depth_mm=pose.depth_mm * j / steps) for j in range(1, steps + 1)]
@@ -587,36 +606,19 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
             continue
         t0 = time.perf_counter()
         try:
-            if shear:  # a vertical tap to pose - move, then the move in contact
-                poses = shear_path(task, rows[i], shear_steps, sim=chain.sim, indenter=indenter,
-                                   convention=convention, axes=axes,
-                                   depth_offset_mm=offsets[i])
-                path = (contact_path(poses, tap_steps) if task.startswith("edge") else
-                        tap_poses(poses[0], tap_steps) + poses[1:])
-                if path is None:
-                    state = None  # the skin ends clear of the block (MISSED_TAPS_NOTE)
+            if shear or task == "edge" or isinstance(friction, tuple) or friction > 0:
+                # a tap with friction: the vertical tap (EDGE_TAP_NOTE), then under shear the
+                # move in contact from pose - move
+                path = load_path(task, rows[i], sim=chain.sim, indenter=indenter,
+                                 tap_steps=tap_steps, shear_steps=shear_steps,
+                                 convention=convention, axes=axes, depth_offset_mm=offsets[i])
+                if path is None:  # the skin ends clear of the block: the rest state, as
+                    state = None  # the lab's folders hold such taps (MISSED_TAPS_NOTE)
                     missed.append(i + 1)
                 else:
                     states, _ = chain.sim.continue_path(path, friction=float(mus[i]),
                                                         indenter=indenter)
                     state = states[-1]
-            elif task == "edge":  # a tap with friction (EDGE_TAP_NOTE)
-                pose = sim_pose(task, rows[i], sim=chain.sim, indenter=indenter,
-                                convention=convention, axes=axes, depth_offset_mm=offsets[i])
-                if pose.depth_mm > 0:
-                    states, _ = chain.sim.continue_path(tap_poses(pose, tap_steps),
-                                                        friction=float(mus[i]),
-                                                        indenter=indenter)
-                    state = states[-1]
-                else:  # the tap misses the block (beside it, shallow): the rest state, as
-                    state = None  # the lab's folders hold such taps (MISSED_TAPS_NOTE)
-                    missed.append(i + 1)
-            elif isinstance(friction, tuple) or friction > 0:  # a surface tap with friction
-                pose = sim_pose(task, rows[i], sim=chain.sim, indenter=indenter,
-                                convention=convention, axes=axes)
-                states, _ = chain.sim.continue_path(tap_poses(pose, tap_steps),
-                                                    friction=float(mus[i]), indenter=indenter)
-                state = states[-1]
             else:
                 pose = sim_pose(task, rows[i], sim=chain.sim, indenter=indenter,
                                 convention=convention, axes=axes)
@@ -700,4 +702,4 @@ __all__ = ["BLOCK_MM", "COLUMNS", "EDGE_CONVENTION", "EDGE_DEPTH_OFFSET_MM", "ED
            "SHEAR_FRICTION", "SURFACE_MOVE_TURN_DEG",
            "SURFACE_CONTACT_MM", "EdgeConvention", "block_indenter", "contact_path",
            "convert_128", "draw_poses", "edge_contact_depth", "edge_pose", "label_turn",
-           "shear_path", "sim_pose", "simulate_task", "simulated_ranges", "tap_poses"]
+           "load_path", "shear_path", "sim_pose", "simulate_task", "simulated_ranges", "tap_poses"]
