@@ -951,37 +951,82 @@ def test_an_edge_folder_of_another_block_does_not_resume(tmp_path, monkeypatch):
     assert not (tmp_path / "surface").exists()
 
 
-def test_a_move_onto_the_block_converges_with_its_steps_only_at_the_rounded_edge():
-    """The edge under shear's move in contact from beside the edge onto the block (labels
-    chosen here, not a run's draw): with the tasks' block, its edge rounded by
+@pytest.fixture(scope="module")
+def identified_sim():
+    """The identified 331-pin scene's simulator (the lab's tasks' scene), built once here."""
+    from pathlib import Path
+
+    import tactip_sim as ts
+
+    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes"
+                          / "tactip_331_identified.toml")
+    return ts.Simulator(scene)
+
+
+# an edge under shear's move in contact from beside the edge onto the block (labels chosen
+# here, not a run's draw): pose_2 0.5 mm over the block, angle -100 deg; moved -2 mm along and
+# +4.5 mm across it
+_ONTO_BLOCK = np.array([0, 0.5, 4.0, 0, 0, -100.0, -2.0, 4.5, 0, 0, 0, 0.0])
+
+
+def _moved_onto_block(sim, block, steps: int) -> np.ndarray:
+    from tactip_lab.real import tasks
+
+    path = tasks.load_path("edge+shear", _ONTO_BLOCK, sim=sim, indenter=block,
+                           tap_steps=tasks.EDGE_TAP_STEPS, shear_steps=steps,
+                           depth_offset_mm=2.2)
+    states, _ = sim.continue_path(path, friction=tasks.SHEAR_FRICTION, indenter=block)
+    return np.asarray(states[-1].markers_mm)
+
+
+def test_a_move_onto_the_block_converges_with_its_steps_only_at_the_rounded_edge(
+        identified_sim):
+    """The move onto the block: with the tasks' block, its edge rounded by
     ``EDGE_RADIUS_MM``, the markers after the move made in 4 steps (the default) lie within
     0.05 mm RMS of those after 32; with a sharp edge they differ by more than 0.5 mm (at fine
     steps its vertical side catches the skin, at coarse ones the skin passes the corner): why
     the edge is rounded (rule 24, docs/sim2real.md)."""
-    from pathlib import Path
-
     import tactip_sim as ts
     from tactip_lab.real import tasks
 
-    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes"
-                          / "tactip_331_identified.toml")
-    sim = ts.Simulator(scene)
-    # pose_2 0.5 mm over the block, angle -100 deg; moved -2 mm along, +4.5 mm across it
-    row = np.array([0, 0.5, 4.0, 0, 0, -100.0, -2.0, 4.5, 0, 0, 0, 0.0])
-
-    def moved(block, steps):
-        path = tasks.load_path("edge+shear", row, sim=sim, indenter=block,
-                               tap_steps=tasks.EDGE_TAP_STEPS, shear_steps=steps,
-                               depth_offset_mm=2.2)
-        states, _ = sim.continue_path(path, friction=tasks.SHEAR_FRICTION, indenter=block)
-        return np.asarray(states[-1].markers_mm)
-
     def apart(block):
-        a, b = moved(block, 4), moved(block, 32)
+        a = _moved_onto_block(identified_sim, block, 4)
+        b = _moved_onto_block(identified_sim, block, 32)
         return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
     assert apart(tasks.block_indenter()) < 0.05
     assert apart(ts.Block(*tasks.BLOCK_MM)) > 0.5
+
+
+def test_mixed_closest_point_updates_reach_the_plain_repetitions_answer_in_fewer(
+        identified_sim, monkeypatch):
+    """Anderson's mixing of the closest-point updates (``Tolerances.geometry_mixing``) against
+    the plain repetition given all the updates it needs (200): the move onto the rounded block
+    ends with the same markers (within 1e-6 mm, a thousandth of a micron being the updates'
+    own tolerance's scale) and takes fewer updates, none of its steps at the limit of 30."""
+    from dataclasses import replace
+
+    from tactip_lab.real import tasks
+    from tactip_sim.fem.linear import loadpath
+
+    counts: list[int] = []
+    solve = loadpath.solve_friction
+
+    def counted(*args, **kwargs):
+        sol = solve(*args, **kwargs)
+        counts.append(sol.contact.geometry_iterations)
+        return sol
+
+    monkeypatch.setattr(loadpath, "solve_friction", counted)
+    mixed = _moved_onto_block(identified_sim, tasks.block_indenter(), 4)
+    n_mixed, most = sum(counts), max(counts)
+    counts.clear()
+    plain_tol = replace(identified_sim.tol, geometry_mixing=0, geometry_max_iter=200)
+    monkeypatch.setattr(identified_sim, "tol", plain_tol)
+    plain = _moved_onto_block(identified_sim, tasks.block_indenter(), 4)
+    assert np.abs(mixed - plain).max() < 1e-6
+    assert most < 30
+    assert n_mixed < sum(counts)
 
 
 def test_edge_radius_reaches_the_simulated_folders_protocol(tmp_path, monkeypatch):

@@ -23,6 +23,10 @@ class Tolerances:
     geometry_mm : closest-point updates for curved indenters stop when no node's
         displacement changes by more than this (mm)
     geometry_max_iter : at most this many closest-point updates
+    geometry_mixing : previous updates mixed into the next (Anderson's mixing,
+        :mod:`~tactip_sim.fem.contact.fixedpoint`; 0: the plain repetition). The answer is
+        the same either way (the stopping test is the plain update's); the mixing reaches it
+        in fewer updates where the plain one converges slowly
     geometry_settled_mm : after ``geometry_max_iter`` updates, a last change below this is
         taken as settled rather than failed: a node on the boundary between two faces of a
         mesh indenter can alternate between them at that level without ever meeting
@@ -40,6 +44,7 @@ class Tolerances:
     pdas_max_iter: int = 50
     geometry_mm: float = 1e-10
     geometry_max_iter: int = 30
+    geometry_mixing: int = 4
     geometry_settled_mm: float = 1e-4
     newton_rtol: float = 1e-9
     newton_max_iter: int = 25

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
+from ..contact.fixedpoint import AndersonMixing
 from ..contact.indenters import Placement
 from ..contact.lcp import (
     ComplianceOperator,
@@ -404,6 +405,7 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     frames = np.zeros((0, 3, 3))
     slip = np.zeros((0, 2))
     near = everyone[:0]
+    mixer, sets = AndersonMixing(tol.geometry_mixing), None
     for _ in range(tol.geometry_max_iter):
         geo += 1
         g, nu = placement.gap(rest_mm + u)
@@ -464,13 +466,21 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
             work = np.concatenate([work, more])
         u_new[near] += ext_q[near]
         change = float(np.abs(u_new[near] - u[near]).max(initial=0.0))
-        u[:] = 0.0
-        u[near] = u_new[near]
+        image = np.zeros((s, 3))
+        image[near] = u_new[near]
         if flat or change <= tol.geometry_mm:
+            u[:] = image
             break
+        # the next linearisation point: mixed from the last few while the sets hold
+        now = (work.tobytes(), status.tobytes(), near.tobytes())
+        if now != sets:
+            mixer.reset()
+        sets = now
+        u[:] = mixer.step(u, image)
     else:
         if not change <= tol.geometry_settled_mm:
             raise closest_point_error(label, tol, change)
+        u[:] = image  # the last solve's own displacements, as its forces and states
     on = status != OPEN
     active = work[on]
     forces = np.einsum("iab,ib->ia", frames[on], lam[on]) if work.size else np.zeros((0, 3))
