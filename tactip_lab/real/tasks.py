@@ -265,7 +265,13 @@ rubber-like print) and its printed block; rubber on rigid plastic is commonly 0.
 At 0.5 the simulated skin still slides sideways where the block's corner presses it (centre
 2 mm beside the edge, 2 mm deep: a mean marker shift of 1.71 px against a mean displacement
 of 3.1 px on the raw frame), which the real edge taps do not show (docs/sim2real.md, the
-frames side by side); at 1 the shift is 0.07 px, at 2 0.08 px."""
+frames side by side); at 1 the shift is 0.07 px, at 2 0.08 px. Re-measured with the block's
+edge rounded (:data:`EDGE_RADIUS_MM`) and 6-step taps (2026-12-01, rule 26,
+``benchmarks/edge_corner_slide.py``, 54 taps 1-3 mm beside and over the edge): the slide is
+gone, μ 0.5 and μ 1 put the markers 0.06 px apart (median; 0.15 px at most), where the sharp
+corner pressed in 2 steps put them 1.0 px apart (4.8 at most). The value stays by the rule's
+letter (its threshold, a mean shift under a tenth of the mean displacement, is missed by
+μ 1 itself beside the edge: 0.18); the plain edge taps barely depend on it any more."""
 
 
 SHEAR_FRICTION = 0.5

@@ -6,11 +6,11 @@ repeats from the new positions: a fixed point ``u = F(u)``. Against a curved sur
 normal turns fast under a sliding contact (the lab's block, its edge rounded, slid across the
 skin) the plain repetition converges only linearly, with ratios of 0.4-0.7 per update, and ran
 out of its 30 updates (measured 2026-12-01: 17 of 152 load steps of 16 edge taps under shear
-at the limit; 6 of 2 400 such taps failed in a run). Anderson's mixing (type II, as in Walker & Ni, SIAM
-J. Numer. Anal. 49 (2011) 1715-1735) takes the next point as the combination of the last few
-images ``F(u_k)`` whose residuals ``F(u_k) - u_k`` combine to the smallest one. It changes
-only where the loop looks next, not what it accepts: a loop still stops when the plain
-residual ``|F(u) - u|`` is within its tolerance, and returns that solve.
+at the limit; 6 of 2 400 such taps failed in a run). Anderson's mixing (type II, as in
+Walker & Ni, SIAM J. Numer. Anal. 49 (2011) 1715-1735) takes the next point as the
+combination of the last few images ``F(u_k)`` whose residuals ``F(u_k) - u_k`` combine to the
+smallest one. It changes only where the loop looks next, not what it accepts: the loop still
+stops when the plain residual ``|F(u) - u|`` is within its tolerance, and returns that solve.
 
 The mixing is safe only while the map is smooth, so the loop restarts it (:meth:`reset`)
 whenever the contact's sets (working, active, stick/slip) change, and it restarts itself when

@@ -24,8 +24,10 @@ stick, stuck nodes whose ``|q|`` exceeds ``mu p`` slip along ``q``, slipping nod
 turns against their force stick, and the others take ``-s/|s|`` as their new direction, until
 nothing changes. The working set grows as in :func:`~.contact.lcp.solve_contact` (candidates
 cleared by the operator's far-field bound are skipped) and curved indenters repeat it around
-the deformed positions. At ``mu = 0`` no node ever sticks and the system is the frictionless
-one (same answer as :func:`~.contact.lcp.solve_contact` to round-off; tested).
+the deformed positions, each next position mixed from the last few (Anderson's mixing,
+:mod:`~tactip_sim.fem.contact.fixedpoint`: the plain repetition converges only linearly where
+the normals turn under a slide). At ``mu = 0`` no node ever sticks and the system is the
+frictionless one (same answer as :func:`~.contact.lcp.solve_contact` to round-off; tested).
 
 It needs the full 3x3 blocks of the compliance between candidates, which the reduced model
 holds (:class:`~.linear.reduced.ReducedModel`): a step costs a few dense solves of the contact
