@@ -1760,3 +1760,50 @@ def test_handedness_parts_of_a_field_are_split_and_made_symmetric_at_known_answe
         assert not np.any(m1 & m2) and np.all(m1 | m2)
     with pytest.raises(ValueError, match="region='middle'"):
         hd.region_mask(rest, 30.0, "middle")
+
+
+def test_a_resumed_folders_time_per_tap_is_over_all_its_taps(tmp_path, monkeypatch):
+    """``timing.json``'s ``seconds_per_tap`` of a folder simulated in two runs is the mean over
+    every tap simulated there: three taps of 1 s, one that failed, then that one in 5 s gives
+    2 s over 4 taps (the resumed run alone would say 5 s over 1). The clock is faked; no
+    physics."""
+    import time as time_module
+    from pathlib import Path
+
+    import tactip_sim as ts
+    from tactip_lab.real import tasks
+    from tactip_lab.sampling import chain
+
+    clock = {"now": 0.0}
+    cost = {"pose": iter([1.0, 1.0, ts.ContactError("did not converge"), 1.0, 5.0])}
+
+    class FakeSim:
+        def continue_path(self, *a, **k):
+            c = next(cost["pose"])
+            if isinstance(c, Exception):
+                raise c
+            clock["now"] += c
+            return [SimpleNamespace()], None
+
+    class FakeChain:
+        def __init__(self, scene, frames=1):
+            self.sim = FakeSim()
+            self.rest_image = np.zeros((8, 8), np.uint8)
+
+        def render(self, state, *key, frames=1):
+            return SimpleNamespace(images=[np.full((8, 8), 7, np.uint8)])
+
+    monkeypatch.setattr(chain, "Chain", FakeChain)
+    monkeypatch.setattr(tasks, "load_path", lambda *a, **k: [ts.Pose(depth_mm=1.0)])
+    monkeypatch.setattr(time_module, "perf_counter", lambda: clock["now"])
+    scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
+                          "tactip_331_identified.toml")
+    out = tmp_path / "sim"
+    tasks.simulate_task(scene, out, "edge", 4, progress=False)
+    first = json.loads((out / "timing.json").read_text())
+    assert [f["row"] for f in first["failed"]] == [3]
+    assert first["seconds_per_tap"] == pytest.approx(1.0) and first["taps_timed"] == 3
+    tasks.simulate_task(scene, out, "edge", 4, progress=False)  # resumed: tap 3 in 5 s
+    second = json.loads((out / "timing.json").read_text())
+    assert second["failed"] == []
+    assert second["seconds_per_tap"] == pytest.approx(2.0) and second["taps_timed"] == 4

@@ -657,9 +657,13 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
     prev = json.loads(old.read_text()) if old.is_file() else {}
     if task.startswith("edge"):  # the missed taps of earlier runs here are kept frames
         info["missed"] = sorted({*prev.get("missed", []), *missed})
-    if times:
-        info["seconds_per_tap"] = float(np.mean(times))
-        info["taps_timed"] = len(times)
+    if times:  # the taps of earlier runs here count too: a resumed folder's mean is the
+        # mean over all its simulated taps, not over the few this run added
+        n_prev = int(prev.get("taps_timed", 0)) if "seconds_per_tap" in prev else 0
+        total = float(np.sum(times)) + (float(prev["seconds_per_tap"]) * n_prev if n_prev
+                                        else 0.0)
+        info["seconds_per_tap"] = total / (len(times) + n_prev)
+        info["taps_timed"] = len(times) + n_prev
     elif "seconds_per_tap" in prev:
         info["seconds_per_tap"], info["taps_timed"] = prev["seconds_per_tap"], prev["taps_timed"]
     atomic_write_text(old, json.dumps(info, indent=2) + "\n")
