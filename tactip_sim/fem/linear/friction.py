@@ -408,6 +408,7 @@ def solve_friction(placement: Placement, rest_mm: np.ndarray, operator: Complian
     slip = np.zeros((0, 2))
     near = everyone[:0]
     mixer, sets = AndersonMixing(tol.geometry_mixing), None
+    image = u.copy()  # the last solve's displacements (none yet)
     for _ in range(tol.geometry_max_iter):
         geo += 1
         g, nu = placement.gap(rest_mm + u)
