@@ -1058,7 +1058,6 @@ def test_an_edge_tap_that_misses_the_block_is_the_rest_state_with_its_own_noise(
 
     import tactip_sim as ts
     from tactip_lab.real import tasks
-    from tactip_lab.sampling import chain
 
     rendered = []
 
@@ -1066,16 +1065,7 @@ def test_an_edge_tap_that_misses_the_block_is_the_rest_state_with_its_own_noise(
         def continue_path(self, *a, **k):
             raise AssertionError("a tap that misses the block was simulated")
 
-    class FakeChain:
-        def __init__(self, scene, frames=1):
-            self.sim = FakeSim()
-            self.rest_image = np.zeros((8, 8), np.uint8)
-
-        def render(self, state, *key, frames=1):
-            rendered.append((state, key))
-            return SimpleNamespace(images=[np.full((8, 8), 7, np.uint8)])
-
-    monkeypatch.setattr(chain, "Chain", FakeChain)
+    _install_chain(monkeypatch, FakeSim(), lambda state, key: rendered.append((state, key)))
     monkeypatch.setattr(tasks, "sim_pose", lambda *a, **k: ts.Pose(depth_mm=-0.3))
     scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
                           "tactip_331_identified.toml")
@@ -1388,11 +1378,27 @@ def test_naive_baseline_is_the_same_on_a_rerun():
     np.testing.assert_array_equal(a, b)
 
 
+def _install_chain(monkeypatch, sim, on_render=None) -> None:
+    """Replace the simulation chain by one around ``sim`` (a fake simulator) that renders a
+    blank frame, calling ``on_render(state, key)`` first if given; no physics, no render."""
+    from tactip_lab.sampling import chain
+
+    class FakeChain:
+        def __init__(self, scene, frames=1):
+            self.sim = sim
+            self.rest_image = np.zeros((8, 8), np.uint8)
+
+        def render(self, state, *key, frames=1):
+            if on_render is not None:
+                on_render(state, key)
+            return SimpleNamespace(images=[np.full((8, 8), 7, np.uint8)])
+
+    monkeypatch.setattr(chain, "Chain", FakeChain)
+
+
 def _record_presses(monkeypatch) -> list[object]:
     """Replace the simulation chain by one that records how each tap is pressed ("press", or
     its friction when pressed in steps with friction) and renders a blank frame."""
-    from tactip_lab.sampling import chain
-
     calls: list[object] = []
 
     class FakeSim:
@@ -1406,15 +1412,7 @@ def _record_presses(monkeypatch) -> list[object]:
             calls.append(friction)
             return [SimpleNamespace()], None
 
-    class FakeChain:
-        def __init__(self, scene, frames=1):
-            self.sim = FakeSim()
-            self.rest_image = np.zeros((8, 8), np.uint8)
-
-        def render(self, state, *key, frames=1):
-            return SimpleNamespace(images=[np.full((8, 8), 7, np.uint8)])
-
-    monkeypatch.setattr(chain, "Chain", FakeChain)
+    _install_chain(monkeypatch, FakeSim())
     return calls
 
 
@@ -1772,7 +1770,6 @@ def test_a_resumed_folders_time_per_tap_is_over_all_its_taps(tmp_path, monkeypat
 
     import tactip_sim as ts
     from tactip_lab.real import tasks
-    from tactip_lab.sampling import chain
 
     clock = {"now": 0.0}
     cost = {"pose": iter([1.0, 1.0, ts.ContactError("did not converge"), 1.0, 5.0])}
@@ -1785,15 +1782,7 @@ def test_a_resumed_folders_time_per_tap_is_over_all_its_taps(tmp_path, monkeypat
             clock["now"] += c
             return [SimpleNamespace()], None
 
-    class FakeChain:
-        def __init__(self, scene, frames=1):
-            self.sim = FakeSim()
-            self.rest_image = np.zeros((8, 8), np.uint8)
-
-        def render(self, state, *key, frames=1):
-            return SimpleNamespace(images=[np.full((8, 8), 7, np.uint8)])
-
-    monkeypatch.setattr(chain, "Chain", FakeChain)
+    _install_chain(monkeypatch, FakeSim())
     monkeypatch.setattr(tasks, "load_path", lambda *a, **k: [ts.Pose(depth_mm=1.0)])
     monkeypatch.setattr(time_module, "perf_counter", lambda: clock["now"])
     scene = ts.load_scene(Path(__file__).resolve().parents[1] / "scenes" /
