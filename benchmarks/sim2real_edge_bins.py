@@ -18,7 +18,8 @@ over the block):
   mean).
 
 Then the angle alone per cell of ``pose_2`` bin by ``pose_3`` bin (:data:`DEPTH_BINS_MM`):
-median error and MAE (deg, wrapped), real beside sim CV on the folder's slice. Last, how the
+median error and MAE (deg, wrapped), real beside sim CV on the folder's slice; and the same
+cells for the lateral position: mean error and MAE (mm). Last, how the
 press over the block grows with the depth label, real beside each simulated draw
 (:func:`field_growth`: the tracked points the run cached, ``real_<name>_points.npz`` and
 ``sim128[_d<j>]_points.npz``): the onset (``pose_3`` where the mean marker displacement
@@ -78,11 +79,17 @@ DEPTH_BINS_MM = (3.0, 3.5, 4.0, 4.5, 5.0)
 """The lab's edge tap depths (label ``pose_3``, 3-5 mm) in four bins; the last bin closed."""
 
 
-def depth_grid(lateral: np.ndarray, truth: np.ndarray, pred: np.ndarray, depth: np.ndarray
-               ) -> list[list[dict[str, float]]]:
+def depth_grid(lateral: np.ndarray, truth: np.ndarray, pred: np.ndarray, depth: np.ndarray,
+               target: int = 1) -> list[list[dict[str, float]]]:
     """Per :data:`BINS_MM` bin of ``lateral`` (rows) and :data:`DEPTH_BINS_MM` bin of
-    ``depth`` (columns): n, and the ``pose_6`` error's median and MAE (wrapped)."""
-    ea = wrap_deg(pred[:, 1] - truth[:, 1])
+    ``depth`` (columns): n, and the error's centre and MAE: ``target`` 1, the ``pose_6``
+    error (wrapped), its median; 0, the ``pose_2`` error, its mean (a bias)."""
+    if target == 1:
+        ea = wrap_deg(pred[:, 1] - truth[:, 1])
+        centre = np.median
+    else:
+        ea = pred[:, 0] - truth[:, 0]
+        centre = np.mean
     out = []
     for lo, hi in zip(BINS_MM[:-1], BINS_MM[1:], strict=True):
         row = []
@@ -90,20 +97,22 @@ def depth_grid(lateral: np.ndarray, truth: np.ndarray, pred: np.ndarray, depth: 
             top = depth <= dhi if j == len(DEPTH_BINS_MM) - 2 else depth < dhi
             s = (lateral >= lo) & (lateral < hi) & (depth >= dlo) & top & np.isfinite(ea)
             row.append({"n": int(s.sum()),
-                        "median": float(np.median(ea[s])) if s.any() else np.nan,
+                        "median": float(centre(ea[s])) if s.any() else np.nan,
                         "mae": float(np.abs(ea[s]).mean()) if s.any() else np.nan})
         out.append(row)
     return out
 
 
-def _print_grid(title: str, grid: list[list[dict[str, float]]]) -> None:
-    print(f"  {title}: pose_6 median error / MAE (deg) (taps), by pose_3 (mm)")
+def _print_grid(title: str, grid: list[list[dict[str, float]]], target: int = 1) -> None:
+    what = "pose_6 median error / MAE (deg)" if target == 1 else "pose_2 mean error / MAE (mm)"
+    print(f"  {title}: {what} (taps), by pose_3 (mm)")
     print("    pose_2 bin (mm) " + "".join(
         f"   {a:g} … {b:g}".ljust(23) for a, b in zip(DEPTH_BINS_MM[:-1], DEPTH_BINS_MM[1:],
                                                      strict=True)))
     for (lo, hi), row in zip(zip(BINS_MM[:-1], BINS_MM[1:], strict=True), grid, strict=True):
         print(f"    {lo:+4.0f} … {hi:+4.0f}    " + "".join(
-            f"  {c['median']:+6.1f} / {c['mae']:5.1f} ({c['n']:3d})" for c in row))
+            (f"  {c['median']:+6.1f} / {c['mae']:5.1f} ({c['n']:3d})" if target == 1 else
+             f"  {c['median']:+6.2f} / {c['mae']:5.2f} ({c['n']:3d})") for c in row))
 
 
 OVER_BLOCK_MM = 3.0
@@ -229,6 +238,9 @@ def report(run: Path, real: Path) -> None:
     _print_grid("real, zero-shot", depth_grid(truth[:, 0], truth, zero, cols["pose_3"]))
     _print_grid("sim CV, the real folder's slice",
                 depth_grid(st[keep, 0], st[keep], sp[keep], depth[keep]))
+    _print_grid("real, zero-shot", depth_grid(truth[:, 0], truth, zero, cols["pose_3"], 0), 0)
+    _print_grid("sim CV, the real folder's slice",
+                depth_grid(st[keep, 0], st[keep], sp[keep], depth[keep], 0), 0)
     _print_history(z, cols, targets)
     print(f"  the press over the block (pose_2 > {OVER_BLOCK_MM:g} mm): mean marker "
           "displacement against pose_3")

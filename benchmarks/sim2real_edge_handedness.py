@@ -41,6 +41,13 @@ Printed:
    the even and the odd rows (rule 20 was decided on the odd ones), and the shallow taps over
    the block. Items 1-5 read through the model as saved, readout included.
 
+7. *The lateral position from the field made symmetric* (rule 28, 2026-12-01): ``pose_2``
+   read by the regression (the mean over its turns) from each tap's markers tracked together
+   with their mirror images about the line at ``A - pose_6`` (:func:`mirrored_about`: the
+   field averaged with its mirror image, its handedness taken out), against the frames as
+   recorded: MAE and mean error over the even rows (the rule's diagnosis), per ``pose_3``
+   bin. If the handedness moved the lateral reading, it would move here.
+
 ``--picture PNG``: the aligned mean feature and its antisymmetric part, real and simulated,
 for the shallow taps over the block of the first ``RUN``.
 """
@@ -150,6 +157,44 @@ def symmetrize(rest: np.ndarray, points: np.ndarray, axis_deg: float,
     sym = 0.5 * (d + d[j] @ m.T)
     keep = np.ones(len(rest), bool) if mask is None else np.asarray(mask, bool)
     return rest + np.where(keep[:, None], sym, d)
+
+
+def mirrored_about(rest: np.ndarray, points: np.ndarray, line_deg: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """((2m, 2), (2m, 2)) ``rest`` and ``points`` with their mirror images across the line
+    through the rest array's centre at image angle ``line_deg`` appended: tracked together,
+    their feature is the frame's field averaged with its mirror image (no partner marker
+    needed, unlike :func:`symmetrize`)."""
+    c = rest.mean(axis=0)
+    u = _unit(line_deg)
+    m = 2.0 * np.outer(u, u) - np.eye(2)  # symmetric: the reflection across the line
+    return np.r_[rest, c + (rest - c) @ m], np.r_[points, c + (points - c) @ m]
+
+
+def lateral_made_symmetric(model, rest: np.ndarray, pts: np.ndarray, lab: dict, axis: float
+                           ) -> None:
+    """Item 7: ``pose_2`` from the even rows' fields as recorded and made symmetric about
+    their true line (``axis - pose_6``), the regression alone (no readout moves ``pose_2``)."""
+    from tactip_lab.fitting.field_model import fields_of
+
+    def lateral(refs, p):
+        return model.predict_turned([fields_of(refs, p, rotation_deg=d,
+                                               invariance=model.invariance)
+                                     for d in model.turns_deg()])[:, 0]
+
+    even = np.arange(len(pts)) % 2 == 0
+    pairs = [mirrored_about(rest, pts[i], axis - lab["pose_6"][i]) for i in np.where(even)[0]]
+    truth = lab["pose_2"][even]
+    e0 = lateral(rest, pts[even]) - truth
+    e1 = lateral(np.stack([a for a, _ in pairs]), np.stack([b for _, b in pairs])) - truth
+    print(f"  7. pose_2 from the field made symmetric about A - pose_6 (even rows, {even.sum()} "
+          f"taps): MAE {np.abs(e0).mean():.3f} -> {np.abs(e1).mean():.3f} mm, mean error "
+          f"{e0.mean():+.3f} -> {e1.mean():+.3f} mm")
+    depth = lab["pose_3"][even]
+    for lo, hi in ((3.0, 3.5), (3.5, 4.0), (4.0, 4.5), (4.5, 5.0)):
+        m = (depth >= lo) & ((depth <= hi) if hi == 5.0 else (depth < hi))
+        print(f"     pose_3 {lo:g}-{hi:g} mm ({int(m.sum()):3d}): mean error "
+              f"{e0[m].mean():+.2f} -> {e1[m].mean():+.2f} mm")
 
 
 def split_mirror(feature: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -293,6 +338,7 @@ def report(run: Path, real: Path) -> float:
         for name, m in (("every tap", np.ones(len(e0), bool)), ("even rows", ~odd),
                         ("odd rows", odd), ("shallow over the block", shallow)):
             print(f"     {name:<23} {np.abs(e0[m]).mean():6.2f} / {np.abs(e_reg[m]).mean():6.2f}")
+    lateral_made_symmetric(model, rest, pts, lab, axis)
     return axis
 
 
