@@ -1601,6 +1601,12 @@ def test_edge_bins_break_errors_down_by_position_and_take_a_slice_across_the_sea
     assert grid[3][2]["n"] == 2 and grid[3][2]["median"] == pytest.approx(-3.0)
     assert grid[3][2]["mae"] == pytest.approx(3.0) and grid[3][1]["n"] == 0
     assert bins.depth_grid(lateral[:1], truth[:1], pred[:1], np.array([5.0]))[0][3]["n"] == 1
+    # the lateral grid: the mean signed pose_2 error per cell (the -5 mm taps +0.5 at 3 mm
+    # and -0.5 at 4 mm; the two 1 mm taps +1.0 each)
+    lat_grid = bins.depth_grid(lateral, truth, pred, depth, 0)
+    assert lat_grid[0][0]["median"] == pytest.approx(0.5)
+    assert lat_grid[0][2]["median"] == pytest.approx(-0.5)
+    assert lat_grid[3][2]["n"] == 2 and lat_grid[3][2]["median"] == pytest.approx(1.0)
     # the press over the block: every marker moved 0.6 px per mm beyond 2.4 mm (each tap
     # in its own direction) gives that slope and onset; taps beside the block (moved 5 px)
     # and a lost marker (NaN) do not enter
@@ -1713,8 +1719,9 @@ def test_handedness_parts_of_a_field_are_split_and_made_symmetric_at_known_answe
     has no antisymmetric part and a swirl about a point on the axis (reversed by the mirror)
     no symmetric part; their sum at equal size has an antisymmetric share of 1/sqrt(2). On
     a hexagonal array symmetric about a line at 30 deg, a swirl about a point on that line is
-    taken out whole by :func:`symmetrize` and a symmetric press is left as it is; a region
-    mask leaves the rest untouched, and the regions split the array."""
+    taken out whole by :func:`symmetrize` and a symmetric press is left as it is (and the
+    markers tracked with their mirror images, :func:`mirrored_about`, have the press's feature);
+    a region mask leaves the rest untouched, and the regions split the array."""
     hd = _benchmark("sim2real_edge_handedness")
     nodes = hd.grid_nodes()
     q = nodes - [0.3, 0.0]
@@ -1748,6 +1755,11 @@ def test_handedness_parts_of_a_field_are_split_and_made_symmetric_at_known_answe
     press = w * on_line
     turn = w * np.stack([-on_line[:, 1], on_line[:, 0]], axis=1)
     np.testing.assert_allclose(hd.symmetrize(rest, rest + press + turn, 30.0), rest + press,
+                               atol=1e-9)
+    # tracked with their mirror images (item 7), the markers' feature is the press's alone
+    r2, p2 = hd.mirrored_about(rest, rest + press + turn, 30.0)
+    assert len(r2) == 2 * len(rest)
+    np.testing.assert_allclose(hd.field_features(r2, p2), hd.field_features(rest, rest + press),
                                atol=1e-9)
     core = hd.region_mask(rest, 30.0, "core")
     half = hd.symmetrize(rest, rest + turn, 30.0, core)
