@@ -82,7 +82,7 @@ DEPTH_BINS_MM = (3.0, 3.5, 4.0, 4.5, 5.0)
 def depth_grid(lateral: np.ndarray, truth: np.ndarray, pred: np.ndarray, depth: np.ndarray,
                target: int = 1) -> list[list[dict[str, float]]]:
     """Per :data:`BINS_MM` bin of ``lateral`` (rows) and :data:`DEPTH_BINS_MM` bin of
-    ``depth`` (columns): n, and the error's centre and MAE: ``target`` 1, the ``pose_6``
+    ``depth`` (columns): n, the error's ``centre`` and its MAE: ``target`` 1, the ``pose_6``
     error (wrapped), its median; 0, the ``pose_2`` error, its mean (a bias)."""
     if target == 1:
         ea = wrap_deg(pred[:, 1] - truth[:, 1])
@@ -97,7 +97,7 @@ def depth_grid(lateral: np.ndarray, truth: np.ndarray, pred: np.ndarray, depth: 
             top = depth <= dhi if j == len(DEPTH_BINS_MM) - 2 else depth < dhi
             s = (lateral >= lo) & (lateral < hi) & (depth >= dlo) & top & np.isfinite(ea)
             row.append({"n": int(s.sum()),
-                        "median": float(centre(ea[s])) if s.any() else np.nan,
+                        "centre": float(centre(ea[s])) if s.any() else np.nan,
                         "mae": float(np.abs(ea[s]).mean()) if s.any() else np.nan})
         out.append(row)
     return out
@@ -111,8 +111,8 @@ def _print_grid(title: str, grid: list[list[dict[str, float]]], target: int = 1)
                                                      strict=True)))
     for (lo, hi), row in zip(zip(BINS_MM[:-1], BINS_MM[1:], strict=True), grid, strict=True):
         print(f"    {lo:+4.0f} … {hi:+4.0f}    " + "".join(
-            (f"  {c['median']:+6.1f} / {c['mae']:5.1f} ({c['n']:3d})" if target == 1 else
-             f"  {c['median']:+6.2f} / {c['mae']:5.2f} ({c['n']:3d})") for c in row))
+            (f"  {c['centre']:+6.1f} / {c['mae']:5.1f} ({c['n']:3d})" if target == 1 else
+             f"  {c['centre']:+6.2f} / {c['mae']:5.2f} ({c['n']:3d})") for c in row))
 
 
 OVER_BLOCK_MM = 3.0

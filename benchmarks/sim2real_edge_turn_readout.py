@@ -250,7 +250,7 @@ def chart(path: Path, rows: list[tuple[str, dict[str, np.ndarray], np.ndarray, n
         for ax, pred, what in zip(pair, (saved, got), ("saved model", "turn readout"),
                                   strict=True):
             grid = depth_grid(lab["pose_2"], truth, np.c_[lab["pose_2"], pred], lab["pose_3"])
-            med = np.array([[c["median"] for c in row] for row in grid])
+            med = np.array([[c["centre"] for c in row] for row in grid])
             image = ax.imshow(med, cmap="RdBu_r", vmin=-25, vmax=25, aspect="auto",
                               origin="lower")
             for i, row in enumerate(grid):

@@ -1596,17 +1596,17 @@ def test_edge_bins_break_errors_down_by_position_and_take_a_slice_across_the_sea
     # by depth: the 3 mm tap in the first depth column, the three 4 mm ones in the third
     # (the wrapped -178 for 178 is +4); a 5 mm tap falls in the last, closed, bin
     grid = bins.depth_grid(lateral, truth, pred, depth)
-    assert grid[0][0]["n"] == 1 and grid[0][0]["median"] == pytest.approx(4.0)
+    assert grid[0][0]["n"] == 1 and grid[0][0]["centre"] == pytest.approx(4.0)
     assert grid[0][2]["n"] == 1 and grid[0][2]["mae"] == pytest.approx(2.0)
-    assert grid[3][2]["n"] == 2 and grid[3][2]["median"] == pytest.approx(-3.0)
+    assert grid[3][2]["n"] == 2 and grid[3][2]["centre"] == pytest.approx(-3.0)
     assert grid[3][2]["mae"] == pytest.approx(3.0) and grid[3][1]["n"] == 0
     assert bins.depth_grid(lateral[:1], truth[:1], pred[:1], np.array([5.0]))[0][3]["n"] == 1
     # the lateral grid: the mean signed pose_2 error per cell (the -5 mm taps +0.5 at 3 mm
     # and -0.5 at 4 mm; the two 1 mm taps +1.0 each)
     lat_grid = bins.depth_grid(lateral, truth, pred, depth, 0)
-    assert lat_grid[0][0]["median"] == pytest.approx(0.5)
-    assert lat_grid[0][2]["median"] == pytest.approx(-0.5)
-    assert lat_grid[3][2]["n"] == 2 and lat_grid[3][2]["median"] == pytest.approx(1.0)
+    assert lat_grid[0][0]["centre"] == pytest.approx(0.5)
+    assert lat_grid[0][2]["centre"] == pytest.approx(-0.5)
+    assert lat_grid[3][2]["n"] == 2 and lat_grid[3][2]["centre"] == pytest.approx(1.0)
     # the press over the block: every marker moved 0.6 px per mm beyond 2.4 mm (each tap
     # in its own direction) gives that slope and onset; taps beside the block (moved 5 px)
     # and a lost marker (NaN) do not enter
