@@ -268,6 +268,18 @@ def _processes_mentioning(text: str) -> list[int]:
     return pids
 
 
+def _cmdline(pid: int) -> str:
+    """What process ``pid`` is (its state and command line), for a failure's message."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text().splitlines()
+        state = next((line for line in status if line.startswith("State:")), "State: ?")
+        cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(
+            errors="replace")
+        return f"{pid} {state} {cmd}"
+    except OSError:
+        return f"{pid} (gone)"
+
+
 @pytest.mark.parametrize("sig, rc", [("SIGTERM", 143), ("SIGINT", 130)])
 def test_interrupted_mesher_removes_its_folder_and_child(tmp_path, sig, rc):
     import os
@@ -299,7 +311,8 @@ def test_interrupted_mesher_removes_its_folder_and_child(tmp_path, sig, rc):
     assert proc.returncode == rc, err
     assert "interrupted" in err and "Traceback" not in err
     assert list(tmp.iterdir()) == []              # the temporary folder is gone
-    assert _processes_mentioning(str(tmp)) == []  # and so is the mesher
+    left = _processes_mentioning(str(tmp))  # and so is the mesher
+    assert left == [], [_cmdline(pid) for pid in left]
 
 
 def test_mesh_edge_that_hung_is_refused_naming_the_range():
