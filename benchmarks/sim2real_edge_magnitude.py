@@ -10,8 +10,8 @@ lateral error grows at the shallow taps").
 ``RUN`` is a finished ``tactip sim2real --task edge --real REAL_DIR --out RUN`` folder (its
 draws' tracked taps ``sim128[_d<j>]_points.npz``, ``sim[_d<j>]/targets.csv``, the real taps as
 it tracked them and its zero-shot predictions ``real_<name>.npz``). The component count is
-the run's own; the members are the run's (every draw's taps, and seeded 80 % draws of them;
-``task_run.BAG_MEMBERS``); the angle is read out by the mirror line as the saved model does.
+the run's own; the members are the run's (``task_run.bagged_members``: every draw's taps, and
+seeded 80 % draws of them); the angle is read out by the mirror line as the saved model does.
 
 Printed: the rebuilt model's largest difference from the run's own zero-shot predictions (a
 check of the rebuild, 0 up to rounding), then for the model with and without the magnitude:
@@ -77,16 +77,8 @@ def rebuild(run: Path, blind: bool, cv: bool):
     seed0 = int(summary["config"]["seed"])
     m = FieldModel(task, targets, size, n_components=k, rest=draws[0]["rest"],
                    **tr._turns(task, parts[0])).fit(parts[0].xa, parts[0].ya)
-    for j, d in enumerate(draws):
-        dj = d["rows"]
-        for b in range(per_draw):
-            if j == 0 and b == 0:
-                continue
-            seed = (seed0, b) if j == 0 else (d["seed"], b)
-            idx = (np.arange(len(dj.xa)) if b == 0
-                   else tr.bag_rows(len(d["y"]), dj.copies, seed))
-            m.members.append(FieldModel(task, targets, size, n_components=k,
-                                        **tr._turns(task, dj)).fit(dj.xa[idx], dj.ya[idx]))
+    m.members.extend(tr.bagged_members(task, targets, size, k, parts,
+                                       [d["seed"] for d in draws], seed0, per_draw))
     m.readout = tr.mirror_readout(m, draws[0]["rest"], draws[0]["pts"], draws[0]["cols"])
     if pred is not None:
         at = 0

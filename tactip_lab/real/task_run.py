@@ -344,6 +344,25 @@ def mirror_readout(model: FieldModel, rest: np.ndarray, pts: np.ndarray, cols: d
             "fitted_on": {"taps": n, "spread_deg": spread, "depth_mm": least}}
 
 
+def bagged_members(task: str, targets: list[str], size, k: int, parts: list[Rows],
+                   draw_seeds: list[int], seed: int, per_draw: int) -> list[FieldModel]:
+    """The members a task with simulated draws averages beside its model (the model itself is
+    fitted on every row of ``parts[0]``): ``per_draw`` models per draw ``j`` of taps
+    ``parts[j]`` (:func:`training_rows`), the first on every row and the others on seeded
+    :data:`BAG_FRACTION` draws of its taps (:func:`bag_rows`; seeded ``(seed, b)`` for the
+    first draw, ``(draw_seeds[j], b)`` for the others), ``k`` components each."""
+    out = []
+    for j, dj in enumerate(parts):
+        for b in range(per_draw):
+            if j == 0 and b == 0:
+                continue  # the model itself
+            s = (seed, b) if j == 0 else (draw_seeds[j], b)
+            idx = np.arange(len(dj.xa)) if b == 0 else bag_rows(len(dj.x), dj.copies, s)
+            out.append(FieldModel(task, targets, tuple(size), n_components=k,
+                                  **_turns(task, dj)).fit(dj.xa[idx], dj.ya[idx]))
+    return out
+
+
 def bag_rows(n: int, copies: int, seed: int | tuple[int, ...]) -> np.ndarray:
     """Indices into a :class:`Rows`' training rows (``copies`` turned copies of ``n`` taps, row
     ``c * n + i`` tap ``i``'s copy ``c``) of a seeded :data:`BAG_FRACTION` of the taps, every
@@ -671,17 +690,8 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
                 m.members.append(FieldModel(cfg.task, targets, tuple(size), n_components=k,
                                             **_turns(cfg.task, xj)).fit(xj.xa, xj.ya))
         else:  # the other members: every draw's taps, and seeded 80 % draws of them
-            for j, (d, y) in enumerate(zip(draws, ys, strict=True)):
-                dj = parts[j]
-                for b in range(per_draw):
-                    if j == 0 and b == 0:
-                        continue  # the model itself
-                    seed = (cfg.seed, b) if j == 0 else (d["seed"], b)
-                    idx = (np.arange(len(dj.xa)) if b == 0
-                           else bag_rows(len(y), dj.copies, seed))
-                    m.members.append(FieldModel(cfg.task, targets, tuple(size), n_components=k,
-                                                **_turns(cfg.task, dj)).fit(dj.xa[idx],
-                                                                            dj.ya[idx]))
+            m.members.extend(bagged_members(cfg.task, targets, size, k, parts,
+                                            [d["seed"] for d in draws], cfg.seed, per_draw))
         if cfg.task in MIRROR_READOUT_TASKS:
             # the saved model's reading, and the CV's read out as the model will read them
             m.readout = mirror_readout(m, rest, pts, cols)
