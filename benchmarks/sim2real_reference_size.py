@@ -1,7 +1,7 @@
 """Zero-shot error against the size of a real folder without a rest frame, by reference rule.
 
     python benchmarks/sim2real_reference_size.py OUT [--folder NAME] [--raw]
-        [--sizes 25,50,100,300] [--draws 20] [--rules RULE,RULE] [--png PATH]
+        [--sizes 25,50,100,300] [--draws 20] [--rules RULE,RULE] [--png PATH] [--per-frame]
 
 The lab's folders have no frame free of contact: their reference is read from their own
 frames (``references.marker_median_reference``), and with few taps what it is read from
@@ -9,8 +9,10 @@ stays in it. This draws ``--draws`` random subsets of each size from the real fo
 ``NAME`` that the ``tactip sim2real`` output ``OUT`` scored (its tracked points cached as
 ``OUT/real_NAME_points.npz``, the labels from ``../shared/real/NAME``), references each
 subset by itself, by each rule, and scores the shipped model (``OUT/model.json``, or
-``model_raw.json`` with ``--raw``) zero-shot on it. Rules (``--rules``; default: the task's
-rule before and since 2026-11-29):
+``model_raw.json`` with ``--raw``) zero-shot on it; a model with a folder map reads each
+subset as a whole through it, as ``tactip evaluate`` does (``--per-frame``: frame by frame;
+a subset under ``FOLDER_MAP_MIN_FRAMES`` frames is read frame by frame either way). Rules
+(``--rules``; default: the task's rule before and since 2026-11-29):
 
 - ``shallowest``: the marker-wise median of the subset's round(sqrt(n)) shallowest presses
   (the surface tasks' rule before);
@@ -56,6 +58,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="rules to compare, comma-separated (default: the task's before and "
                    f"since): {', '.join(RULES)}")
     p.add_argument("--png", default=None, help="write a chart of MAE against size here")
+    p.add_argument("--per-frame", action="store_true",
+                   help="a model with a folder map (the edge models since 2026-12-01): read "
+                   "every frame alone, not each subset as a whole through the map")
     args = p.parse_args(argv)
     sys.path.insert(0, str(ROOT))
     from tactip_lab.fitting.field_model import load_field_model, target_scores
@@ -112,7 +117,10 @@ def main(argv: list[str] | None = None) -> int:
                 folder = SimpleNamespace(depth_mm=depth[idx], reference_is_a_press=True)
                 ref = marker_median_reference(folder, fallback, pts[idx], rule=rule,
                                               prior=prior)
-                s = target_scores(y[idx], model.predict_points(ref, pts[idx]), targets)
+                pred = model.predict_points(ref, pts[idx])
+                if not args.per_frame:  # each subset read as a whole, as evaluate reads it
+                    pred, _ = model.read_folder(pred)
+                s = target_scores(y[idx], pred, targets)
                 maes.append([s[t]["mae"] for t in targets])
             res[name] = np.array(maes)
         rows.append((n, len(draws), res))

@@ -688,6 +688,14 @@ def test_sim2real_edge_command_end_to_end(tmp_path):
     assert again["pose_6"]["mae"] == pytest.approx(pbs["pose_6"]["mae"], rel=1e-12)
     # the count was chosen by CV of the mean over both draws (rule 14b): all 40 taps
     assert len(cv["truth"]) == 40
+    # the lateral position is read with the folder as a whole, mapped onto the distribution
+    # of these CV readings (rule 31); a folder of 40 taps is under the map's minimum
+    from tactip_lab.fitting.field_model import FOLDER_MAP_MIN_FRAMES
+
+    assert set(saved.folder_map) == {"pose_2"}
+    np.testing.assert_allclose(saved.folder_map["pose_2"][[0, -1]],
+                               [cv["cv"][:, 0].min(), cv["cv"][:, 0].max()])
+    assert not s["real"][str(sub)]["folder_map"]["applied"] and 40 < FOLDER_MAP_MIN_FRAMES
     np.testing.assert_array_equal(cv["col_pose_3"], np.concatenate(
         [folder_columns(out / d)["pose_3"] for d in ("sim", "sim_d1")]))
     assert (out / "sim_cv_raw.npz").is_file()

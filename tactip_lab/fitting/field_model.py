@@ -78,6 +78,16 @@ reference's affine error")."""
 BANDWIDTH = 0.12
 """Gaussian kernel width (RMS field radii) of the grid smoothing: about 0.9 marker spacings on
 the 331-pin field (spacing / RMS radius = 16.9 / 126.7 on the raw frame, docs/sim2real.md)."""
+FOLDER_MAP_LEVELS = 257
+"""Quantile levels (0, 1/256, ..., 1) at which a model keeps its simulated readings' quantile
+function for the folder map (:meth:`FieldModel.read_folder`)."""
+FOLDER_MAP_MIN_FRAMES = 200
+"""A folder is read through the folder map only with at least this many readable frames. The
+map ranks the folder's readings, so a folder whose labels happen to lie unevenly over the
+protocol's range moves every reading of a rank: at the median rank by about half the range
+over sqrt(n) (the order statistic's sd; 0.6 mm at 100 frames of the edge's +-6 mm, 0.42 at
+200, 0.35 at 300), which below 200 frames is as large as the error the map is there to take
+out (the models' own predicted MAE, 0.4-0.5 mm). Chosen from that arithmetic, not from a score."""
 
 
 def grid_nodes(n: int = GRID, extent: float = GRID_EXTENT) -> np.ndarray:
@@ -218,6 +228,46 @@ def whole_eigenspaces(eigenvalues: np.ndarray, k: int, rtol: float = EIGENSPACE_
     while k < len(lam) and lam[k - 1] - lam[k] <= tol:
         k += 1
     return k
+
+
+def folder_quantiles(values: np.ndarray) -> np.ndarray:
+    """The quantile function of the finite ``values`` at the :data:`FOLDER_MAP_LEVELS` levels
+    0, 1/256, ..., 1 (linear interpolation between order statistics): what a model keeps of
+    simulation's readings of its own taps for :meth:`FieldModel.read_folder`."""
+    v = np.asarray(values, dtype=float).ravel()
+    v = v[np.isfinite(v)]
+    if len(v) < 2:
+        raise ValueError(f"{len(v)} finite readings: a quantile function needs at least 2")
+    return np.quantile(v, np.linspace(0.0, 1.0, FOLDER_MAP_LEVELS))
+
+
+def check_folder_map(folder_map: dict[str, np.ndarray], targets: list[str]) -> None:
+    """Refuse a folder map of a target the model does not predict, of an angle that wraps (a
+    slice of the circle has no fixed distribution: the lab's files are sorted by the angle),
+    or whose quantiles are not :data:`FOLDER_MAP_LEVELS` finite non-decreasing numbers."""
+    for t, q in folder_map.items():
+        if t not in targets or TARGETS[t]["wraps"]:
+            raise ValueError(f"folder_map {t!r}: only a target the model predicts that does "
+                             f"not wrap is mapped ({', '.join(targets)})")
+        if q.shape != (FOLDER_MAP_LEVELS,) or not np.all(np.isfinite(q)) or np.any(
+                np.diff(q) < 0):
+            raise ValueError(f"folder_map {t!r}: {FOLDER_MAP_LEVELS} finite non-decreasing "
+                             f"quantiles expected, got shape {q.shape}")
+
+
+def map_ranks(values: np.ndarray, quantiles: np.ndarray) -> np.ndarray:
+    """Finite ``values`` (n,) replaced by the ``quantiles`` (:func:`folder_quantiles`) at their
+    mid-ranks (r - 1/2) / n, ties sharing their mean rank; the map of a sample's own
+    distribution onto another's (quantile mapping). NaN stays NaN."""
+    from scipy.stats import rankdata
+
+    v = np.asarray(values, dtype=float)
+    out = np.full(v.shape, np.nan)
+    ok = np.isfinite(v)
+    if ok.any():
+        u = (rankdata(v[ok]) - 0.5) / ok.sum()
+        out[ok] = np.interp(u, np.linspace(0.0, 1.0, len(quantiles)), quantiles)
+    return out
 
 
 def wrap_deg(a: Any) -> np.ndarray:
@@ -523,6 +573,10 @@ class FieldModel:
         mirror-symmetric about (:func:`mirror_axis`, searched within ``span_deg`` of the
         reading; ``axis_deg`` the line at a target value of 0, :func:`mirror_axis_of_taps`):
         the edge taps' readout since 2026-11-30's seventeenth session (docs/sim2real.md)
+    folder_map : empty, or per linear target the quantile function (at
+        :data:`FOLDER_MAP_LEVELS` levels) of simulation's own cross-validated readings of its
+        taps: :meth:`read_folder` maps a whole folder's readings onto it (rule 31,
+        docs/sim2real.md; the edge models since 2026-12-01's twenty-second session)
     """
 
     task: str
@@ -538,6 +592,7 @@ class FieldModel:
     invariance: str = INVARIANCE
     members: list[FieldModel] = field(default_factory=list)
     readout: dict[str, Any] = field(default_factory=dict)
+    folder_map: dict[str, np.ndarray] = field(default_factory=dict)
     _scaler: Any = None
     _pca: Any = None
     _krr: Any = None
@@ -556,6 +611,8 @@ class FieldModel:
             raise ValueError(f"invariance={self.invariance!r}: one of {', '.join(INVARIANCES)}")
         if self.readout:
             check_readout(self.readout, self.label_turn)
+        self.folder_map = {t: np.asarray(q, dtype=float) for t, q in self.folder_map.items()}
+        check_folder_map(self.folder_map, self.targets)
 
     def fit(self, x: np.ndarray, y: np.ndarray) -> FieldModel:
         from sklearn.decomposition import PCA
@@ -677,7 +734,33 @@ class FieldModel:
                 out[i, k] = float(wrap_deg(out[i, k] + turn * (line - start)))
         return out
 
+    def read_folder(self, pred: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+        """A whole folder's readings ``pred`` (n, t) (:meth:`predict_points`) mapped through
+        :attr:`folder_map`, and what was done. The lab's protocol draws each linear target
+        uniformly over a fixed range in every folder, as simulation draws its taps; so the
+        readings of a folder should be distributed as simulation's cross-validated readings of
+        its own taps are, and a reading that transfers with a bias is moved by the map of the
+        folder's distribution onto that one (rule 31, docs/sim2real.md). No label is read.
+        The map is made only with at least :data:`FOLDER_MAP_MIN_FRAMES` frames read for every
+        target (the frames that are not keep NaN); a folder not drawn by the protocol (another
+        range, one position) must be read frame by frame (``tactip evaluate --per-frame``)."""
+        out = np.array(pred, dtype=float, copy=True)
+        if not self.folder_map:
+            return out, {"applied": False, "why": "the model has no folder map"}
+        ok = np.all(np.isfinite(out), axis=1)
+        n = int(ok.sum())
+        if n < FOLDER_MAP_MIN_FRAMES:
+            return out, {"applied": False, "frames": n, "why": (
+                f"{n} frames read, fewer than the {FOLDER_MAP_MIN_FRAMES} a folder map needs: "
+                "read frame by frame")}
+        for t, q in self.folder_map.items():
+            j = self.targets.index(t)
+            out[ok, j] = map_ranks(out[ok, j], q)
+        return out, {"applied": True, "kind": "quantile", "targets": sorted(self.folder_map),
+                     "frames": n}
+
     def to_json(self) -> dict[str, Any]:
+        check_folder_map(self.folder_map, self.targets)  # set after construction, too
         return {
             "format": FORMAT, "version": VERSION, "task": self.task, "targets": self.targets,
             "units": {t: TARGETS[t]["unit"] for t in self.targets},
@@ -695,6 +778,9 @@ class FieldModel:
                     "dual_coef": pack_array(self._krr.dual_coef_)},
             "members": [m.to_json() for m in self.members],
             "readout": dict(self.readout),
+            "folder_map": {"levels": FOLDER_MAP_LEVELS, "targets": {
+                t: np.asarray(q).tolist() for t, q in self.folder_map.items()}}
+            if self.folder_map else {},
         }
 
     def save(self, path: str | Path) -> Path:
@@ -734,6 +820,17 @@ class FieldModel:
             except ValueError as exc:
                 raise ValueError(f"{source}: {exc}") from None
             m.readout = dict(d["readout"])
+        if d.get("folder_map"):
+            fm = d["folder_map"]
+            if fm.get("levels") != FOLDER_MAP_LEVELS:
+                raise ValueError(f"{source}: folder_map at {fm.get('levels')!r} levels, this "
+                                 f"version reads {FOLDER_MAP_LEVELS}")
+            try:
+                q = {str(t): np.asarray(v, dtype=float) for t, v in fm["targets"].items()}
+                check_folder_map(q, m.targets)
+            except (KeyError, TypeError, ValueError, AttributeError) as exc:
+                raise ValueError(f"{source}: {exc}") from None
+            m.folder_map = q
         if d.get("rest_px") is not None:
             rest = np.asarray(d["rest_px"], dtype=float)
             if rest.ndim != 2 or rest.shape[1] != 2 or not np.all(np.isfinite(rest)):
@@ -841,9 +938,10 @@ def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str]
     return np.concatenate(xs), np.concatenate(ys)
 
 
-__all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FORMAT", "GRID", "GRID_EXTENT", "INVARIANCE",
-           "INVARIANCES", "TARGETS", "FieldModel", "affine_design", "augment", "decode",
-           "deviation_from_mean", "encode", "field_features", "fields_of", "grid_nodes",
-           "is_field_model", "load_field_model", "median_gamma", "pack_array", "remove_affine",
-           "rotate", "smooth_field", "smoother", "target_scores", "task_targets", "unpack_array",
-           "wrap_deg"]
+__all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FOLDER_MAP_LEVELS", "FOLDER_MAP_MIN_FRAMES", "FORMAT",
+           "GRID", "GRID_EXTENT", "INVARIANCE", "INVARIANCES", "TARGETS", "FieldModel",
+           "affine_design", "augment", "check_folder_map", "decode", "deviation_from_mean",
+           "encode", "field_features", "fields_of", "folder_quantiles", "grid_nodes",
+           "is_field_model", "load_field_model", "map_ranks", "median_gamma", "pack_array",
+           "remove_affine", "rotate", "smooth_field", "smoother", "target_scores",
+           "task_targets", "unpack_array", "wrap_deg"]

@@ -225,19 +225,26 @@ def _evaluate_field(args: argparse.Namespace) -> int:
         rule = reference_rule(model.task)
         pred = predict_folder(model, f, expected_count=args.expected_count,
                               progress=not args.no_progress)
+        if args.per_frame:
+            mapped = {"applied": False, "why": "--per-frame"}
+        else:  # the folder as a whole, through the model's folder map (if it has one)
+            pred, mapped = model.read_folder(pred)
         s = target_scores(y, pred, targets)
         rows.append({"dataset": str(d), "n_rows": len(y),
                      "n_used": int(np.all(np.isfinite(pred), axis=1).sum()),
                      "rest": str(f.rest), "rest_choice": f.rest_choice,
                      "reference": (reference_label(rule, model.rest)
                                    if f.reference_is_a_press else "rest frame"),
-                     "targets": s})
+                     "folder_map": mapped, "targets": s})
         ys.append(y)
         ps.append(pred)
         total += len(y)
         print(f"{d}: " + "; ".join(f"{t} MAE {v['mae']:.3f} {v['unit']}, RMSE {v['rmse']:.3f}, "
                                    f"R² {v['r2']:.4f}" for t, v in s.items())
-              + f" ({rows[-1]['n_used']} of {len(y)} frames used)")
+              + f" ({rows[-1]['n_used']} of {len(y)} frames used"
+              + (f"; {', '.join(mapped['targets'])} read with the folder as a whole"
+                 if mapped["applied"] else
+                 f"; read frame by frame: {mapped['why']}" if model.folder_map else "") + ")")
     pooled = target_scores(np.concatenate(ys), np.concatenate(ps), targets)
     report = {"model": str(args.model), "feature": "field", "task": model.task,
               "targets": pooled, "n_rows": total,
@@ -252,6 +259,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     if is_field_model(args.model):
         return _evaluate_field(args)
+    if args.per_frame:
+        raise ValueError(f"--per-frame: {args.model} is not a field model (tactip sim2real "
+                         "--task edge); a CoP model reads every frame alone already")
     model, fitted_on = load_any_model(args.model)
     feature = fitted_on.get("feature")
     if args.feature and feature and args.feature != feature:
@@ -392,6 +402,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rescale", action="store_true",
                    help="allow frames of another size than the model's (CoPs scaled by the "
                    "image sizes)")
+    p.add_argument("--per-frame", action="store_true",
+                   help="a field model with a folder map (the edge models of tactip "
+                   "sim2real): read every frame alone instead of each folder as a whole (use "
+                   "it for a folder not drawn by the lab's protocol, e.g. one lateral "
+                   "position or another range)")
     _folder_arguments(p)
     p.set_defaults(func=_cmd_evaluate)
     declare(p, "evaluate", inputs={"model": "file", "datasets": "folder", "rest": "file"},
