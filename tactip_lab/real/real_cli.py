@@ -244,9 +244,13 @@ def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
         print(f"  predicted by simulation ({fmt}, 5-fold CV): " + ", ".join(
             f"{t} MAE {v['mae']:.2f} {v['unit']}" for t, v in p.items()))
     for d, r in s["real"].items():
+        whole = r.get("folder_map", {}).get("applied")
         print(f"{d}: zero-shot " + ", ".join(f"{t} MAE {v['mae']:.2f} {v['unit']} (R² "
                                              f"{v['r2']:.3f})" for t, v in
-                                             r["zero_shot"].items()))
+                                             r["zero_shot"].items())
+              + ("; the folder read as a whole (frame by frame: " + ", ".join(
+                  f"{t} MAE {v['mae']:.2f} {v['unit']}"
+                  for t, v in r["zero_shot_per_frame"].items()) + ")" if whole else ""))
     if s["real"]:
         print(f"every figure: {out / 'table.md'}, {out / 'summary.json'}")
     return 0

@@ -781,7 +781,8 @@ def score_real(model: FieldModel, folder: Path, out: Path, cfg: TaskConfig, fmt:
            "real_trained_cv": _short(target_scores(y, real_cv, targets)),
            "real_trained_components": k_real,
            "naive_cv": _short(target_scores(y, naive, targets))}
-    chart(out / f"real_{name}.png", y, zero, targets, f"{name}: zero-shot ({cfg.task})")
+    chart(out / f"real_{name}.png", y, zero, targets, f"{name}: zero-shot ({cfg.task}"
+          + (", the folder read as a whole)" if mapped["applied"] else ")"))
     return res
 
 
