@@ -760,7 +760,9 @@ class FieldModel:
                      "frames": n}
 
     def to_json(self) -> dict[str, Any]:
-        check_folder_map(self.folder_map, self.targets)  # set after construction, too
+        # a map set after construction is checked here too
+        self.folder_map = {t: np.asarray(q, dtype=float) for t, q in self.folder_map.items()}
+        check_folder_map(self.folder_map, self.targets)
         return {
             "format": FORMAT, "version": VERSION, "task": self.task, "targets": self.targets,
             "units": {t: TARGETS[t]["unit"] for t in self.targets},
