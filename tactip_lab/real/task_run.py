@@ -132,7 +132,9 @@ for the edge tasks' lateral position by rule 31 (written before any mapped readi
 computed; decided on the even rows of both shared edge folders, 0.803 -> 0.775 mm and 0.748 ->
 0.686 mm; the odd rows, held out, 0.925 -> 0.742 and 0.715 -> 0.709; docs/sim2real.md, "A
 folder read as a whole"). Not the edge angle (it wraps, and the lab's files are sorted by it,
-so a folder holds a slice of the circle); the surface tasks' angles were not put to the rule."""
+so a folder holds a slice of the circle). The surface tasks' angles were put to the same rule
+and are not mapped: the plain taps' roll got worse on its rows (0.727 -> 0.825 deg), a rank's
+sampling error over +-15 deg (0.67 deg at 500 taps) being larger than their readings' error."""
 DRAWN_REFERENCE_RULES = ("shallowest",)
 """The reference rules whose error the training taps are given (:func:`tap_references`): the
 surface tasks' median of the shallowest presses, which keeps their tilts and depth (a
