@@ -77,7 +77,7 @@ def test_a_biased_reading_is_moved_back_and_the_angle_is_left_alone():
 def test_a_small_folder_or_a_model_without_a_map_is_read_frame_by_frame():
     line = np.linspace(-6.0, 6.0, FOLDER_MAP_LEVELS)
     m = _model({"pose_2": line})
-    pred = np.column_stack([np.linspace(0, 1, FOLDER_MAP_MIN_FRAMES + 5),
+    pred = np.column_stack([np.linspace(-5, 5, FOLDER_MAP_MIN_FRAMES + 5),
                             np.zeros(FOLDER_MAP_MIN_FRAMES + 5)])
     pred[:6, 0] = np.nan  # six frames not read: 199 left
     out, info = m.read_folder(pred)
@@ -90,6 +90,26 @@ def test_a_small_folder_or_a_model_without_a_map_is_read_frame_by_frame():
     out, info = _model().read_folder(pred)
     assert not info["applied"] and "no folder map" in info["why"]
     np.testing.assert_array_equal(out, pred)
+
+
+def test_a_folder_not_drawn_over_the_protocols_range_is_read_frame_by_frame():
+    """Readings of taps at one position (spread 0.3 mm), or over half the range (0 to 6 mm:
+    half the spread of the full +-6 mm), are not mapped: mapping would spread them over the
+    whole range. The full range with a 10 % stretch is mapped."""
+    from tactip_lab.fitting.field_model import FOLDER_MAP_SPREAD
+
+    rng = np.random.default_rng(2)
+    m = _model({"pose_2": folder_quantiles(rng.uniform(-6, 6, 4000))})
+    n = 300
+    angle = np.zeros(n)
+    for readings, mapped in ((1.0 + rng.normal(0, 0.3, n), False),
+                             (rng.uniform(0, 6, n), False),
+                             (1.1 * rng.uniform(-6, 6, n), True)):
+        out, info = m.read_folder(np.column_stack([readings, angle]))
+        assert info["applied"] is mapped
+        if not mapped:
+            assert "spread" in info["why"] and f"{FOLDER_MAP_SPREAD[0]:.2f}" in info["why"]
+            np.testing.assert_array_equal(out[:, 0], readings)
 
 
 def test_the_map_is_saved_and_checked(tmp_path):

@@ -88,6 +88,13 @@ protocol's range moves every reading of a rank: at the median rank by about half
 over sqrt(n) (the order statistic's sd; 0.6 mm at 100 frames of the edge's +-6 mm, 0.42 at
 200, 0.35 at 300), which below 200 frames is as large as the error the map is there to take
 out (the models' own predicted MAE, 0.4-0.5 mm). Chosen from that arithmetic, not from a score."""
+FOLDER_MAP_SPREAD = (2.0 / 3.0, 1.5)
+"""A folder is read through the folder map only if its readings of every mapped target spread
+(standard deviation) within these factors of simulation's readings: a folder not drawn as the
+protocol draws (taps at one position, over half the range, a sweep) shows itself there
+without a label (half the range spreads half as much), and mapping it would move its readings
+across the whole range. The shared real folders read at 0.98-1.10 times simulation's spread;
+a sample's sd of 200 uniform draws varies by about 3 %. Chosen from those, not from a score."""
 
 
 def grid_nodes(n: int = GRID, extent: float = GRID_EXTENT) -> np.ndarray:
@@ -742,8 +749,9 @@ class FieldModel:
         its own taps are, and a reading that transfers with a bias is moved by the map of the
         folder's distribution onto that one (rule 31, docs/sim2real.md). No label is read.
         The map is made only with at least :data:`FOLDER_MAP_MIN_FRAMES` frames read for every
-        target (the frames that are not keep NaN); a folder not drawn by the protocol (another
-        range, one position) must be read frame by frame (``tactip evaluate --per-frame``)."""
+        target (the frames that are not keep NaN) and readings that spread as simulation's do
+        (:data:`FOLDER_MAP_SPREAD`); a folder not drawn by the protocol that passes these must
+        be read frame by frame by the caller (``tactip evaluate --per-frame``)."""
         out = np.array(pred, dtype=float, copy=True)
         if not self.folder_map:
             return out, {"applied": False, "why": "the model has no folder map"}
@@ -753,6 +761,14 @@ class FieldModel:
             return out, {"applied": False, "frames": n, "why": (
                 f"{n} frames read, fewer than the {FOLDER_MAP_MIN_FRAMES} a folder map needs: "
                 "read frame by frame")}
+        lo, hi = FOLDER_MAP_SPREAD
+        for t, q in self.folder_map.items():
+            ratio = float(np.std(out[ok, self.targets.index(t)]) / max(np.std(q), 1e-12))
+            if not lo <= ratio <= hi:
+                return out, {"applied": False, "frames": n, "why": (
+                    f"the folder's {t} readings spread {ratio:.2f} times as much as "
+                    f"simulation's (a folder map needs {lo:.2f}-{hi:.2f}): the folder is not "
+                    "drawn over the protocol's range; read frame by frame")}
         for t, q in self.folder_map.items():
             j = self.targets.index(t)
             out[ok, j] = map_ranks(out[ok, j], q)
@@ -940,7 +956,8 @@ def augment(rest: np.ndarray, pts: np.ndarray, y: np.ndarray, targets: list[str]
     return np.concatenate(xs), np.concatenate(ys)
 
 
-__all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FOLDER_MAP_LEVELS", "FOLDER_MAP_MIN_FRAMES", "FORMAT",
+__all__ = ["AUGMENT_STEPS", "BANDWIDTH", "FOLDER_MAP_LEVELS", "FOLDER_MAP_MIN_FRAMES",
+           "FOLDER_MAP_SPREAD", "FORMAT",
            "GRID", "GRID_EXTENT", "INVARIANCE", "INVARIANCES", "TARGETS", "FieldModel",
            "affine_design", "augment", "check_folder_map", "decode", "deviation_from_mean",
            "encode", "field_features", "fields_of", "folder_quantiles", "grid_nodes",
