@@ -89,3 +89,19 @@ def virtual_work_error(body, u, contact, end_forces, seed=5, end_tangential=None
     if end_tangential is not None:
         window += np.sum(end_tangential * dx[..., :2])
     return abs((f_int - ext.ravel()) @ v - window) / abs(window)
+
+
+def write_bristol_folder(root: Path, poses, size=(128, 128)) -> Path:
+    """A Bristol folder at ``root``: blank ``size`` frames ``images/image_<i>.png`` and a
+    ``targets.csv`` whose ``pose_1..pose_6`` are the rows of ``poses`` (n, 6)."""
+    import cv2
+    import numpy as np
+
+    (root / "images").mkdir(parents=True)
+    blank = np.zeros(tuple(size)[::-1], np.uint8)
+    lines = ["sensor_image,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6"]
+    for i, row in enumerate(np.asarray(poses, dtype=float)):
+        cv2.imwrite(str(root / "images" / f"image_{i}.png"), blank)
+        lines.append(f"image_{i}.png," + ",".join(repr(float(v)) for v in row))
+    (root / "targets.csv").write_text("\n".join(lines) + "\n")
+    return root

@@ -134,16 +134,11 @@ def test_the_map_is_saved_and_checked(tmp_path):
 
 
 def _folder(root, y):
-    import cv2
+    from .conftest import write_bristol_folder
 
-    (root / "images").mkdir(parents=True)
-    lines = ["sensor_image,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6"]
-    blank = np.zeros((128, 128), np.uint8)
-    for i, (p2, p6) in enumerate(y):
-        cv2.imwrite(str(root / "images" / f"image_{i}.png"), blank)
-        lines.append(f"image_{i}.png,0,{float(p2)!r},4,0,0,{float(p6)!r}")
-    (root / "targets.csv").write_text("\n".join(lines) + "\n")
-    return root
+    zero = np.zeros(len(y))
+    return write_bristol_folder(root, np.column_stack([zero, y[:, 0], zero + 4, zero, zero,
+                                                       y[:, 1]]))
 
 
 def test_evaluate_reads_a_folder_through_the_map_or_frame_by_frame(tmp_path, monkeypatch,

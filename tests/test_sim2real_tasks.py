@@ -336,16 +336,12 @@ def test_a_folder_of_another_task_is_refused(tmp_path):
 
 
 def _bristol_folder(root, n=4, size=(128, 128), edge=False):
-    import cv2
+    from .conftest import write_bristol_folder
 
-    (root / "images").mkdir(parents=True)
-    lines = ["sensor_image,pose_1,pose_2,pose_3,pose_4,pose_5,pose_6"]
-    for i in range(n):
-        cv2.imwrite(str(root / "images" / f"image_{i}.png"), np.zeros(size[::-1], np.uint8))
-        p2, p6 = (i - 1.5, 30.0 * i) if edge else (0.0, 0.0)
-        lines.append(f"image_{i}.png,0,{p2},{3 + i / 2},{i - 1},{2 - i},{p6}")
-    (root / "targets.csv").write_text("\n".join(lines) + "\n")
-    return root
+    i = np.arange(n, dtype=float)
+    p2, p6 = (i - 1.5, 30.0 * i) if edge else (0 * i, 0 * i)
+    return write_bristol_folder(root, np.column_stack([0 * i, p2, 3 + i / 2, i - 1, 2 - i, p6]),
+                                size)
 
 
 def test_evaluate_refuses_a_folder_of_another_task_and_another_format(tmp_path, capsys):
