@@ -221,7 +221,7 @@ def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
     cfg = TaskConfig(task=task, n=args.n or TASK_N[task], seed=args.seed, k=args.k,
                      shear_steps=args.shear_steps, depth_range_mm=depth,
                      friction=args.friction, folder_size=args.folder_size,
-                     draws=args.draws, edge_radius_mm=args.edge_radius)
+                     draws=args.draws, edge_radius_mm=args.edge_radius, design=args.design)
     cfg.check()
     for d in [*(args.real or []), *(args.real_raw or [])]:
         if not Path(d).is_dir():
@@ -278,6 +278,9 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
     if args.edge_radius is not None:
         raise ValueError("--edge-radius is for the edge tasks (--task edge): the CoP model "
                          "presses a flat plate")
+    if args.design is not None:
+        raise ValueError("--design is for the field models (--model field): the CoP model "
+                         "draws its taps uniformly")
     for opt, v in (("--real", args.real), ("--real-raw", args.real_raw)):
         if v and len(v) > 1:
             raise ValueError(f"{opt} given {len(v)} times: the surface taps' run scores one "
@@ -414,6 +417,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="edge tasks: independent simulated draws of --n taps each (seeds "
                    "SEED..SEED+K-1); the saved model is the mean of members fitted on each "
                    "(default 2 edge, 4 edge --shear: tactip_lab/real/task_run.py TASK_DRAWS)")
+    p.add_argument("--design", default=None,
+                   help="how the simulated taps are drawn: uniform (each quantity of each tap "
+                   "independently) or halton (one scrambled low-discrepancy sequence over all "
+                   "of them); default: the task's (tactip_lab/real/task_run.py TASK_DESIGN)")
     p.add_argument("--depth-range", default=None, metavar="LOW,HIGH",
                    help="simulated depths of the surface taps, mm: with --model field the "
                    "indentation beyond first contact (default 0.5,4: the real folders' field "

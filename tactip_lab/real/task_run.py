@@ -58,7 +58,14 @@ from tactip_lab.fitting.references import (
 )
 from tactip_lab.sampling.dataset import atomic_write_text
 
-from .tasks import BLOCK_MM, EDGE_CONVENTION, convert_128, label_turn, simulate_task
+from .tasks import (
+    BLOCK_MM,
+    DESIGNS,
+    EDGE_CONVENTION,
+    convert_128,
+    label_turn,
+    simulate_task,
+)
 
 POINTS_VERSION = 2
 """Version of the cached tracked points (2: the marker-wise median reference of a folder
@@ -163,6 +170,8 @@ class TaskConfig:
     draws: int | None = None
     # the block's edge radius, mm (edge tasks); None: tasks.EDGE_RADIUS_MM
     edge_radius_mm: float | None = None
+    # how the simulated taps are drawn (tasks.DESIGNS); None: the task's (TASK_DESIGN)
+    design: str | None = None
 
     def check(self) -> None:
         if self.task not in ("surface", "edge", "edge+shear", "surface+shear"):
@@ -185,6 +194,9 @@ class TaskConfig:
                 raise ValueError(f"--folder-size is for the surface tasks: the {self.task} "
                                  "task's simulated taps keep the simulated rest state "
                                  "(task_run.DRAWN_REFERENCE_RULES)")
+        if self.design is not None and self.design not in DESIGNS:
+            raise ValueError(f"--design={self.design!r} is not known: allowed "
+                             f"{', '.join(DESIGNS)}")
         if self.draws is not None:
             if not 1 <= self.draws <= 16:
                 raise ValueError(f"--draws={self.draws} is out of range: allowed [1, 16]")
@@ -583,6 +595,16 @@ def _short(s: dict[str, Any]) -> dict[str, Any]:
     return {t: {k: v[k] for k in ("mae", "rmse", "r2", "unit", "n")} for t, v in s.items()}
 
 
+TASK_DESIGN: dict[str, str] = {}
+"""The design (:data:`~tactip_lab.real.tasks.DESIGNS`) a task's simulated taps are drawn by
+when ``--design`` is not given; a task not listed draws ``uniform``."""
+
+
+def task_design(cfg: TaskConfig) -> str:
+    """The design ``cfg``'s simulated taps are drawn by: ``cfg.design``, or the task's."""
+    return cfg.design or TASK_DESIGN.get(cfg.task, "uniform")
+
+
 def draw_seed(cfg: TaskConfig, j: int) -> int:
     """The seed of simulated draw ``j``: ``cfg.seed + j`` (so ``--seed S --draws K`` uses seeds
     S ... S+K-1; a repeat run independent of it takes ``--seed S+K``)."""
@@ -609,7 +631,7 @@ def simulate_draw(scene: ts.Scene, out: Path, cfg: TaskConfig, j: int, *, progre
         *BLOCK_MM, edge_radius_mm=float(cfg.edge_radius_mm))}
     sim = simulate_task(scene, out / sim_name, cfg.task, cfg.n, seed=draw_seed(cfg, j),
                         shear_steps=cfg.shear_steps, depth_mm=cfg.depth_range_mm,
-                        progress=progress, **mu, **block)
+                        design=task_design(cfg), progress=progress, **mu, **block)
     sim128 = convert_128(sim, out / s128_name, count)
     cols = folder_columns(sim)
     try:

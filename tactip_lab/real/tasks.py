@@ -396,6 +396,53 @@ def draw_poses(task: str, n: int, seed: int, depth_mm: tuple[float, float] | Non
     return out
 
 
+DESIGNS = ("uniform", "halton")
+"""How a simulated folder draws its taps (``--design``): ``uniform``, every quantity of every
+tap drawn independently (:func:`draw_poses`); ``halton``, one scrambled Halton sequence over all
+of them jointly (:func:`draw_taps`), a low-discrepancy design whose taps fill the ranges
+evenly, with the same marginal ranges."""
+
+
+def draw_taps(task: str, n: int, seed: int, depth_mm: tuple[float, float] | None = None,
+              friction: float | tuple[float, float] = 0.0, design: str = "uniform"
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every drawn quantity of ``n`` simulated taps: (n, 12) rows of ``pose_1..6, move_1..6``
+    (as :func:`draw_poses`), (n,) the edge tasks' depth offsets in
+    :data:`EDGE_DEPTH_OFFSET_MM` and (n,) friction coefficients (``friction``: one value, or a
+    (low, high) range drawn from). ``design`` (:data:`DESIGNS`): ``uniform`` draws each
+    independently (the rows of :func:`draw_poses`, the offsets and coefficients from their own
+    seeded generators); ``halton`` takes all of them from one scrambled Halton sequence
+    (``scipy.stats.qmc.Halton``, seeded by ``seed``), so that the taps fill their joint range
+    evenly. Deterministic for a seed either way."""
+    if design not in DESIGNS:
+        raise ValueError(f"design={design!r} is not known: {', '.join(DESIGNS)}")
+    ranged = isinstance(friction, tuple)
+    if design == "uniform":
+        rows = draw_poses(task, n, seed, depth_mm)
+        offsets = np.random.default_rng([seed, 53, 2]).uniform(*EDGE_DEPTH_OFFSET_MM, n)
+        mus = (np.random.default_rng([seed, 53, 3]).uniform(*friction, n) if ranged
+               else np.full(n, float(friction)))
+        return rows, offsets, mus
+    from scipy.stats import qmc
+
+    if task not in PROTOCOLS:
+        raise ValueError(f"task {task!r} is not known: {', '.join(PROTOCOLS)}")
+    names = COLUMNS[1:]
+    spans = [(names.index(k), lo, hi) for k, (lo, hi) in simulated_ranges(task, depth_mm).items()]
+    if task.endswith("+shear"):
+        spans += [(names.index(k), lo, hi) for k, (lo, hi) in SHEAR_MOVES.items()]
+    dims = len(spans) + 1 + int(ranged)  # the poses and moves, the offset, the friction
+    u = qmc.Halton(dims, scramble=True, seed=np.random.default_rng([seed, 53, 9])).random(n)
+    rows = np.zeros((n, 12))
+    for c, (j, lo, hi) in enumerate(spans):
+        rows[:, j] = lo + (hi - lo) * u[:, c]
+    lo, hi = EDGE_DEPTH_OFFSET_MM
+    offsets = lo + (hi - lo) * u[:, len(spans)]
+    mus = (friction[0] + (friction[1] - friction[0]) * u[:, len(spans) + 1] if ranged
+           else np.full(n, float(friction)))
+    return rows, offsets, mus
+
+
 def sim_pose(task: str, row: np.ndarray, *, sim: Any = None, indenter: Any = None,
              convention: EdgeConvention = EDGE_CONVENTION, axes: str = "-x-y",
              depth_offset_mm: float = EDGE_DEPTH_OFFSET_MM[0]) -> ts.Pose:
@@ -546,13 +593,16 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
                   shear_steps: int = 4, tap_steps: int | None = None,
                   friction: float | tuple[float, float] | None = None,
                   depth_mm: tuple[float, float] | None = None,
-                  indenter: Any = None, progress: bool = True) -> Path:
+                  indenter: Any = None, design: str = "uniform",
+                  progress: bool = True) -> Path:
     """``n`` simulated taps of ``task`` rendered (raw format) into ``out`` as a Bristol folder
     (``targets.csv`` in the lab's columns, ``images/image_NNNNN.png``, ``images/rest.png``,
     ``timing.json``). Resumable: frames already written are kept (the labels are seeded).
     ``indenter``: an edge task's block other than :func:`block_indenter` (e.g. a
     :class:`~tactip_sim.fem.contact.indenters.Block` with a rounded edge), recorded in the
-    folder's protocol so that a folder of another block does not resume."""
+    folder's protocol so that a folder of another block does not resume. ``design``
+    (:data:`DESIGNS`): how the taps are drawn (:func:`draw_taps`), recorded in the protocol
+    when not ``uniform`` (a folder of the other design does not resume)."""
     import time
 
     import cv2
@@ -576,6 +626,8 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
         "ranges": {k: list(v) for k, v in simulated_ranges(task, depth_mm).items()},
         "convention": dict(convention.__dict__), "axes": axes, "shear_steps": shear_steps,
         "tap_steps": tap_steps,
+        # the taps' design: folders drawn before the key were uniform, and carry none
+        **({"design": design} if design != "uniform" else {}),
         # the whole move made in contact: folders simulated before this key made only
         # 1 - 1/shear_steps of it, and are refused for resuming
         **({"shear_path": SHEAR_PATH_RULE} if task.endswith("+shear") else {}),
@@ -591,10 +643,7 @@ def simulate_task(scene: ts.Scene, out: Path, task: str, n: int, *, seed: int = 
         # a surface tap never reads the edge convention (sim_pose, shear_path): a folder made
         # before one of its fields was added (the top face's tilt) resumes
         ignore=("convention",) if task.startswith("surface") else ())
-    rows = draw_poses(task, n, seed, depth_mm)
-    offsets = np.random.default_rng([seed, 53, 2]).uniform(*EDGE_DEPTH_OFFSET_MM, n)
-    mus = (np.random.default_rng([seed, 53, 3]).uniform(*friction, n)
-           if isinstance(friction, tuple) else np.full(n, float(friction)))
+    rows, offsets, mus = draw_taps(task, n, seed, depth_mm, friction, design)
     chain = Chain(scene, frames=1)
     if not (out / "images" / "rest.png").is_file():
         cv2.imwrite(str(out / "images" / "rest.png"), chain.rest_image)
@@ -706,10 +755,12 @@ def convert_128(sim: Path, dest: Path, expected_count: int, field_128: dict | No
     return dest
 
 
-__all__ = ["BLOCK_MM", "COLUMNS", "EDGE_CONVENTION", "EDGE_DEPTH_OFFSET_MM", "EDGE_RADIUS_MM",
+__all__ = ["BLOCK_MM", "COLUMNS", "DESIGNS", "EDGE_CONVENTION", "EDGE_DEPTH_OFFSET_MM",
+           "EDGE_RADIUS_MM",
            "EDGE_TAP_STEPS", "FRICTION_ASSUMED",
            "TASK_FRICTION", "IMAGE_YAW_SIGN", "PROTOCOLS", "SHEAR_MOVES", "SHEAR_PATH_RULE",
            "SHEAR_FRICTION", "SURFACE_MOVE_TURN_DEG",
            "SURFACE_CONTACT_MM", "EdgeConvention", "block_indenter", "contact_path",
-           "convert_128", "draw_poses", "edge_contact_depth", "edge_pose", "label_turn",
+           "convert_128", "draw_poses", "draw_taps", "edge_contact_depth", "edge_pose",
+           "label_turn",
            "load_path", "shear_path", "sim_pose", "simulate_task", "simulated_ranges", "tap_poses"]
