@@ -712,6 +712,7 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
         m = fit_model(cfg.task, targets, size, rest, pts, y_sim, fitted_on={
             "simulated": str(sim), "format": fmt, "scene": scene_source,
             "scene_hash": scene_hash(scene), "n_sim": int(summary["simulated"]["n"]),
+            "design": task_design(cfg),
             "edge_convention": EDGE_CONVENTION.__dict__, "augmented_turns": label_turn(
                 cfg.task), "components_cv": {str(c): v for c, v in tried.items()},
             "references": drawn, **({} if drawn is not None else {"bagged": {
