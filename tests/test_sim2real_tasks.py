@@ -1147,7 +1147,16 @@ def test_cli_refuses_cop_options_with_field_models_and_cop_for_the_edge(tmp_path
                       (["--task", "edge", "--design", "sobol"],
                        "--design='sobol' is not known: allowed uniform, halton"),
                       (["--model", "cop", "--design", "halton"],
-                       "--design is for the field models")):
+                       "--design is for the field models"),
+                      (["--press-scale", "0.8,1"], "--press-scale is for the edge tasks"),
+                      (["--task", "edge", "--press-scale", "0,1"],
+                       "--press-scale=0,1 is out of range: 0 < LOW <= HIGH <= 2"),
+                      (["--task", "edge", "--press-scale", "1,0.7"],
+                       "--press-scale=1,0.7 is out of range"),
+                      (["--task", "edge", "--press-scale", "a,b"],
+                       "--press-scale 'a,b' must be S or LOW,HIGH"),
+                      (["--model", "cop", "--press-scale", "0.8"],
+                       "--press-scale is for the edge tasks (--task edge)")):
         out = tmp_path / f"o{len(argv)}{argv[-1]}"
         assert main(["sim2real", scene, "--out", str(out), "--no-progress", *argv]) != 0
         assert msg in capsys.readouterr().err
@@ -1887,3 +1896,52 @@ def test_a_folder_of_another_design_does_not_resume(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="design"):
         tasks.simulate_task(scene, plain, "edge", 3, design="halton", progress=False)
     assert (plain / "images" / "image_00001.png").read_bytes() == b"frame"
+
+
+def test_the_press_scale_presses_each_edge_tap_that_fraction_of_its_label():
+    """``draw_taps(press_scale=...)``: the labels and the draws of the default are untouched;
+    each tap's press past its offset (label less the returned offset) is the unscaled press
+    times a factor in the range, spread over it; a fixed factor scales every press by it;
+    a scale outside (0, 2] or on a surface task is refused."""
+    from tactip_lab.real.tasks import EDGE_PRESS_SCALE, draw_taps
+
+    assert EDGE_PRESS_SCALE == (1.0, 1.0)  # the default presses as the label says
+    for design in ("uniform", "halton"):
+        rows, offsets, _ = draw_taps("edge", 500, 3, design=design)
+        press = rows[:, 2] - offsets
+        for lo, hi in ((0.5, 0.5), (0.6, 1.0), (1.0, 1.3)):
+            r2, o2, _ = draw_taps("edge", 500, 3, design=design, press_scale=(lo, hi))
+            np.testing.assert_array_equal(r2, rows)  # the labels are the same taps'
+            ratio = (r2[:, 2] - o2) / press
+            assert lo - 1e-12 <= ratio.min() and ratio.max() <= hi + 1e-12, (design, lo, hi)
+            if hi > lo:  # spread over the range, not one value
+                assert np.ptp(ratio) > 0.95 * (hi - lo), (design, lo, hi)
+        # (1, 1) given is the default: the same offsets to the bit
+        np.testing.assert_array_equal(draw_taps("edge", 500, 3, design=design,
+                                                press_scale=(1.0, 1.0))[1], offsets)
+    for bad in ((0.0, 1.0), (0.9, 0.8), (1.0, 2.5)):
+        with pytest.raises(ValueError, match="press_scale=.* is out of range"):
+            draw_taps("edge", 10, 0, press_scale=bad)
+    with pytest.raises(ValueError, match="press_scale is for the edge tasks"):
+        draw_taps("surface", 10, 0, press_scale=(0.8, 1.0))
+
+
+def test_a_folder_of_another_press_scale_does_not_resume(tmp_path, monkeypatch):
+    """The press's factor is part of an edge folder's protocol when it is not (1, 1): a
+    scaled folder does not resume unscaled nor with another range, its frames kept; an
+    unscaled folder records no factor (the folders made before the option resume)."""
+    from tactip_lab.real import tasks
+
+    scene = _stop_at_simulation(monkeypatch)
+    out, plain = tmp_path / "scaled", tmp_path / "plain"
+    with pytest.raises(_Stop):
+        tasks.simulate_task(scene, out, "edge", 3, press_scale=(0.64, 1.0), progress=False)
+    assert json.loads((out / "protocol.json").read_text())["edge_press_scale"] == [0.64, 1.0]
+    (out / "images" / "image_00001.png").write_bytes(b"frame")
+    for other in ((1.0, 1.0), (0.7, 1.0)):
+        with pytest.raises(ValueError, match="edge_press_scale"):
+            tasks.simulate_task(scene, out, "edge", 3, press_scale=other, progress=False)
+    assert (out / "images" / "image_00001.png").read_bytes() == b"frame"
+    with pytest.raises(_Stop):
+        tasks.simulate_task(scene, plain, "edge", 3, progress=False)
+    assert "edge_press_scale" not in json.loads((plain / "protocol.json").read_text())

@@ -202,6 +202,19 @@ def _depth_range(text: str) -> tuple[float, float]:
     return lo, hi
 
 
+def _press_scale(text: str) -> tuple[float, float]:
+    """``--press-scale``: one factor or LOW,HIGH (checked by TaskConfig.check)."""
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--press-scale {text!r} must be S or LOW,HIGH (factors on the "
+                         "press, 0 < LOW <= HIGH <= 2)") from None
+    if len(vals) not in (1, 2):
+        raise ValueError(f"--press-scale {text!r} must be S or LOW,HIGH (factors on the "
+                         "press, 0 < LOW <= HIGH <= 2)")
+    return (vals[0], vals[-1])
+
+
 def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
     """Field models (tactip_lab.real.task_run): every task's default."""
     from tactip_lab.real.task_run import TaskConfig, run_task
@@ -221,7 +234,9 @@ def _cmd_sim2real_task(args: argparse.Namespace, task: str) -> int:
     cfg = TaskConfig(task=task, n=args.n or TASK_N[task], seed=args.seed, k=args.k,
                      shear_steps=args.shear_steps, depth_range_mm=depth,
                      friction=args.friction, folder_size=args.folder_size,
-                     draws=args.draws, edge_radius_mm=args.edge_radius, design=args.design)
+                     draws=args.draws, edge_radius_mm=args.edge_radius, design=args.design,
+                     press_scale=(None if args.press_scale is None
+                                  else _press_scale(args.press_scale)))
     cfg.check()
     for d in [*(args.real or []), *(args.real_raw or [])]:
         if not Path(d).is_dir():
@@ -281,6 +296,9 @@ def _cmd_sim2real(args: argparse.Namespace) -> int:
     if args.design is not None:
         raise ValueError("--design is for the field models (--model field): the CoP model "
                          "draws its taps uniformly")
+    if args.press_scale is not None:
+        raise ValueError("--press-scale is for the edge tasks (--task edge): the CoP model "
+                         "presses a flat plate")
     for opt, v in (("--real", args.real), ("--real-raw", args.real_raw)):
         if v and len(v) > 1:
             raise ValueError(f"{opt} given {len(v)} times: the surface taps' run scores one "
@@ -421,6 +439,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="how the simulated taps are drawn: uniform (each quantity of each tap "
                    "independently) or halton (one scrambled low-discrepancy sequence over all "
                    "of them); default: the task's (tactip_lab/real/task_run.py TASK_DESIGN)")
+    p.add_argument("--press-scale", default=None, metavar="S|LOW,HIGH",
+                   help="edge tasks: the factor on each simulated tap's press past the lab's "
+                   "offset, one value or a range each tap draws from, 0 < LOW <= HIGH <= 2 "
+                   "(default 1: the press the label says; below 1 a press the rig loses on "
+                   "the way to the skin: tactip_lab/real/tasks.py EDGE_PRESS_SCALE)")
     p.add_argument("--depth-range", default=None, metavar="LOW,HIGH",
                    help="simulated depths of the surface taps, mm: with --model field the "
                    "indentation beyond first contact (default 0.5,4: the real folders' field "

@@ -62,6 +62,7 @@ from .tasks import (
     BLOCK_MM,
     DESIGNS,
     EDGE_CONVENTION,
+    EDGE_PRESS_SCALE,
     convert_128,
     label_turn,
     simulate_task,
@@ -172,6 +173,9 @@ class TaskConfig:
     edge_radius_mm: float | None = None
     # how the simulated taps are drawn (tasks.DESIGNS); None: the task's (TASK_DESIGN)
     design: str | None = None
+    # the edge taps' factor on the press past the offset, (low, high); None: the task's
+    # (TASK_PRESS_SCALE, else tasks.EDGE_PRESS_SCALE)
+    press_scale: tuple[float, float] | None = None
 
     def check(self) -> None:
         if self.task not in ("surface", "edge", "edge+shear", "surface+shear"):
@@ -197,6 +201,14 @@ class TaskConfig:
         if self.design is not None and self.design not in DESIGNS:
             raise ValueError(f"--design={self.design!r} is not known: allowed "
                              f"{', '.join(DESIGNS)}")
+        if self.press_scale is not None:
+            lo, hi = self.press_scale
+            if not self.task.startswith("edge"):
+                raise ValueError(f"--press-scale is for the edge tasks: the {self.task} task's "
+                                 "depth is its simulated indentation (--depth-range)")
+            if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 < lo <= hi <= 2.0):
+                raise ValueError(f"--press-scale={lo:g},{hi:g} is out of range: "
+                                 "0 < LOW <= HIGH <= 2")
         if self.draws is not None:
             if not 1 <= self.draws <= 16:
                 raise ValueError(f"--draws={self.draws} is out of range: allowed [1, 16]")
@@ -605,6 +617,19 @@ def task_design(cfg: TaskConfig) -> str:
     return cfg.design or TASK_DESIGN.get(cfg.task, "uniform")
 
 
+TASK_PRESS_SCALE: dict[str, tuple[float, float]] = {}
+"""The edge tasks' factor on the press (:data:`~tactip_lab.real.tasks.EDGE_PRESS_SCALE`) when
+``--press-scale`` is not given; a task not listed presses as its label says, (1, 1)."""
+
+
+def task_press_scale(cfg: TaskConfig) -> tuple[float, float]:
+    """The press factor's range ``cfg``'s simulated taps draw from: ``cfg.press_scale``, or
+    the task's."""
+    if cfg.press_scale is not None:
+        return (float(cfg.press_scale[0]), float(cfg.press_scale[1]))
+    return TASK_PRESS_SCALE.get(cfg.task, EDGE_PRESS_SCALE)
+
+
 def draw_seed(cfg: TaskConfig, j: int) -> int:
     """The seed of simulated draw ``j``: ``cfg.seed + j`` (so ``--seed S --draws K`` uses seeds
     S ... S+K-1; a repeat run independent of it takes ``--seed S+K``)."""
@@ -631,7 +656,8 @@ def simulate_draw(scene: ts.Scene, out: Path, cfg: TaskConfig, j: int, *, progre
         *BLOCK_MM, edge_radius_mm=float(cfg.edge_radius_mm))}
     sim = simulate_task(scene, out / sim_name, cfg.task, cfg.n, seed=draw_seed(cfg, j),
                         shear_steps=cfg.shear_steps, depth_mm=cfg.depth_range_mm,
-                        design=task_design(cfg), progress=progress, **mu, **block)
+                        design=task_design(cfg), press_scale=task_press_scale(cfg),
+                        progress=progress, **mu, **block)
     sim128 = convert_128(sim, out / s128_name, count)
     cols = folder_columns(sim)
     try:
@@ -713,6 +739,8 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
             "simulated": str(sim), "format": fmt, "scene": scene_source,
             "scene_hash": scene_hash(scene), "n_sim": int(summary["simulated"]["n"]),
             "design": task_design(cfg),
+            **({"press_scale": list(task_press_scale(cfg))} if cfg.task.startswith("edge")
+               else {}),
             "edge_convention": EDGE_CONVENTION.__dict__, "augmented_turns": label_turn(
                 cfg.task), "components_cv": {str(c): v for c, v in tried.items()},
             "references": drawn, **({} if drawn is not None else {"bagged": {
