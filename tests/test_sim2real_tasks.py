@@ -1945,3 +1945,21 @@ def test_a_folder_of_another_press_scale_does_not_resume(tmp_path, monkeypatch):
     with pytest.raises(_Stop):
         tasks.simulate_task(scene, plain, "edge", 3, progress=False)
     assert "edge_press_scale" not in json.loads((plain / "protocol.json").read_text())
+
+
+def test_the_plain_edge_scales_its_press_by_default_and_the_edge_under_shear_does_not(
+        tmp_path, monkeypatch):
+    """``task_run.TASK_PRESS_SCALE`` (rule 33): a default plain-edge run draws its taps' press
+    scaled 0.64-1 (recorded in the simulated folder's protocol); ``--press-scale 1`` presses as
+    labelled (no key, as before the option); the edge under shear keeps the label's press."""
+    from tactip_lab.real.task_run import TaskConfig, run_task
+
+    scene = _stop_at_simulation(monkeypatch)
+    for name, cfg, want in (
+            ("edge", TaskConfig(task="edge", n=20), [0.64, 1.0]),
+            ("edge1", TaskConfig(task="edge", n=20, press_scale=(1.0, 1.0)), None),
+            ("eshear", TaskConfig(task="edge+shear", n=20), None)):
+        with pytest.raises(_Stop):
+            run_task(scene, tmp_path / name, cfg, progress=False)
+        claimed = json.loads((tmp_path / name / "sim" / "protocol.json").read_text())
+        assert claimed.get("edge_press_scale") == want, name

@@ -442,8 +442,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--press-scale", default=None, metavar="S|LOW,HIGH",
                    help="edge tasks: the factor on each simulated tap's press past the lab's "
                    "offset, one value or a range each tap draws from, 0 < LOW <= HIGH <= 2 "
-                   "(default 1: the press the label says; below 1 a press the rig loses on "
-                   "the way to the skin: tactip_lab/real/tasks.py EDGE_PRESS_SCALE)")
+                   "(below 1: a press the rig loses on the way to the skin; default: the "
+                   "task's, 0.64,1 for the plain edge by the real taps' press growth and 1 "
+                   "under shear: tactip_lab/real/task_run.py TASK_PRESS_SCALE)")
     p.add_argument("--depth-range", default=None, metavar="LOW,HIGH",
                    help="simulated depths of the surface taps, mm: with --model field the "
                    "indentation beyond first contact (default 0.5,4: the real folders' field "
