@@ -629,12 +629,11 @@ tool point and the skin, a stiffer skin, the pins' lever), so each simulated tap
 between what the label says and what the real growth says. Adopted by the rule written
 before any tap was simulated with it: on the real edge folder's odd rows the lateral
 position read 0.714 -> 0.535 mm (paired bootstrap se 0.021), the angle 5.415 -> 5.283 deg
-(se 0.101), on the even rows 0.775 -> 0.656 mm; the rule's subsets of 300 were not all
-read in the session (the first few lower with the scale). Simulation's own CV reads its
-taps worse with it (0.42 -> 0.48 mm, 4.61 -> 8.38 deg: the shallowest presses show little of
-the angle), so
-the "predicted" figures of this task are now pessimistic. The edge under shear, whose
-shallow taps err the other way, is not scaled (not measured with it)."""
+(se 0.101), on the even rows 0.775 -> 0.656 mm, on subsets of 300 0.78 -> 0.66 mm (mean of
+12). Simulation's own CV reads its taps worse with it (0.42 -> 0.48 mm, 4.61 -> 8.38 deg:
+the shallowest presses show little of the angle), so the "predicted" figures of this task
+are now pessimistic. The edge under shear, whose shallow taps err the other way, is not
+scaled (not measured with it)."""
 
 
 def task_press_scale(cfg: TaskConfig) -> tuple[float, float]:
