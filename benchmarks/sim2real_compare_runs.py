@@ -25,11 +25,10 @@ import numpy as np
 from tactip_lab.fitting.field_model import TARGETS, load_field_model, wrap_deg
 
 
-def errors(run: Path, real: Path, rows: np.ndarray, per_frame: bool,
-           points: Path | None = None) -> tuple[list[str], np.ndarray, str]:
-    """(targets, (n, t) signed errors of the chosen rows, how the folder was read)."""
-    from tactip_lab.real.task_run import folder_columns
-
+def errors(run: Path, real: Path, cols: dict[str, np.ndarray], rows: np.ndarray,
+           per_frame: bool, points: Path | None = None) -> tuple[list[str], np.ndarray, str]:
+    """(targets, (n, t) signed errors of the chosen rows, how the folder was read); ``cols``
+    the real folder's columns (``task_run.folder_columns``)."""
     model = load_field_model(run / "model.json")
     cache = points or run / f"real_{real.name}_points.npz"
     if not cache.is_file():
@@ -42,7 +41,6 @@ def errors(run: Path, real: Path, rows: np.ndarray, per_frame: bool,
     if not per_frame and model.folder_map:
         pred, info = model.read_folder(pred)
         how = "folder map" if info["applied"] else f"frame by frame: {info['why']}"
-    cols = folder_columns(real)
     y = np.stack([cols[t][rows] for t in model.targets], axis=1)
     err = pred - y
     for j, t in enumerate(model.targets):
@@ -73,8 +71,8 @@ def main(argv: list[str]) -> int:
     n = len(next(iter(cols.values())))
     rows = {"all": np.arange(n), "odd": np.arange(1, n, 2), "even": np.arange(0, n, 2)}[
         args.rows]
-    tb, eb, how_b = errors(args.base, args.real, rows, args.per_frame, args.points)
-    tc, ec, how_c = errors(args.candidate, args.real, rows, args.per_frame, args.points)
+    tb, eb, how_b = errors(args.base, args.real, cols, rows, args.per_frame, args.points)
+    tc, ec, how_c = errors(args.candidate, args.real, cols, rows, args.per_frame, args.points)
     if tb != tc:
         raise ValueError(f"the runs predict different targets: {tb} and {tc}")
     print(f"{args.real} rows {args.rows} ({len(rows)} frames); base {args.base} ({how_b}), "
