@@ -99,6 +99,8 @@ def test_the_mean_gradient_of_a_quadratic_field_is_its_gradient_at_the_anchor(bo
     assert min(nodes_per_pin) > 10
 
 
+# ~27 s: two refinements of the P2 mesh (the default run keeps the operator's exact-field tests)
+@pytest.mark.slow
 def test_a_pins_compliance_converges_under_refinement_where_a_point_load_does_not():
     """The displacement of a pin's anchor under a unit force on it, ``c = a K^-1 a'`` (the
     compliance through which the window holds a pin), P2 on the bundled 2 mm mesh refined to

@@ -155,6 +155,9 @@ def test_friction_makes_the_pose_depend_on_the_path(sim):
     assert np.abs(markers(0.5, None) - markers(0.5, start)).max() > 0.01
 
 
+# ~22 s: nine neo-Hookean steps (the window under friction stays in the default run:
+# test_fem_window_friction)
+@pytest.mark.slow
 def test_pins_stop_at_the_window_along_a_path_with_friction(sim):
     """A flat plate tapped to 3.58 mm in nine 0.4 mm steps with mu = 0.5: without the window
     in the solve the pin tips would end below its inner face (friction holds the skin, the

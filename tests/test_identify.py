@@ -90,6 +90,8 @@ def test_identify_command_on_the_real_331_rest_frame(tmp_path):
     assert ts.load_scene(out).pins.count == 331
 
 
+# ~21 s: two identifications (test_identify_recovers_known_camera_values runs one by default)
+@pytest.mark.slow
 def test_tilt_candidates_recover_a_known_tilt_and_offer_no_false_twin(tmp_path):
     """A synthetic rest frame of a camera tilted +3 deg and shifted -0.8 mm: the first
     identification recovers them; the search started from the mirrored tilt does not fit as

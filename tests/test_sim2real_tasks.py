@@ -1205,8 +1205,11 @@ def test_sim2real_surface_field_command_end_to_end(tmp_path):
     sub = _real_subset("tactip331_tap128", tmp_path, 300)
     out = tmp_path / "run"
     scene = ROOT / "scenes" / "tactip_331_identified.toml"
+    # on P1 elements (the task's own default is P2, whose compliance takes half a minute to
+    # build on a fresh machine): the command's files and scores do not depend on the order
     assert main(["sim2real", str(scene), "--n", "20", "--k", "5", "--out", str(out),
-                 "--real", str(sub), "--no-progress"]) == 0
+                 "--real", str(sub), "--set", "fidelity.element_order=1",
+                 "--no-progress"]) == 0
     for name in ("model.json", "model_raw.json", "summary.json", "table.md", "real_real.png"):
         assert (out / name).is_file(), name
     s = json.loads((out / "summary.json").read_text())
