@@ -583,15 +583,15 @@ def test_cv_over_draws_predicts_each_fold_by_the_mean_of_one_model_per_draw():
     the angle is the one draw's (the turned path of the edge, wrapped)."""
     from tactip_lab.real.task_run import cv_predict_rows, training_rows
 
-    rest, pts, y = _presses_round_the_circle(40, 3)
+    rest, pts, y = _presses_round_the_circle(24, 3)
     targets = ["pose_2", "pose_6"]
     one = training_rows("edge", targets, rest, pts, y)
     assert one.copies > 1
     alone = cv_predict_rows(one, y, targets, (128, 128), task="edge", seed=2, n_components=8)
     both = cv_predict_rows([one, one], np.r_[y, y], targets, (128, 128), task="edge", seed=2,
                            n_components=8)
-    np.testing.assert_allclose(both[:40], alone, atol=1e-9)
-    np.testing.assert_allclose(both[40:], alone, atol=1e-9)
+    np.testing.assert_allclose(both[:24], alone, atol=1e-9)
+    np.testing.assert_allclose(both[24:], alone, atol=1e-9)
     y2 = y + [2.0, 0.0]
     moved = training_rows("edge", targets, rest, pts, y2)
     mixed = cv_predict_rows([one, moved], np.r_[y, y2], targets, (128, 128), task="edge",
@@ -599,8 +599,8 @@ def test_cv_over_draws_predicts_each_fold_by_the_mean_of_one_model_per_draw():
     further = cv_predict_rows(moved, y2, targets, (128, 128), task="edge", seed=2,
                               n_components=8)
     assert 1.0 < np.median(further[:, 0] - alone[:, 0]) < 2.01  # the 2 mm, shrunk by the ridge
-    np.testing.assert_allclose(mixed[:40, 0], (alone[:, 0] + further[:, 0]) / 2, atol=1e-9)
-    np.testing.assert_allclose(mixed[40:, 0], (alone[:, 0] + further[:, 0]) / 2, atol=1e-9)
+    np.testing.assert_allclose(mixed[:24, 0], (alone[:, 0] + further[:, 0]) / 2, atol=1e-9)
+    np.testing.assert_allclose(mixed[24:, 0], (alone[:, 0] + further[:, 0]) / 2, atol=1e-9)
     np.testing.assert_allclose(wrap_deg(mixed[:, 1] - np.r_[alone[:, 1], alone[:, 1]]), 0.0,
                                atol=1e-6)
 
@@ -983,6 +983,10 @@ def _moved_onto_block(sim, block, steps: int) -> np.ndarray:
     return np.asarray(states[-1].markers_mm)
 
 
+# slow, with the next: the identified scene's P2 compliance takes ~40 s to build on a fresh
+# machine (the rounding's radius reaching the protocol is checked by default below; Anderson's
+# mixing on closed-form maps in test_fem_fixedpoint)
+@pytest.mark.slow
 def test_a_move_onto_the_block_converges_with_its_steps_only_at_the_rounded_edge(
         identified_sim):
     """The move onto the block: with the tasks' block, its edge rounded by
@@ -1002,6 +1006,7 @@ def test_a_move_onto_the_block_converges_with_its_steps_only_at_the_rounded_edge
     assert apart(ts.Block(*tasks.BLOCK_MM)) > 0.5
 
 
+@pytest.mark.slow
 def test_mixed_closest_point_updates_reach_the_plain_repetitions_answer_in_fewer(
         identified_sim, monkeypatch):
     """Anderson's mixing of the closest-point updates (``Tolerances.geometry_mixing``) against
