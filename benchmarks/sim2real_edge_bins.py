@@ -23,7 +23,9 @@ cells for the lateral position: mean error and MAE (mm). Last, how the
 press over the block grows with the depth label, real beside each simulated draw
 (:func:`field_growth`: the tracked points the run cached, ``real_<name>_points.npz`` and
 ``sim128[_d<j>]_points.npz``): the onset (``pose_3`` where the mean marker displacement
-extrapolates to zero; the third session's descriptor of the depth convention) and the slope.
+extrapolates to zero; the third session's descriptor of the depth convention) and the slope,
+and the same for the markers' mean outward (radial) displacement, which a shear move's shift
+of the whole array does not enter.
 
 Then the taps' history (:func:`history_correlations`): the rows of a Bristol folder are the
 order the robot visited the poses in (the lab sorts its random poses by ``pose_6`` before
@@ -124,11 +126,24 @@ def field_growth(rest: np.ndarray, pts: np.ndarray, depth: np.ndarray, lateral: 
                  ) -> dict[str, float]:
     """The mean marker displacement (px, from ``rest``) of the taps over the block
     (``lateral`` > :data:`OVER_BLOCK_MM`) against their ``depth`` label, least squares: its
-    ``slope`` (px/mm), its ``onset`` (the depth where the line meets zero) and ``n``."""
-    size = np.nanmean(np.linalg.norm(np.asarray(pts) - np.asarray(rest)[None], axis=2), axis=1)
+    ``slope`` (px/mm), its ``onset`` (the depth where the line meets zero) and ``n``.
+
+    Also ``radial_slope`` and ``radial_onset``: the same for the mean of each marker's
+    displacement along its own direction from the rest array's centroid (a press spreads the
+    markers outward; a shift of the whole array, as a shear move makes, adds nothing to it on
+    an array balanced about its centroid), so the presses of taps with and without a move in
+    contact can be compared."""
+    rest = np.asarray(rest, dtype=float)
+    disp = np.asarray(pts, dtype=float) - rest[None]
+    size = np.nanmean(np.linalg.norm(disp, axis=2), axis=1)
+    out = rest - np.nanmean(rest, axis=0)
+    out /= np.maximum(np.linalg.norm(out, axis=1), 1e-12)[:, None]
+    radial = np.nanmean(np.einsum("tmk,mk->tm", disp, out), axis=1)
     s = (lateral > OVER_BLOCK_MM) & np.isfinite(size) & np.isfinite(depth)
     a, b = np.polyfit(depth[s], size[s], 1)
-    return {"n": int(s.sum()), "slope": float(a), "onset": float(-b / a)}
+    ra, rb = np.polyfit(depth[s], radial[s], 1)
+    return {"n": int(s.sum()), "slope": float(a), "onset": float(-b / a),
+            "radial_slope": float(ra), "radial_onset": float(-rb / ra)}
 
 
 HISTORY_CELL_MM = (1.0, 0.25)
@@ -247,7 +262,8 @@ def report(run: Path, real: Path) -> None:
     rp = np.load(run / f"real_{real.name}_points.npz")
     g = field_growth(rp["rest"], rp["pts"], cols["pose_3"], cols["pose_2"])
     print(f"    real             {g['n']:4d} taps  onset {g['onset']:.2f} mm  slope "
-          f"{g['slope']:.3f} px/mm")
+          f"{g['slope']:.3f} px/mm;  radial: onset {g['radial_onset']:.2f} mm  slope "
+          f"{g['radial_slope']:.3f} px/mm")
     j = 0
     while (run / (f"sim128{'' if j == 0 else f'_d{j}'}_points.npz")).is_file():
         tag = "" if j == 0 else f"_d{j}"
@@ -255,7 +271,8 @@ def report(run: Path, real: Path) -> None:
         sc = folder_columns(run / f"sim{tag}")
         g = field_growth(sp_["rest"], sp_["pts"], sc["pose_3"], sc["pose_2"])
         print(f"    simulated draw {j} {g['n']:4d} taps  onset {g['onset']:.2f} mm  slope "
-              f"{g['slope']:.3f} px/mm")
+              f"{g['slope']:.3f} px/mm;  radial: onset {g['radial_onset']:.2f} mm  slope "
+              f"{g['radial_slope']:.3f} px/mm")
         j += 1
 
 

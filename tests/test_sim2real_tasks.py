@@ -1647,6 +1647,21 @@ def test_edge_bins_break_errors_down_by_position_and_take_a_slice_across_the_sea
     g = bins.field_growth(rest, moved, dep, lat)
     assert g["n"] == 20
     assert g["slope"] == pytest.approx(0.6, rel=1e-9) and g["onset"] == pytest.approx(2.4)
+    # the radial reading: rings of evenly spaced markers spread outward by 0.4 px per mm
+    # beyond 2.6 mm, each tap also shifted whole by 3 px (a shear move) in its own
+    # direction: the radial slope and onset are the spread's, the shift adds nothing to
+    # them, and the mean displacement's slope is not the spread's
+    ring = np.concatenate([[(r * np.cos(a), r * np.sin(a))
+                            for a in np.arange(6 * k) * 2 * np.pi / (6 * k) + 0.3 * k]
+                           for k, r in ((1, 10.0), (2, 20.0), (3, 30.0))]) + 64.0
+    spread = 0.4 * (dep - 2.6)
+    unit = (ring - 64.0) / np.linalg.norm(ring - 64.0, axis=1)[:, None]
+    shifted = (ring[None] + spread[:, None, None] * unit[None]
+               + 3.0 * np.stack([np.cos(turn), np.sin(turn)], axis=1)[:, None])
+    g = bins.field_growth(ring, shifted, dep, lat)
+    assert g["radial_slope"] == pytest.approx(0.4, rel=1e-9)
+    assert g["radial_onset"] == pytest.approx(2.6)
+    assert abs(g["slope"] - 0.4) > 0.05
     span = np.array([170.0, 180.0, -170.0, -150.0])
     got = bins.in_slice(np.array([175.0, -160.0, -140.0, 160.0, 0.0, -150.0]), span)
     assert got.tolist() == [True, True, False, False, False, True]
