@@ -1,6 +1,6 @@
 """How much an edge model's reading of real frames depends on its simulated draw: the spread
 between the members of a multi-draw model (``tactip sim2real --task edge --draws K``), with no
-label (docs/sim2real.md, "The component search, its loss, and the edge models averaged over
+label (docs/sim2real_log.md, "The component search, its loss, and the edge models averaged over
 simulated draws").
 
     python benchmarks/draw_spread.py RUN_DIR=REAL_DIR [RUN_DIR=REAL_DIR ...] [--labels]

@@ -1,6 +1,6 @@
 """Does the skin slide sideways at the block's edge during a plain edge tap? The reason the
 edge taps are pressed at μ 1 (``tasks.FRICTION_ASSUMED``), re-measured for any block and
-friction (docs/sim2real.md, "One friction for the edge taps").
+friction (docs/sim2real_log.md, "One friction for the edge taps").
 
     python benchmarks/edge_corner_slide.py [--mu 0.5,1] [--edge-radius R] [--steps 6]
                                            [--positions -3,-2,-1,1,2,3] [--depths 1.5,2,2.5]

@@ -1,5 +1,5 @@
 """What the field model's fitting spends, and the two changes of 2026-12-01 measured in one run
-against what they replaced (docs/sim2real.md, "The edge models' components kept whole").
+against what they replaced (docs/sim2real_log.md, "The edge models' components kept whole").
 
     python benchmarks/field_model_speed.py POINTS.npz [--frames 40] [--rows 300] [--repeats 3]
 

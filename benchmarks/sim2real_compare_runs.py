@@ -1,5 +1,5 @@
 """Two field-model runs of one task read the same real folder: which reads it better, and by
-more than chance? (docs/sim2real.md: the rules that adopt a change only on held-out rows.)
+more than chance? (docs/sim2real_log.md: the rules that adopt a change only on held-out rows.)
 
     python benchmarks/sim2real_compare_runs.py BASE_RUN CANDIDATE_RUN --real DIR
         [--rows all|odd|even] [--per-frame] [--points NPZ] [--boot 2000] [--seed 0]

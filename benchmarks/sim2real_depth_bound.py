@@ -1,5 +1,5 @@
 """How deep the real surface taps are, read without their labels: the simulated depth whose
-field size matches each real tap's (docs/sim2real.md, "The tracking at depth, and the simulated
+field size matches each real tap's (docs/sim2real_log.md, "The tracking at depth, and the simulated
 depths" and "The pins held by the gel").
 
     python benchmarks/sim2real_depth_bound.py OUT [OUT ...] [--folder NAME]

@@ -1,5 +1,5 @@
 """What a rounded corner of the block does to an edge model's lateral reading, beside how much
-an edge tap depends on the last bits of its gap (docs/sim2real.md, "The block's corner, and
+an edge tap depends on the last bits of its gap (docs/sim2real_log.md, "The block's corner, and
 an edge tap's floor").
 
     python benchmarks/sim2real_edge_corner.py RUN [--n 150] [--radii 0.2,0.5,1.0] [--seed 11]

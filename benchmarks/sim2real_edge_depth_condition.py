@@ -6,7 +6,7 @@
 ``REAL_DIR`` (its ``real_<name>.npz``, ``real_<name>_points.npz``, ``sim_cv_128x128.npz`` and
 the draws' ``sim128*_points.npz``). The folder map (rule 31) moves a folder's lateral readings
 onto the distribution of simulation's own cross-validated readings as a whole; the real error
-that is left grows with the tap's depth (docs/sim2real.md, "The edge's lateral error grows at
+that is left grows with the tap's depth (docs/sim2real_log.md, "The edge's lateral error grows at
 the shallow taps"). This prints:
 
 - the bound with labels: the error with its mean per quarter of ``pose_3`` taken out (an

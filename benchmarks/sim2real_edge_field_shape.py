@@ -1,5 +1,5 @@
 """At a real edge folder's own labelled poses, how near each model of the sensor comes to the
-real marker fields (docs/sim2real.md, "Which model's fields look most like the real ones").
+real marker fields (docs/sim2real_log.md, "Which model's fields look most like the real ones").
 
     python benchmarks/sim2real_edge_field_shape.py RUN --real DIR --states CACHE
         [--variant NAME [KEY=VALUE ...]] ... [--every N] [--pairs]

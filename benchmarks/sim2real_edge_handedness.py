@@ -1,6 +1,6 @@
 """Whether an edge model's error on real taps is the model's or the real fields': the run's
 saved model reads the real folder's frames turned and mirrored, and its tracked taps made
-mirror-symmetric (docs/sim2real.md, "The edge's shallow error over the block is a
+mirror-symmetric (docs/sim2real_log.md, "The edge's shallow error over the block is a
 handedness of the real fields").
 
     python benchmarks/sim2real_edge_handedness.py RUN=REAL_DIR [RUN=REAL_DIR ...] [--picture PNG]
@@ -72,7 +72,7 @@ from tactip_lab.fitting.field_model import (  # noqa: E402
 
 OVER_BLOCK_MM = 2.0
 """Taps with ``pose_2`` at least this (mm): the sensor's centre over the block, where the
-real shallow taps are read worst (docs/sim2real.md, "The component count chosen ...")."""
+real shallow taps are read worst (docs/sim2real_log.md, "The component count chosen ...")."""
 SHALLOW_MM = (3.0, 3.5)
 DEEP_MM = (4.5, 5.0)
 """``pose_3`` spans (mm, inclusive) of the shallowest and the deepest quarter of the lab's

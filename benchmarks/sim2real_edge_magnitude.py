@@ -2,7 +2,7 @@
 the run's 128x128 model rebuilt from its simulated draws as ``tactip sim2real`` builds it, and
 again with the feature's magnitude element (log10 of the field's RMS, the last element of
 :func:`~tactip_lab.fitting.field_model.field_features`) held at 0 in training and reading, so
-the model sees the field's normalised shape alone (rule 29, docs/sim2real.md, "The edge's
+the model sees the field's normalised shape alone (rule 29, docs/sim2real_log.md, "The edge's
 lateral error grows at the shallow taps").
 
     python benchmarks/sim2real_edge_magnitude.py RUN=REAL_DIR [--cv]

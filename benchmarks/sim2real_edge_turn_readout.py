@@ -1,5 +1,5 @@
 """A second readout of the edge angle: turn alignment to simulated templates, beside the saved
-kernel ridge model (docs/sim2real.md, "A turn-alignment readout of the edge angle").
+kernel ridge model (docs/sim2real_log.md, "A turn-alignment readout of the edge angle").
 
     python benchmarks/sim2real_edge_turn_readout.py RUN [--shifted RUN ...] [--real DIR]
         [--chart PNG]

@@ -14,7 +14,7 @@ folder ``--real`` (its name; tracked points cached by the runs as
 A model that reads another defensible simulation's taps no better than it reads the real
 ones says that the real gap is within the simulation's own modelling uncertainty; a pair of
 discretisations that read each other's taps within their own CV error are converged for the
-task (docs/sim2real.md, "The pins at an edge"). Nothing is written.
+task (docs/sim2real_log.md, "The pins at an edge"). Nothing is written.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """How far a frictional tap of the lab's tasks is from its converged load path: the markers
-of the same taps pressed along coarser and finer paths (docs/sim2real.md, "The load paths of
+of the same taps pressed along coarser and finer paths (docs/sim2real_log.md, "The load paths of
 the frictional taps").
 
     python benchmarks/task_load_path.py [--tasks edge,edge+shear,surface+shear] [--n 24]
                                         [--seed 23] [--paths 2x4,6x4,6x8] [--ref 12x16]
                                         [--edge-radius R]
 
-Rule 24's reading (docs/sim2real.md, "The load paths of the frictional taps"), per radius:
+Rule 24's reading (docs/sim2real_log.md, "The load paths of the frictional taps"), per radius:
 
     python benchmarks/task_load_path.py --tasks edge+shear --n 24 --seed 31 \
         --paths 6x4,6x8,6x16,6x32,6x64 --ref 6x128 --edge-radius 0    # and 0.2, 0.5

@@ -1,6 +1,6 @@
 """The edge's mirror readout (``field_model.mirror_axis``, ``FieldModel.read_out``): the line a
 marker field is mirror-symmetric about, found from readings that are off, on fields built with
-a known line; and the readout kept in the model file (docs/sim2real.md, "The edge's shallow
+a known line; and the readout kept in the model file (docs/sim2real_log.md, "The edge's shallow
 error over the block is a handedness of the real fields")."""
 
 from __future__ import annotations

@@ -993,7 +993,7 @@ def test_a_move_onto_the_block_converges_with_its_steps_only_at_the_rounded_edge
     ``EDGE_RADIUS_MM``, the markers after the move made in 4 steps (the default) lie within
     0.05 mm RMS of those after 32; with a sharp edge they differ by more than 0.5 mm (at fine
     steps its vertical side catches the skin, at coarse ones the skin passes the corner): why
-    the edge is rounded (rule 24, docs/sim2real.md)."""
+    the edge is rounded (rule 24, docs/sim2real_log.md)."""
     import tactip_sim as ts
     from tactip_lab.real import tasks
 

@@ -73,7 +73,7 @@ array's median shift (models saved before 2026-11-29's tenth session); ``affine`
 least-squares affine map of the reference (shift, scale, turn, stretch and shear: six numbers
 per frame)."""
 INVARIANCE = "affine"
-"""The invariance of the models fitted now (docs/sim2real.md, "Features blind to the
+"""The invariance of the models fitted now (docs/sim2real_log.md, "Features blind to the
 reference's affine error")."""
 BANDWIDTH = 0.12
 """Gaussian kernel width (RMS field radii) of the grid smoothing: about 0.9 marker spacings on
@@ -406,11 +406,11 @@ MIRROR_SPAN_DEG = 40.0
 MIRROR_STEP_DEG = 2.0
 """The mirror readout's search (:func:`mirror_axis`): lines within +-``MIRROR_SPAN_DEG`` of the
 model's own reading, every ``MIRROR_STEP_DEG``, refined by a parabola through the best three.
-The first values tried (docs/sim2real.md, "The edge's shallow error over the block is a
+The first values tried (docs/sim2real_log.md, "The edge's shallow error over the block is a
 handedness of the real fields"), not tuned."""
 MIRROR_BANDWIDTH = 0.18
 """The mirror readout's smoothing (field radii; 1.5 times the feature's :data:`BANDWIDTH`):
-chosen among 0.12, 0.18 and 0.24 by simulation's own CV alone (rule 21, docs/sim2real.md).
+chosen among 0.12, 0.18 and 0.24 by simulation's own CV alone (rule 21, docs/sim2real_log.md).
 With the feature's 0.12 a weak field's line was pinned to the lines the array's sampling and
 the markers' noise favour."""
 MIRROR_AXIS_DEPTH_MM = 4.5
@@ -583,7 +583,7 @@ class FieldModel:
     folder_map : empty, or per linear target the quantile function (at
         :data:`FOLDER_MAP_LEVELS` levels) of simulation's own cross-validated readings of its
         taps: :meth:`read_folder` maps a whole folder's readings onto it (rule 31,
-        docs/sim2real.md; the edge models since 2026-12-01's twenty-second session)
+        docs/sim2real_log.md; the edge models since 2026-12-01's twenty-second session)
     """
 
     task: str
@@ -747,7 +747,7 @@ class FieldModel:
         uniformly over a fixed range in every folder, as simulation draws its taps; so the
         readings of a folder should be distributed as simulation's cross-validated readings of
         its own taps are, and a reading that transfers with a bias is moved by the map of the
-        folder's distribution onto that one (rule 31, docs/sim2real.md). No label is read.
+        folder's distribution onto that one (rule 31, docs/sim2real_log.md). No label is read.
         The map is made only with at least :data:`FOLDER_MAP_MIN_FRAMES` frames read for every
         target (the frames that are not keep NaN) and readings that spread as simulation's do
         (:data:`FOLDER_MAP_SPREAD`); a folder not drawn by the protocol that passes these must

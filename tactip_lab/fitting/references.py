@@ -15,13 +15,13 @@ one of :data:`REFERENCE_RULES` (:func:`marker_median_reference`):
 - ``"least_spread"``: the marker-by-marker median of the round(sqrt(N) / 4) frames (at least
   2) whose marker field has the smallest RMS radius (:func:`least_spread_frames`): the edge
   taps beside the edge that miss it, found without a label; the edge tasks' rule, which
-  holds on a folder of any size (docs/sim2real.md, "The edge folders' reference in a folder
+  holds on a folder of any size (docs/sim2real_log.md, "The edge folders' reference in a folder
   of any size").
 - ``"scene"``: the scene's rest state mapped onto those least-spread frames by an affine map
   only (:func:`scene_reference` with weight 0): the edge taps under shear, whose frames beside
   the edge are reached by a move in contact and so are not free of it: the least spread of
   them are moves that approached the block and graze it at the end, one direction of drag
-  shared by all (docs/sim2real.md, "The shear move made whole, and the edge under shear's
+  shared by all (docs/sim2real_log.md, "The shear move made whole, and the edge under shear's
   reference").
 - ``"densest"``: the median of the densest cluster of frames (:func:`densest_reference`),
   the edge tasks' rule before ``"least_spread"``: on a smaller folder the cluster can be
@@ -32,7 +32,7 @@ With the simulated sensor's rest state (a field model's ``rest``), the frames a 
 markers are paired with the folder's under an affine map (:func:`pair_markers`, the camera's
 shift, scale, turn and shear), and the reference is the mapped scene moved toward the frames'
 median by an empirical-Bayes weight, so that a few noisy frames lean on the scene and many on
-the folder (docs/sim2real.md, "A folder without a rest frame").
+the folder (docs/sim2real_log.md, "A folder without a rest frame").
 
 A model trained on simulated taps measured from the simulated rest state meets real taps
 measured from such a reference, with its error. :func:`simulated_folder_references` draws
@@ -117,7 +117,7 @@ def reference_rule(task: str) -> str:
     for the edge taps under shear, whose taps beside the edge were reached by a move in contact
     (the least spread graze the block after approaching it: the frames give the camera's
     affine map, the scene the rest); ``"shallowest"`` for the surface tasks, every tap of
-    which presses (docs/sim2real.md, "The edge folders' rest state", "A folder without a rest
+    which presses (docs/sim2real_log.md, "The edge folders' rest state", "A folder without a rest
     frame" and "The shear move made whole, and the edge under shear's reference")."""
     if task.split("+")[0] == "edge":
         return "scene" if task.endswith("+shear") else "least_spread"

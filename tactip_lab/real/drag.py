@@ -9,7 +9,7 @@ edge's angle origin, the surface shear's move frame; :mod:`tactip_lab.real.tasks
 drag against the move's length (:func:`drag_curve`) says how far the skin follows before it
 slides: the friction. Both read the labels and the tracked markers; no model, no score.
 ``benchmarks/shear_drag_rotation.py`` runs them on ``tactip sim2real --shear`` outputs
-(docs/sim2real.md, "The camera's turn and the friction, read from the drag").
+(docs/sim2real_log.md, "The camera's turn and the friction, read from the drag").
 """
 
 from __future__ import annotations

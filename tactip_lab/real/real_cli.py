@@ -156,7 +156,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
 TASK_N = {"surface": 3000, "edge": 1200, "surface+shear": 3000, "edge+shear": 600}
 """Default simulated taps per task (``--n``) of the field models; measured on the identified
-scene (docs/sim2real.md, "More simulated taps" and "The pins at an edge"), 0.09-0.13 s a
+scene (docs/sim2real_log.md, "More simulated taps" and "The pins at an edge"), 0.09-0.13 s a
 surface tap here (``fast``, render included), 0.42 s an edge tap (rods on P2):
 
 - surface under shear: 3 000. Simulation's own CV 3.15 / 3.21 deg with 1 000 taps, 2.26 /
@@ -177,7 +177,7 @@ times above are of the box mesh the edge tasks pressed until the eighteenth sess
 block as an exact signed distance an edge tap takes 0.13-0.16 s and one under shear
 0.22-0.26 s; with the 6 load steps of the nineteenth session (``tasks.EDGE_TAP_STEPS``)
 0.15-0.16 s and 0.22-0.26 s, and with the block's edge rounded (``tasks.EDGE_RADIUS_MM``)
-0.18-0.23 s and 0.64-1.09 s, the two runs side by side (docs/sim2real.md, "The load paths of
+0.18-0.23 s and 0.64-1.09 s, the two runs side by side (docs/sim2real_log.md, "The load paths of
 the frictional taps, and the block's edge rounded")."""
 COP_N = 300
 """Default simulated taps of ``--task surface --model cop``."""

@@ -80,7 +80,7 @@ COMPONENT_FLOOR = 5
 """The fewest PCA components the search goes down to: while the lowest CV loss is at the
 fewest count tried, that count is halved and tried too (20 -> 10 -> 5), so a minimum below the
 grid is bracketed, not cut off at its end. The edge tasks' losses rose from 20 upward in every
-run of the twelfth session (docs/sim2real.md, "The component search, its loss, and the edge
+run of the twelfth session (docs/sim2real_log.md, "The component search, its loss, and the edge
 models averaged over simulated draws")."""
 NAIVE_COMPONENTS = 50
 NAIVE_ALPHA = 1.0
@@ -92,7 +92,7 @@ many frames it has, and the simulated training taps are measured from the refere
 rule gives on simulated folders of this size (:data:`REFERENCE_DRAWS` of them, one drawn per
 tap). The sizes are those the lab's data come in: its raw surface set holds 50 taps
 (``../shared/real/tactip331_tap_raw``), and issue 52/53's unseen processed sets 300 each
-(docs/sim2real.md, "The simulated taps seen through a folder's reference")."""
+(docs/sim2real_log.md, "The simulated taps seen through a folder's reference")."""
 REFERENCE_DRAWS = 20
 """Simulated folders whose references the training taps are measured from (one per tap,
 seeded)."""
@@ -109,13 +109,13 @@ BAG_MEMBERS models: the first on every tap, each other on a seeded BAG_FRACTION 
 a kept tap's turned copies). Measured without a label: five models on 80 % draws of the 597
 edge taps under shear predict one real tap's lateral position with a spread of 0.43 mm
 (median sd over the taps) and the folder's mean with 0.23 mm; their mean is the expectation
-over the draw, as the surface tasks' mean over reference draws is (docs/sim2real.md, "The
+over the draw, as the surface tasks' mean over reference draws is (docs/sim2real_log.md, "The
 shear move made whole, and the edge under shear's reference")."""
 TASK_DRAWS = {"edge": 2, "edge+shear": 4}
 """Independent simulated draws of ``--n`` taps each whose members the edge tasks' saved model
 averages (``--draws``; the surface tasks average over reference draws instead, one draw of
 taps). Two models of the edge taps under shear fitted on two draws of 600 taps read the same
-real frames 0.51 mm / 6.4 deg apart (mean absolute, no label used; 2026-11-30, docs/sim2real.md
+real frames 0.51 mm / 6.4 deg apart (mean absolute, no label used; 2026-11-30, docs/sim2real_log.md
 "The component search, its loss, and the edge models averaged over simulated draws"): as large
 as their errors. The mean over K draws is the expectation over the draw; K by the time it
 costs, 2 400 simulated taps for either task (edge 2 x 1 200, under shear 4 x 600), not by a
@@ -126,7 +126,7 @@ MIRROR_READOUT_TASKS = ("edge",)
 (:meth:`~tactip_lab.fitting.field_model.FieldModel.read_out`, :func:`mirror_readout`): the
 plain edge taps, whose press is mirror-symmetric about the edge's normal through the sensor's
 axis. The real edge taps' fields carry a handedness the simulated ones do not (mirrored real
-frames are read with the opposite bias; docs/sim2real.md, "The edge's shallow error over the
+frames are read with the opposite bias; docs/sim2real_log.md, "The edge's shallow error over the
 block is a handedness of the real fields"); adopted by a rule written before its test (rule
 20), its smoothing (:data:`~tactip_lab.fitting.field_model.MIRROR_BANDWIDTH`) chosen on
 simulation alone (rule 21). Not the edge under shear: a move along the edge or a twist breaks
@@ -138,7 +138,7 @@ onto the distribution of simulation's own cross-validated readings, which the la
 (uniform over fixed ranges, in every folder) says they should have. No label is read. Adopted
 for the edge tasks' lateral position by rule 31 (written before any mapped reading was
 computed; decided on the even rows of both shared edge folders, 0.803 -> 0.775 mm and 0.748 ->
-0.686 mm; the odd rows, held out, 0.925 -> 0.742 and 0.715 -> 0.709; docs/sim2real.md, "A
+0.686 mm; the odd rows, held out, 0.925 -> 0.742 and 0.715 -> 0.709; docs/sim2real_log.md, "A
 folder read as a whole"). Not the edge angle (it wraps, and the lab's files are sorted by it,
 so a folder holds a slice of the circle). The surface tasks' angles were put to the same rule
 and are not mapped: the plain taps' roll got worse on its rows (0.727 -> 0.825 deg), a rank's
@@ -455,7 +455,7 @@ def cv_predict_rows(rows: Rows | list[Rows], y: np.ndarray, targets: list[str], 
     every draw's taps are split into the same folds, one model per draw is fitted on that
     draw's taps outside fold f, and every draw's fold-f taps are predicted by the mean of
     those models (the members' mean, as the saved model predicts). The predictions are
-    the draws' taps in order, ``y`` their targets (rule 14b, docs/sim2real.md)."""
+    the draws' taps in order, ``y`` their targets (rule 14b, docs/sim2real_log.md)."""
     from sklearn.model_selection import KFold
 
     parts = [rows] if isinstance(rows, Rows) else list(rows)
@@ -487,7 +487,7 @@ taps (lateral position 0.5 mm, angle 5 deg), the accuracy the tool is asked for.
 thirteenth session each MAE was divided by its target's spread over the simulated draw, which
 makes a full-circle angle (mean deviation ~90 deg) weigh 1 mm as 30 deg: the component search
 then called 10 and 20 components a tie on the edge taps under shear where simulation's own
-angle error grew from 3.2 to 4.6 deg (docs/sim2real.md, "The component search, its loss, and
+angle error grew from 3.2 to 4.6 deg (docs/sim2real_log.md, "The component search, its loss, and
 the edge models averaged over simulated draws"). Targets of one unit (the surface tasks' roll
 and pitch) weigh alike either way."""
 
@@ -621,7 +621,7 @@ TASK_PRESS_SCALE: dict[str, tuple[float, float]] = {"edge": (0.64, 1.0)}
 """The edge tasks' factor on the press (:data:`~tactip_lab.real.tasks.EDGE_PRESS_SCALE`) when
 ``--press-scale`` is not given; a task not listed presses as its label says, (1, 1).
 
-The plain edge draws it from 0.64 to 1 (rule 33, docs/sim2real.md "The press the rig loses"):
+The plain edge draws it from 0.64 to 1 (rule 33, docs/sim2real_log.md "The press the rig loses"):
 the real edge taps' press over the block grows 0.594 px per mm of label against 0.911 and
 0.944 on the two simulated draws (``benchmarks/sim2real_edge_bins.py``, measured again on
 2026-12-02: ratio 0.64), from a cause the data sets cannot name (a compliance between the
@@ -742,7 +742,7 @@ def run_task(scene: ts.Scene, out: str | Path, cfg: TaskConfig, *, real: list[st
             drawn["members"] = REFERENCE_MEMBERS
         rows = training_rows(cfg.task, targets, refs, pts, y_sim)
         # the count is chosen for the model as saved: with K draws, the mean of one model
-        # per draw, cross-validated on every draw's taps (rule 14b, docs/sim2real.md)
+        # per draw, cross-validated on every draw's taps (rule 14b, docs/sim2real_log.md)
         parts = [rows] + ([training_rows(cfg.task, targets, *d["points"][fmt], y)
                            for d, y in zip(draws[1:], ys[1:], strict=True)]
                           if drawn is None else [])

@@ -82,7 +82,7 @@ Since 2026-11-29 (fifth session) the surface taps stop at **4.0 mm**: once the l
 were tracked with their identities at depth (``perception`` RESULTS_VERSION 5), the field's
 size (``log10`` of its RMS, the feature's last number, read without a label) places 99 % of
 the 1 000 real 128x128 taps below the size of a simulated 3.9 mm tap and all 50 raw taps
-below 3.7 mm (docs/sim2real.md, "The tracking at depth, and the simulated depths"); the
+below 3.7 mm (docs/sim2real_log.md, "The tracking at depth, and the simulated depths"); the
 surface under shear keeps its range (a shear's own field enters the size)."""
 SHEAR_MOVES = {"move_1": (-5.0, 5.0), "move_2": (-5.0, 5.0), "move_4": (-5.0, 5.0),
                "move_5": (-5.0, 5.0), "move_6": (-5.0, 5.0)}
@@ -158,7 +158,7 @@ EDGE_CONVENTION = EdgeConvention(lateral_sign=1.0, angle_sign=-1.0, angle_origin
   the contact's size. A sphere on a face tilted by tau presses R sin(tau) up the slope. *Read
   from the shared real edge taps*, as the angle origin: ``python
   benchmarks/sim2real_edge_localisation.py --tilt`` gives +3.16 deg (``pose_2`` +3 mm) and
-  +2.27 deg (+5 mm), mean 2.7 (docs/sim2real.md, "The block's top face"). The simulated tap
+  +2.27 deg (+5 mm), mean 2.7 (docs/sim2real_log.md, "The block's top face"). The simulated tap
   still moves along the tilted face's normal (a lateral component of sin(tau) times the depth,
   < 0.15 mm), not along the sensor's axis."""
 IMAGE_YAW_SIGN = 1.0
@@ -191,7 +191,7 @@ EDGE_PRESS_SCALE = (1.0, 1.0)
 A range below 1 stands for a press the rig loses on the way to the skin (a compliance between
 the tool point and the skin, or a skin stiffer than the scene's), which the real edge taps'
 field suggests (it grows 0.64 times as fast per mm of label as the simulated taps';
-docs/sim2real.md, "The edge's lateral error grows at the shallow taps") but does not
+docs/sim2real_log.md, "The edge's lateral error grows at the shallow taps") but does not
 identify. ``--press-scale`` draws it; a folder simulated with a range other than (1, 1)
 records it in its protocol."""
 TASK_SCENE_DEFAULTS: dict[str, dict[str, Any]] = {
@@ -203,7 +203,7 @@ TASK_SCENE_DEFAULTS: dict[str, dict[str, Any]] = {
 """Scene keys a task sets over the ``fast`` preset when ``tactip sim2real`` is given no
 ``--fidelity`` (``--set`` still wins): every task on P2 elements (the scenes' own FEM default,
 that of the calibration sweeps), each with the pin model that transfers best on its task
-(docs/sim2real.md, "The pins held by the gel" and "The pins at an edge"; measured on the
+(docs/sim2real_log.md, "The pins held by the gel" and "The pins at an edge"; measured on the
 shared real folders, two draws where the margin was small):
 
 - surface taps: tips embedded in the gel. On P2 instead of ``fast``'s P1 (the same pins) the
@@ -217,7 +217,7 @@ shared real folders, two draws where the margin was small):
 - edge taps, with and without shear: rigid rods, whose field beside the block is the most
   one-sided, as the real one is (the localisation benchmark); with beams the lateral position
   is read 3.7 mm off (few-shot offset), zero-shot 2.25 mm against 1.03 mm (the fourth
-  session). Put to a rule again on the sixteenth session's pipeline (docs/sim2real.md, "The
+  session). Put to a rule again on the sixteenth session's pipeline (docs/sim2real_log.md, "The
   edge's pin model put to a rule"): although the beams' fields are the nearest to the real
   ones in shape at the real folder's own poses, the plain edge taps read zero-shot 0.84 mm /
   7.71 deg with beams against 0.61 mm / 7.60 deg with rods, under shear 1.07 mm / 7.19 deg
@@ -250,7 +250,7 @@ frictional equilibrium depends on its path: on 150 edge taps (seed 11) read by t
 edge model, 2, 3, 4 and 6 steps read the lateral position 0.07-0.26, 0.08-0.39, 0.07-0.21 and
 0.06-0.15 mm (sd per 2 mm bin of ``pose_2``) from 12 steps, and two taps 1e-12 mm apart
 0.11-0.33 mm apart with 2 steps, 0.02-0.13 with 6; 0.107 s a tap against 0.077 with 2. Until
-the nineteenth session 2 (docs/sim2real.md, "The block's corner, and an edge tap's floor").
+the nineteenth session 2 (docs/sim2real_log.md, "The block's corner, and an edge tap's floor").
 Those were the sharp edge's; with the edge rounded (:data:`EDGE_RADIUS_MM`) the tap converges
 faster: on 60 other taps 0.006 mm RMS from 12 steps with 2 steps, 0.002 with 6
 (``benchmarks/task_load_path.py --tasks edge --n 60``)."""
@@ -299,7 +299,7 @@ over 1 mm bins of the move, 128x128 pixels):
   4.6 px (1.96), at 0.25 and 0.5 it levels off (0.252 and **0.248** apart).
 
 By a rule written before the simulations at 0.25 and 0.5 (a task's best candidate, if under
-half its shipped curve's distance), 0.5 for both (docs/sim2real.md, "The camera's turn and
+half its shipped curve's distance), 0.5 for both (docs/sim2real_log.md, "The camera's turn and
 the friction, read from the drag"). The edge taps without shear keep
 :data:`FRICTION_ASSUMED` (the same rule: their reason, the slide at the block's corner, is a
 contact without a move)."""
@@ -311,7 +311,7 @@ seeded). The edge taps keep :data:`FRICTION_ASSUMED`, for the measured reason in
 taps under shear: :data:`SHEAR_FRICTION`, read from the drag of the lab's shear taps (the
 edge under shear had :data:`FRICTION_ASSUMED` until 2026-11-30); from 2026-11-29 (fifth
 session) to 2026-11-30 the surface under shear drew it over the range
-:data:`FRICTION_ASSUMED`'s note gives for rubber on rigid plastic, 0.5-1 (docs/sim2real.md,
+:data:`FRICTION_ASSUMED`'s note gives for rubber on rigid plastic, 0.5-1 (docs/sim2real_log.md,
 "The friction under shear", measures both ends). Published dry values for soft elastomers on
 hard surfaces lie around and above it (above 1 for a silicone skin simulant, L7350, on dry
 coated polymers: Tribology Transactions 53 (2010) 1-6); the lab's skin and plate were not
@@ -321,7 +321,7 @@ measured by a tribometer."""
 EDGE_RADIUS_MM = 0.5
 """The radius (mm) of the simulated block's edge (*assumed*: the data sets' block is not
 described; the lab's own simulator models its edge stimulus as sharp). Chosen in the
-nineteenth session by rule 24 (docs/sim2real.md, "The load paths of the frictional taps"),
+nineteenth session by rule 24 (docs/sim2real_log.md, "The load paths of the frictional taps"),
 by the load path's convergence alone, no real frame read: with a sharp edge the edge under
 shear's move in contact does not converge with its steps (on 24 taps, seed 31, against 128
 steps: RMS 0.75 mm, largest 2.28 mm with 4 steps; 0.056 / 0.25 mm only with 64), because a
@@ -336,7 +336,7 @@ def block_indenter():
     local y in [-BLOCK_MM[1]/2, +BLOCK_MM[1]/2] and its edge is at local y = +BLOCK_MM[1]/2,
     rounded by :data:`EDGE_RADIUS_MM` (sharp until the nineteenth session, as the lab's own
     simulator models its edge stimulus; the data sets' block is not described:
-    docs/sim2real.md, "The load paths of the frictional taps").
+    docs/sim2real_log.md, "The load paths of the frictional taps").
 
     An exact signed distance (:class:`~tactip_sim.fem.contact.indenters.Block`): the
     watertight box mesh used until 2026-11-30 (eighteenth session) without its
