@@ -434,7 +434,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--draws", type=int, default=None, metavar="K",
                    help="edge tasks: independent simulated draws of --n taps each (seeds "
                    "SEED..SEED+K-1); the saved model is the mean of members fitted on each "
-                   "(default 2 edge, 4 edge --shear: tactip_lab/real/task_run.py TASK_DRAWS)")
+                   "(default 2 edge, 8 edge --shear: tactip_lab/real/task_run.py TASK_DRAWS)")
     p.add_argument("--design", default=None,
                    help="how the simulated taps are drawn: uniform (each quantity of each tap "
                    "independently) or halton (one scrambled low-discrepancy sequence over all "

@@ -111,7 +111,7 @@ edge taps under shear predict one real tap's lateral position with a spread of 0
 (median sd over the taps) and the folder's mean with 0.23 mm; their mean is the expectation
 over the draw, as the surface tasks' mean over reference draws is (docs/sim2real_log.md, "The
 shear move made whole, and the edge under shear's reference")."""
-TASK_DRAWS = {"edge": 2, "edge+shear": 4}
+TASK_DRAWS = {"edge": 2, "edge+shear": 8}
 """Independent simulated draws of ``--n`` taps each whose members the edge tasks' saved model
 averages (``--draws``; the surface tasks average over reference draws instead, one draw of
 taps). Two models of the edge taps under shear fitted on two draws of 600 taps read the same
@@ -120,7 +120,12 @@ real frames 0.51 mm / 6.4 deg apart (mean absolute, no label used; 2026-11-30, d
 as their errors. The mean over K draws is the expectation over the draw; K by the time it
 costs, 2 400 simulated taps for either task (edge 2 x 1 200, under shear 4 x 600), not by a
 score. Measured since (``benchmarks/draw_spread.py``): halves of the four draws under shear
-read the frames 0.37 mm / 4.6 deg apart, the single draws' spread over sqrt(2)."""
+read the frames 0.37 mm / 4.6 deg apart, the single draws' spread over sqrt(2). Since
+2026-12-02 (rule 37, docs/sim2real_log.md "More simulated draws for the edge models") the edge
+under shear averages 8 draws: its halves (four draws each) read the shared real frames 0.46 mm /
+3.26 deg apart against 4 draws' 0.47 / 4.60, simulation's CV 0.49 mm / 3.58 deg against 0.49 /
+3.61. The plain edge keeps 2: with 4 its angle's halves read further apart (5.27 deg) than its
+single draws (4.44), rule 36."""
 MIRROR_READOUT_TASKS = ("edge",)
 """Tasks whose saved model reads its angle as the frame's mirror line
 (:meth:`~tactip_lab.fitting.field_model.FieldModel.read_out`, :func:`mirror_readout`): the
