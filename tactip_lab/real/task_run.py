@@ -117,9 +117,9 @@ averages (``--draws``; the surface tasks average over reference draws instead, o
 taps). Two models of the edge taps under shear fitted on two draws of 600 taps read the same
 real frames 0.51 mm / 6.4 deg apart (mean absolute, no label used; 2026-11-30, docs/sim2real_log.md
 "The component search, its loss, and the edge models averaged over simulated draws"): as large
-as their errors. The mean over K draws is the expectation over the draw; K by the time it
-costs, 2 400 simulated taps for either task (edge 2 x 1 200, under shear 4 x 600), not by a
-score. Measured since (``benchmarks/draw_spread.py``): halves of the four draws under shear
+as their errors. The mean over K draws is the expectation over the draw; K was first set by
+the time it costs, 2 400 simulated taps for either task (edge 2 x 1 200, under shear 4 x 600),
+not by a score. Measured since (``benchmarks/draw_spread.py``): halves of the four draws under shear
 read the frames 0.37 mm / 4.6 deg apart, the single draws' spread over sqrt(2). Since
 2026-12-02 (rule 37, docs/sim2real_log.md "More simulated draws for the edge models") the edge
 under shear averages 8 draws: its halves (four draws each) read the shared real frames 0.46 mm /
